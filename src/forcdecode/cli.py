@@ -1,0 +1,50 @@
+"""Command-line interface: ``forcdecode <command> ...``.
+
+Each command lives in the sub-package it belongs to and exposes ``add_arguments(parser)`` and
+``run(args)``; this module only wires them together, importing lazily so that ``forcdecode --help``
+stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command name -> (module, one-line help)
+COMMANDS = {
+    "bench": ("forcdecode.bench.cli", "benchmarks that print figures (engine throughput, FORC family)"),
+    "read": ("forcdecode.measured.cli", "read a measured FORC file and print a summary"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="forcdecode", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        sub_parser = sub.add_parser(name, help=help_text)
+        sub_parser.set_defaults(_module=module_name)
+        # Arguments are added on demand (see main) to keep start-up fast.
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if argv and argv[0] in COMMANDS:
+        module = importlib.import_module(COMMANDS[argv[0]][0])
+        command_parser = argparse.ArgumentParser(prog=f"forcdecode {argv[0]}",
+                                                 description=COMMANDS[argv[0]][1])
+        module.add_arguments(command_parser)
+        args = command_parser.parse_args(argv[1:])
+        try:
+            return int(module.run(args) or 0)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            return 130
+    parser.parse_args(argv)  # prints help / error for unknown commands
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
