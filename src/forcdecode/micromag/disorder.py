@@ -1,0 +1,98 @@
+"""Structural disorder of the seed paper's film: Voronoi grains and pinning sites.
+
+- Grains: the plane is cut into ``n_grains`` periodic Voronoi cells (columnar through z). Grain g
+  gets K_u(1 + Δ_g), Δ_g ~ N(0, σ_K), and an easy axis tilted from z by θ_g ~ N(0, σ_θ) at a uniform
+  azimuth φ_g ∈ [0, 2π). (K_u(1+Δ) is clipped at 0: a negative uniaxial constant is not drawn.)
+- Pinning sites: ``n_pin`` distinct single cells with K_u = 50 MJ/m³ along z and a random initial
+  orientation (uniform on the sphere). Their anisotropy field 2K/M_s ~ 80–500 T makes the LLG stiff;
+  the default treatment freezes each at the pole nearest its random orientation (where the full
+  treatment relaxes it to within ~1 % tilt), see tests/micromag/test_pinning.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .film import TERMS, Film
+from .mesh import Mesh
+
+PINNING_K_U = 50e6  # J/m³
+
+
+def periodic_voronoi_labels(mesh: Mesh, n_grains: int, rng: np.random.Generator) -> np.ndarray:
+    """Grain index (ny, nx) of each column: nearest of ``n_grains`` random seeds, minimum-image distance."""
+    if n_grains < 1:
+        raise ValueError("n_grains must be >= 1")
+    lx, ly = mesh.nx * mesh.dx, mesh.ny * mesh.dy
+    seeds = rng.random((n_grains, 2)) * (lx, ly)
+    x = (np.arange(mesh.nx) + 0.5) * mesh.dx
+    y = (np.arange(mesh.ny) + 0.5) * mesh.dy
+    labels = np.empty((mesh.ny, mesh.nx), dtype=np.int32)
+    for row, y0 in enumerate(y):
+        ddx = np.abs(x[:, None] - seeds[None, :, 0])
+        ddx = np.minimum(ddx, lx - ddx)
+        ddy = np.abs(y0 - seeds[:, 1])
+        ddy = np.minimum(ddy, ly - ddy)
+        labels[row] = np.argmin(ddx**2 + ddy[None, :] ** 2, axis=1)
+    return labels
+
+
+@dataclass(frozen=True)
+class Disorder:
+    """Per-cell anisotropy and pinning layout of one sample."""
+
+    K_u: np.ndarray  # (nz, ny, nx) J/m³
+    easy_axis: np.ndarray  # (3, nz, ny, nx)
+    grain_labels: np.ndarray  # (ny, nx)
+    pinning_mask: np.ndarray  # (nz, ny, nx) bool
+    pinning_initial: np.ndarray  # (3, n_pin) random initial orientations
+    pinning_index: tuple  # flat indices (k, j, i) arrays
+
+
+def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float, n_pin: int,
+                  rng: np.random.Generator, n_grains: int = 255) -> Disorder:
+    """Draw grains and pinning sites. ``sigma_K`` is a fraction (0.2 = 20 %), angles in radians."""
+    if not 0 <= n_pin <= mesh.n_cells:
+        raise ValueError(f"n_pin = {n_pin} is outside 0..{mesh.n_cells}")
+    labels = periodic_voronoi_labels(mesh, n_grains, rng)
+    delta = rng.normal(0.0, sigma_K, n_grains) if sigma_K > 0 else np.zeros(n_grains)
+    theta = rng.normal(0.0, sigma_theta_rad, n_grains) if sigma_theta_rad > 0 else np.zeros(n_grains)
+    phi = rng.uniform(0.0, 2 * np.pi, n_grains)
+    grain_K = np.clip(K_u * (1.0 + delta), 0.0, None)
+    grain_axis = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    K = np.broadcast_to(grain_K[labels], mesh.shape).copy()
+    axis = np.broadcast_to(grain_axis[:, labels][:, None], mesh.vector_shape).copy()
+    flat = rng.choice(mesh.n_cells, size=n_pin, replace=False)
+    index = np.unravel_index(flat, mesh.shape)
+    mask = np.zeros(mesh.shape, dtype=bool)
+    mask[index] = True
+    K[index] = PINNING_K_U
+    axis[(slice(None),) + index] = np.array([0.0, 0.0, 1.0])[:, None]
+    initial = rng.normal(size=(3, n_pin))
+    initial /= np.linalg.norm(initial, axis=0)
+    return Disorder(K, axis, labels, mask, initial, index)
+
+
+def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
+                    sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
+                    freeze_pinning: bool = True, terms=TERMS, kernel_cache_dir=None):
+    """Build the seed paper's film and its initial magnetization.
+
+    Returns (film, m0): m0 is +z everywhere except the pinning cells, which hold their random
+    orientation (snapped to the nearest pole ±z when ``freeze_pinning``, and then frozen).
+    """
+    disorder = draw_disorder(mesh, K_u, sigma_K, sigma_theta_rad, n_pin, rng, n_grains)
+    m0 = np.zeros(mesh.vector_shape)
+    m0[2] = 1.0
+    pin = disorder.pinning_initial
+    if freeze_pinning:
+        pin = np.zeros_like(pin)
+        pin[2] = np.where(disorder.pinning_initial[2] >= 0, 1.0, -1.0)
+    for c in range(3):
+        m0[c][disorder.pinning_index] = pin[c]
+    film = Film(mesh, Ms, A_ex, disorder.K_u, disorder.easy_axis, D,
+                frozen=disorder.pinning_mask if freeze_pinning else None, terms=tuple(terms),
+                kernel_cache_dir=kernel_cache_dir)
+    return film, m0, disorder

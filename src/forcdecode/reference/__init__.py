@@ -1,0 +1,10 @@
+"""Independent reference implementations used to cross-check and benchmark our own engine.
+
+These are optional: they need the ``reference`` extra (``pip install -e .[reference]``). Importing
+this package is cheap; the reference code itself (magnum.np, PyTorch) is imported only when an
+adapter object is constructed.
+"""
+
+from .magnumnp_film import MagnumFilm, magnumnp_available
+
+__all__ = ["MagnumFilm", "magnumnp_available"]
