@@ -107,6 +107,8 @@ class Film:
     def _check_m(self, m):
         if m.shape != self.mesh.vector_shape or m.dtype != np.float64 or not m.flags.c_contiguous:
             raise ValueError(f"m must be a C-contiguous float64 array of shape {self.mesh.vector_shape}")
+        if not m.flags.writeable:
+            raise ValueError("m must be writeable (it is updated in place)")
         return m
 
     @staticmethod
@@ -122,7 +124,9 @@ class Film:
         """A uniform magnetization array along ``direction``."""
         d = np.asarray(direction, dtype=np.float64)
         d = d / np.linalg.norm(d)
-        return np.ascontiguousarray(np.broadcast_to(d[:, None, None, None], self.mesh.vector_shape))
+        m = np.empty(self.mesh.vector_shape)
+        m[...] = d[:, None, None, None]
+        return m
 
     # ------------------------------------------------------------------ physics
     def effective_field(self, m, B_ext_T=0.0) -> np.ndarray:

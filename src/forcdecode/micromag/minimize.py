@@ -50,9 +50,14 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad)
                     inv = 1.0 / (4.0 + n2)
                     a = (4.0 - n2) * inv
                     b = 4.0 * h * inv
-                    m[0, k, j, i] = a * m[0, k, j, i] + b * tx
-                    m[1, k, j, i] = a * m[1, k, j, i] + b * ty
-                    m[2, k, j, i] = a * m[2, k, j, i] + b * tz
+                    nx_ = a * m[0, k, j, i] + b * tx
+                    ny_ = a * m[1, k, j, i] + b * ty
+                    nz_ = a * m[2, k, j, i] + b * tz
+                    # the Cayley step keeps |m| = 1 exactly only in exact arithmetic: renormalize
+                    norm = 1.0 / np.sqrt(nx_ * nx_ + ny_ * ny_ + nz_ * nz_)
+                    m[0, k, j, i] = nx_ * norm
+                    m[1, k, j, i] = ny_ * norm
+                    m[2, k, j, i] = nz_ * norm
         compute_effective_field(m, model, B_ext, field)
         max_torque = torque_and_max(m, field, model.frozen, torque)
         if max_torque < torque_tol_T:

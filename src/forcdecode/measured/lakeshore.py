@@ -1,0 +1,201 @@
+"""Reader for the native CSV of the Lake Shore 8600 VSM FORC measurement.
+
+Layout: ``#SECTION`` lines and ``Key: value`` lines (``#RUN ON SOFTWARE VERSION:`` has its value on
+the next line), ``START TIME`` / ``FINISH TIME``, ``#DATA: 1``, ``##DATA TABLE ...``, then the
+column line ``Step,Iteration,Segment,Field (µ0H) [T],Moment (m) [A·m²],Time Stamp [s],...`` and
+rows, blank lines between segments. Segment 0, 2, 4, ... are the calibration points, segment
+1, 3, 5, ... the curves. The number of curves must equal ``Number of FORCs``; since the format
+has no end marker, a file is also reported truncated when its last time stamp falls short of
+FINISH TIME - START TIME (by more than half a sampling interval) or its last line has no line end.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from ._text import header_int, header_value, parse_number, shorten
+from .drift import drift_percent
+from .model import CalibrationPoint, ForcCurve, ForcFormatError, ForcMeasurement
+from .units import FIELD_TO_T, MOMENT_TO_AM2, check_plausible, normalize_field_unit, \
+    normalize_moment_unit
+
+_TIME_FORMATS = ("%m/%d/%Y %I:%M:%S.%f %p", "%m/%d/%Y %I:%M:%S %p", "%m/%d/%Y %H:%M:%S.%f",
+                 "%m/%d/%Y %H:%M:%S")
+
+
+def looks_like_lakeshore_csv(lines: list[str]) -> bool:
+    head = lines[:200]
+    return (lines[0].startswith("#RUN ON SOFTWARE VERSION")
+            or any(line.startswith("##DATA TABLE") for line in head)
+            and any(line.startswith("Step,Iteration,Segment") for line in head))
+
+
+def _parse_time(text) -> datetime | None:
+    if not isinstance(text, str):
+        return None
+    for fmt in _TIME_FORMATS:
+        try:
+            return datetime.strptime(text.strip(), fmt)
+        except ValueError:
+            continue
+    return None
+
+
+def _unit_in_brackets(name: str) -> str:
+    match = re.search(r"\[([^\]]*)\]\s*$", name)
+    return match.group(1) if match else ""
+
+
+def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
+                       allow_incomplete: bool = False) -> ForcMeasurement:
+    header: dict = {}
+    index = 0
+    columns = None
+    while index < len(lines):
+        text = lines[index].strip()
+        if text.startswith("Step,Iteration,Segment"):
+            columns = [name.strip() for name in lines[index].split(",")]
+            index += 1
+            break
+        if text.startswith("#DATA:"):
+            header["DATA"] = header_value(text[6:])
+        elif text.startswith("##"):
+            header["DATA TABLE"] = text[2:].strip()
+        elif text.startswith("#") and text.endswith(":") and index + 1 < len(lines):
+            header[text[1:-1].strip()] = header_value(lines[index + 1])
+            index += 1
+        elif text.startswith("#"):
+            pass  # section title
+        elif ":" in text:
+            key, value = text.split(":", 1)
+            header[key.strip()] = header_value(value)
+        index += 1
+    if columns is None:
+        raise ForcFormatError(path, "expected the column line 'Step,Iteration,Segment,...', "
+                              "found none", len(lines))
+    column_line = index  # 1-based number of the column line
+
+    def find(pattern: str, required: bool = True) -> int | None:
+        for position, name in enumerate(columns):
+            if re.match(pattern, name):
+                return position
+        if required:
+            raise ForcFormatError(path, f"expected a column matching {pattern!r}, found "
+                                  f"{columns}", column_line)
+        return None
+
+    i_step, i_iteration, i_segment = 0, 1, 2
+    i_field = find(r"Field\b.*\[.*\]$")
+    i_moment = find(r"Moment\b.*\[.*\]$")
+    i_time = find(r"Time Stamp \[s\]", required=False)
+    i_status = [position for position, name in enumerate(columns) if name.endswith("Status")]
+    field_unit = normalize_field_unit(_unit_in_brackets(columns[i_field]))
+    moment_unit = normalize_moment_unit(_unit_in_brackets(columns[i_moment]))
+    if field_unit is None or moment_unit is None:
+        raise ForcFormatError(path, f"cannot tell the units of columns {columns[i_field]!r} and "
+                              f"{columns[i_moment]!r} (expected [T], [mT], [Oe] and [A·m²], "
+                              "[emu])", column_line)
+    numeric = [i_step, i_iteration, i_segment, i_field, i_moment] + ([i_time] if i_time is not None else [])
+
+    rows = []
+    not_good = 0
+    for index in range(index, len(lines)):
+        raw = lines[index]
+        if not raw.strip():
+            continue
+        if raw.startswith("#"):
+            raise ForcFormatError(path, "expected one data table; a second one (or a comment) "
+                                  f"follows: {shorten(raw)}", index + 1)
+        cells = raw.split(",")
+        if len(cells) != len(columns):
+            raise ForcFormatError(path, f"expected {len(columns)} comma-separated values, found "
+                                  f"{len(cells)}: {shorten(raw)}", index + 1)
+        values = []
+        for position in numeric:
+            value = parse_number(cells[position])
+            if value is None:
+                raise ForcFormatError(path, f"expected a number in column {columns[position]!r}, "
+                                      f"found {cells[position]!r}", index + 1)
+            values.append(value)
+        if any(cells[position].strip() != "GOOD" for position in i_status):
+            not_good += 1
+        rows.append((index + 1, values))
+    if not rows:
+        raise ForcFormatError(path, "expected data rows after the column line, found none",
+                              len(lines))
+    if not ends_with_newline and not allow_incomplete:
+        raise ForcFormatError(path, "last line has no line end: file truncated", len(lines))
+    header["n_points_status_not_good"] = not_good
+
+    line_numbers = np.array([line for line, _ in rows])
+    table = np.array([values for _, values in rows], dtype=float)
+    if np.unique(table[:, :2], axis=0).shape[0] != 1:
+        raise ForcFormatError(path, "more than one (Step, Iteration) data set: not supported")
+    segment = table[:, 2]
+    if not np.all(segment == np.round(segment)) or segment[0] != 0:
+        raise ForcFormatError(path, "expected segment numbers 0, 1, 2, ...", int(line_numbers[0]))
+    step = np.diff(segment)
+    if np.any((step != 0) & (step != 1)):
+        bad = int(np.flatnonzero((step != 0) & (step != 1))[0]) + 1
+        raise ForcFormatError(path, f"expected segment {int(segment[bad - 1])} or "
+                              f"{int(segment[bad - 1]) + 1}, found {segment[bad]:g}",
+                              int(line_numbers[bad]))
+    field_T = table[:, 3] * FIELD_TO_T[field_unit]
+    moment_Am2 = table[:, 4] * MOMENT_TO_AM2[moment_unit]
+    time_s = table[:, 5] if i_time is not None else None
+    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}")
+    if time_s is not None and np.any(np.diff(time_s) < 0):
+        bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
+        raise ForcFormatError(path, "time stamps go backwards", int(line_numbers[bad]))
+
+    n_header = header_int(header, ("Number of FORCs",))
+    n_segments = int(segment[-1]) + 1
+    complete = True
+    if n_header is None:
+        if not allow_incomplete:
+            raise ForcFormatError(path, "header has no 'Number of FORCs'")
+    elif n_segments != 2 * n_header:
+        if not allow_incomplete:
+            raise ForcFormatError(path, f"header declares {n_header} FORCs = {2 * n_header} "
+                                  f"segments with the calibration points, found {n_segments}: "
+                                  "truncated or garbled", int(line_numbers[-1]))
+        complete = False
+    if time_s is not None and complete:
+        start, finish = _parse_time(header.get("START TIME")), _parse_time(header.get("FINISH TIME"))
+        if start is not None and finish is not None:
+            elapsed = (finish - start).total_seconds()
+            steps = np.diff(time_s)
+            tolerance = 0.5 * float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.05
+            if time_s[-1] < elapsed - tolerance:
+                if not allow_incomplete:
+                    raise ForcFormatError(
+                        path, f"last time stamp {time_s[-1]:g} s is before FINISH TIME - START "
+                        f"TIME = {elapsed:g} s: truncated", int(line_numbers[-1]))
+                complete = False
+
+    boundaries = np.flatnonzero(np.diff(segment)) + 1
+    starts = np.r_[0, boundaries]
+    stops = np.r_[boundaries, len(segment)]
+    curves, calibration = [], []
+    for number, (start, stop) in enumerate(zip(starts, stops)):
+        if number % 2 == 0:
+            if number + 1 >= len(starts):
+                break  # calibration point of a curve that is not in the file
+            calibration.append(CalibrationPoint(
+                float(field_T[start:stop].mean()), float(moment_Am2[start:stop].mean()),
+                None if time_s is None else float(time_s[start:stop].mean())))
+        else:
+            curves.append(ForcCurve(
+                reversal_field_T=float(field_T[start]), field_T=field_T[start:stop].copy(),
+                moment_Am2=moment_Am2[start:stop].copy(),
+                time_s=None if time_s is None else time_s[start:stop].copy()))
+    return ForcMeasurement(
+        curves=curves, calibration=calibration, format="lakeshore8600-csv",
+        units="cgs" if field_unit == "Oe" else "SI",
+        units_declared=f"{columns[i_field]}; {columns[i_moment]}", source=path, header=header,
+        drift_percent=drift_percent(calibration), drift_corrected=False, n_curves_header=n_header,
+        complete=complete and (n_header is None or n_header == len(curves)))
