@@ -4,9 +4,11 @@
   gets K_u(1 + Δ_g), Δ_g ~ N(0, σ_K), and an easy axis tilted from z by θ_g ~ N(0, σ_θ) at a uniform
   azimuth φ_g ∈ [0, 2π). (K_u(1+Δ) is clipped at 0: a negative uniaxial constant is not drawn.)
 - Pinning sites: ``n_pin`` distinct single cells with K_u = 50 MJ/m³ along z and a random initial
-  orientation (uniform on the sphere). Their anisotropy field 2K/M_s ~ 80–500 T makes the LLG stiff;
-  the default treatment freezes each at the pole nearest its random orientation (where the full
-  treatment relaxes it to within ~1 % tilt), see tests/micromag/test_pinning.py.
+  orientation (uniform on the sphere). Their anisotropy field 2K/M_s ~ 80–500 T makes the LLG stiff.
+  Treatments (``pinning=``): "slaved" (default) keeps each at its local equilibrium in the field of
+  its neighbours (adiabatic elimination: same equilibria as the full treatment, no stiffness);
+  "frozen" holds each at the pole nearest its random start; "full" integrates them like any cell.
+  tests/micromag/test_pinning.py compares them.
 """
 
 from __future__ import annotations
@@ -77,22 +79,25 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
 
 def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
                     sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
-                    freeze_pinning: bool = True, terms=TERMS, kernel_cache_dir=None):
+                    pinning: str = "slaved", terms=TERMS, kernel_cache_dir=None):
     """Build the seed paper's film and its initial magnetization.
 
-    Returns (film, m0): m0 is +z everywhere except the pinning cells, which hold their random
-    orientation (snapped to the nearest pole ±z when ``freeze_pinning``, and then frozen).
+    Returns (film, m0, disorder): m0 is +z everywhere except the pinning cells, which hold their
+    random orientation (snapped to the nearest pole ±z for ``pinning="frozen"``).
     """
+    if pinning not in ("slaved", "frozen", "full"):
+        raise ValueError(f"pinning must be 'slaved', 'frozen' or 'full', got {pinning!r}")
     disorder = draw_disorder(mesh, K_u, sigma_K, sigma_theta_rad, n_pin, rng, n_grains)
     m0 = np.zeros(mesh.vector_shape)
     m0[2] = 1.0
     pin = disorder.pinning_initial
-    if freeze_pinning:
+    if pinning == "frozen":
         pin = np.zeros_like(pin)
         pin[2] = np.where(disorder.pinning_initial[2] >= 0, 1.0, -1.0)
     for c in range(3):
         m0[c][disorder.pinning_index] = pin[c]
     film = Film(mesh, Ms, A_ex, disorder.K_u, disorder.easy_axis, D,
-                frozen=disorder.pinning_mask if freeze_pinning else None, terms=tuple(terms),
+                frozen=disorder.pinning_mask if pinning == "frozen" else None,
+                slaved=disorder.pinning_mask if pinning == "slaved" else None, terms=tuple(terms),
                 kernel_cache_dir=kernel_cache_dir)
     return film, m0, disorder

@@ -21,7 +21,8 @@ FieldModel = namedtuple(
     "FieldModel",
     [
         "Ms", "A_ex", "D", "dx", "dy", "dz",  # floats (SI)
-        "K_u", "easy_axis", "frozen",  # (nz,ny,nx), (3,nz,ny,nx), (nz,ny,nx) bool
+        "K_u", "easy_axis", "frozen",  # (nz,ny,nx), (3,nz,ny,nx), (nz,ny,nx) bool (fixed or slaved cells)
+        "slaved_cells",  # (n, 3) int64 (k, j, i) of cells held at their local equilibrium
         "kxx", "kyy", "kzz", "kxy", "kxz_imag", "kyz_imag",  # demag kernel
         "use_exchange", "use_anisotropy", "use_dmi", "use_demag", "use_zeeman",  # bools
     ],
@@ -84,4 +85,53 @@ def torque_and_max(m, field, frozen, torque):
                 sq = tx * tx + ty * ty + tz * tz
                 if sq > max_sq:
                     max_sq = sq
+    return np.sqrt(max_sq)
+
+
+@numba.njit(cache=True)
+def relax_slaved_cells(m, field, model):
+    """Put every slaved cell at its local energy minimum in the field of its surroundings.
+
+    A pinning cell's own anisotropy field B_K = 2K/M_s (~80–500 T) dwarfs everything else, so its
+    direction is slaved to its neighbours (adiabatic elimination): with B_nb the field of all other
+    cells plus the applied field (the cell's own anisotropy and exchange self-term removed), it sits
+    where m ∥ B_K (u·m) u + B_nb, solved by fixed-point iteration (contraction |B_nb,⊥|/B_K) from its
+    current direction, which keeps it in its hemisphere unless B_nb along −m exceeds B_K (then it
+    switches, as a Stoner–Wohlfarth particle would). ``field`` must be B_eff of the current ``m``.
+    Returns the largest torque |m × B_eff| (T) the slaved cells had before the update.
+    """
+    cells = model.slaved_cells
+    _, nz, ny, nx = m.shape
+    c_x = 2.0 * model.A_ex / (model.Ms * model.dx * model.dx) if model.use_exchange else 0.0
+    c_y = 2.0 * model.A_ex / (model.Ms * model.dy * model.dy) if model.use_exchange else 0.0
+    c_z = 2.0 * model.A_ex / (model.Ms * model.dz * model.dz) if model.use_exchange else 0.0
+    max_sq = 0.0
+    for n in range(cells.shape[0]):
+        k, j, i = cells[n, 0], cells[n, 1], cells[n, 2]
+        mx, my, mz = m[0, k, j, i], m[1, k, j, i], m[2, k, j, i]
+        bx, by, bz = field[0, k, j, i], field[1, k, j, i], field[2, k, j, i]
+        p = mx * bx + my * by + mz * bz
+        tx, ty, tz = bx - p * mx, by - p * my, bz - p * mz
+        sq = tx * tx + ty * ty + tz * tz
+        if sq > max_sq:
+            max_sq = sq
+        ux, uy, uz = model.easy_axis[0, k, j, i], model.easy_axis[1, k, j, i], model.easy_axis[2, k, j, i]
+        b_k = 2.0 * model.K_u[k, j, i] / model.Ms if model.use_anisotropy else 0.0
+        proj = ux * mx + uy * my + uz * mz
+        c_self = 2.0 * c_x + 2.0 * c_y + c_z * ((1.0 if k + 1 < nz else 0.0) + (1.0 if k > 0 else 0.0))
+        nbx = bx - b_k * proj * ux + c_self * mx
+        nby = by - b_k * proj * uy + c_self * my
+        nbz = bz - b_k * proj * uz + c_self * mz
+        for _ in range(8):
+            proj = ux * mx + uy * my + uz * mz
+            vx = b_k * proj * ux + nbx
+            vy = b_k * proj * uy + nby
+            vz = b_k * proj * uz + nbz
+            norm = np.sqrt(vx * vx + vy * vy + vz * vz)
+            if norm == 0.0:
+                break
+            mx, my, mz = vx / norm, vy / norm, vz / norm
+        m[0, k, j, i] = mx
+        m[1, k, j, i] = my
+        m[2, k, j, i] = mz
     return np.sqrt(max_sq)

@@ -17,19 +17,21 @@ def add_exchange_field(m, Ms, A_ex, dx, dy, dz, out):
     cx = 2.0 * A_ex / (Ms * dx * dx)
     cy = 2.0 * A_ex / (Ms * dy * dy)
     cz = 2.0 * A_ex / (Ms * dz * dz)
-    for k in range(nz):
-        for j in range(ny):
-            jp = j + 1 if j + 1 < ny else 0
-            jm = j - 1 if j > 0 else ny - 1
-            for i in range(nx):
-                ip = i + 1 if i + 1 < nx else 0
-                im = i - 1 if i > 0 else nx - 1
-                for c in range(3):
+    for c in range(3):  # component outermost: each pass streams one contiguous array
+        for k in range(nz):
+            has_up = k + 1 < nz
+            has_down = k > 0
+            for j in range(ny):
+                jp = j + 1 if j + 1 < ny else 0
+                jm = j - 1 if j > 0 else ny - 1
+                for i in range(nx):
+                    ip = i + 1 if i + 1 < nx else 0
+                    im = i - 1 if i > 0 else nx - 1
                     mc = m[c, k, j, i]
                     b = cx * (m[c, k, j, ip] + m[c, k, j, im] - 2.0 * mc)
                     b += cy * (m[c, k, jp, i] + m[c, k, jm, i] - 2.0 * mc)
-                    if k + 1 < nz:
+                    if has_up:
                         b += cz * (m[c, k + 1, j, i] - mc)
-                    if k > 0:
+                    if has_down:
                         b += cz * (m[c, k - 1, j, i] - mc)
                     out[c, k, j, i] += b

@@ -53,8 +53,9 @@ class Film:
     """A periodic perpendicular film: mesh, material parameters and which energy terms are on.
 
     ``K_u`` may be a scalar or a per-cell array (nz, ny, nx); ``easy_axis`` a 3-vector or a per-cell
-    array (3, nz, ny, nx) (normalized here). ``frozen`` marks cells that are held fixed (pinning
-    sites, see ``forcdecode.micromag.disorder``). ``terms`` is a subset of ``TERMS``.
+    array (3, nz, ny, nx) (normalized here). ``frozen`` marks cells that are held fixed; ``slaved``
+    marks cells kept at their local equilibrium in the field of their neighbours (pinning sites,
+    see ``forcdecode.micromag.disorder`` and ``effective_field.relax_slaved_cells``). ``terms`` is a subset of ``TERMS``.
     """
 
     mesh: Mesh
@@ -64,6 +65,7 @@ class Film:
     easy_axis: tuple | np.ndarray = (0.0, 0.0, 1.0)
     D: float = 0.0
     frozen: np.ndarray | None = None
+    slaved: np.ndarray | None = None
     terms: tuple[str, ...] = TERMS
     n_alias: int = 20
     kernel_cache_dir: str | Path | None = None
@@ -90,7 +92,13 @@ class Film:
         frozen = np.zeros(mesh.shape, dtype=np.bool_) if self.frozen is None else np.ascontiguousarray(self.frozen, dtype=np.bool_)
         if frozen.shape != mesh.shape:
             raise ValueError(f"frozen mask has shape {frozen.shape}, expected {mesh.shape}")
-        self.K_u, self.easy_axis, self.frozen = K_u, axis, frozen
+        slaved = np.zeros(mesh.shape, dtype=np.bool_) if self.slaved is None else np.ascontiguousarray(self.slaved, dtype=np.bool_)
+        if slaved.shape != mesh.shape:
+            raise ValueError(f"slaved mask has shape {slaved.shape}, expected {mesh.shape}")
+        slaved_cells = np.ascontiguousarray(np.argwhere(slaved & ~frozen).astype(np.int64).reshape(-1, 3))
+        self.K_u, self.easy_axis, self.frozen, self.slaved = K_u, axis, frozen, slaved
+        # cells the integrators do not move themselves: fixed ones and slaved ones
+        immobile = np.ascontiguousarray(frozen | slaved)
         if "demag" in self.terms:
             kernel = periodic_film_kernel(mesh, self.n_alias, self.kernel_cache_dir).arrays()
         else:
@@ -98,7 +106,7 @@ class Film:
             kernel = (empty,) * 6
         self.model = FieldModel(
             float(self.Ms), float(self.A_ex), float(self.D), mesh.dx, mesh.dy, mesh.dz,
-            K_u, axis, frozen, *kernel,
+            K_u, axis, immobile, slaved_cells, *kernel,
             "exchange" in self.terms, "anisotropy" in self.terms, "dmi" in self.terms,
             "demag" in self.terms, "zeeman" in self.terms,
         )
@@ -152,12 +160,12 @@ class Film:
     def with_terms(self, terms) -> "Film":
         """A copy with another set of terms (shares arrays and the cached demag kernel)."""
         return Film(self.mesh, self.Ms, self.A_ex, self.K_u, self.easy_axis, self.D, self.frozen,
-                    tuple(terms), self.n_alias, self.kernel_cache_dir)
+                    self.slaved, tuple(terms), self.n_alias, self.kernel_cache_dir)
 
     def max_torque(self, m, B_ext_T=0.0) -> float:
         """max_i |m_i × B_eff,i| (T) over non-frozen cells."""
         field_ = self.effective_field(m, B_ext_T)
-        return float(torque_and_max(m, field_, self.frozen, np.empty_like(m)))
+        return float(torque_and_max(m, field_, self.frozen, np.empty_like(m)))  # slaved cells count
 
     def minimize(self, m, B_ext_T=0.0, torque_tol_T=1e-4, max_iterations=50_000,
                  max_rotation_rad=0.2, require_convergence=False) -> MinimizeResult:

@@ -5,7 +5,9 @@
 The step is error-controlled: the embedded 4th-order solution gives err = max_i |m5 − m4|; a step
 with err ≤ tol is accepted, and the next step is dt·clamp(0.8 (tol/err)^{1/5}, 0.5, 2) (rejected
 steps shrink by at least that rule, never below ×0.1). |m| = 1 is restored after every accepted
-step. First-same-as-last: the 7th stage is the next step's 1st. Frozen cells do not move.
+step. First-same-as-last: the 7th stage is the next step's 1st. Frozen cells do not move; slaved
+(pinning) cells are put at their local equilibrium after every accepted step (adiabatic elimination
+of their ~THz precession, which would otherwise set the step size).
 
 The applied field may ramp linearly in time along z: B_ext(t) = B_ext0 + ẑ·ramp_T_per_s·t.
 """
@@ -16,7 +18,7 @@ import numba
 import numpy as np
 
 from .constants import GAMMA_LL
-from .effective_field import compute_effective_field
+from .effective_field import compute_effective_field, relax_slaved_cells
 
 # Dormand–Prince coefficients
 _A21 = 1 / 5
@@ -142,7 +144,12 @@ def run_llg_rk45(m, model, B_ext0, ramp_T_per_s, alpha, t_start, t_end, dt, tol,
         if err <= tol:
             m[...] = y
             _normalize(m)
-            k1[...] = k7  # first same as last
+            if model.slaved_cells.shape[0] > 0:
+                # slaved (pinning) cells follow their neighbours adiabatically; ``field`` is B_eff(y)
+                relax_slaved_cells(m, field, model)
+                llg_rhs(m, model, b, alpha, field, k1)
+            else:
+                k1[...] = k7  # first same as last
             t = t_end if last else t + h
             accepted += 1
             factor = 0.8 * (tol / err) ** 0.2 if err > 0.0 else 2.0
