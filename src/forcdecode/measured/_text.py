@@ -22,7 +22,7 @@ def read_lines(path: Path) -> tuple[list[str], bool]:
     """
     data = path.read_bytes()
     if not data.strip():
-        raise ForcFormatError(path, "file is empty")
+        raise ForcFormatError(path, "expected a FORC measurement, the file is empty", 1)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:

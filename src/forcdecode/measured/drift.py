@@ -47,17 +47,20 @@ def correct_drift(path: Path, curves: list[ForcCurve],
     if not calibration:
         return curves
     if len(calibration) != len(curves):
-        raise ForcFormatError(path, f"{len(calibration)} calibration points for {len(curves)} curves")
+        raise ForcFormatError(path, f"expected one calibration point per curve, found "
+                              f"{len(calibration)} for {len(curves)} curves", calibration[-1].line)
     cal_moment = np.array([point.moment_Am2 for point in calibration], dtype=float)
     reference = cal_moment[0]
     ratio = cal_moment / reference if reference != 0.0 else np.full_like(cal_moment, np.nan)
-    bad = ~np.isfinite(ratio) | (ratio <= 1.0 / MAX_CORRECTION_FACTOR) | (ratio >= MAX_CORRECTION_FACTOR)
+    bad = (~np.isfinite(ratio) | (ratio <= 1.0 / MAX_CORRECTION_FACTOR)
+           | (ratio >= MAX_CORRECTION_FACTOR))
     if np.any(bad):
         index = int(np.flatnonzero(bad)[0])
         raise ForcFormatError(
             path, f"calibration moment before curve {index + 1} ({cal_moment[index]:.4g} A m^2) is "
             f"not within a factor {MAX_CORRECTION_FACTOR:g} of the first ({reference:.4g} A m^2): "
-            "cannot drift-correct (read with drift_correction=False to see the raw data)")
+            "cannot drift-correct (read with drift_correction=False to see the raw data)",
+            calibration[index].line)
 
     cal_time = [point.time_s for point in calibration]
     use_time = all(t is not None for t in cal_time) and all(c.time_s is not None for c in curves)

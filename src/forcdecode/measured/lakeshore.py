@@ -6,7 +6,9 @@ column line ``Step,Iteration,Segment,Field (µ0H) [T],Moment (m) [A·m²],Time S
 rows, blank lines between segments. Segment 0, 2, 4, ... are the calibration points, segment
 1, 3, 5, ... the curves. The number of curves must equal ``Number of FORCs``; since the format
 has no end marker, a file is also reported truncated when its last time stamp falls short of
-FINISH TIME - START TIME (by more than half a sampling interval) or its last line has no line end.
+FINISH TIME - START TIME (by more than half a sampling interval; checked where both times parse)
+or its last line has no line end. Points whose status columns are not GOOD are kept and counted
+in ``header["n_points_status_not_good"]``; a calibration segment of several points is averaged.
 """
 
 from __future__ import annotations
@@ -99,7 +101,9 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
         raise ForcFormatError(path, f"cannot tell the units of columns {columns[i_field]!r} and "
                               f"{columns[i_moment]!r} (expected [T], [mT], [Oe] and [A·m²], "
                               "[emu])", column_line)
-    numeric = [i_step, i_iteration, i_segment, i_field, i_moment] + ([i_time] if i_time is not None else [])
+    numeric = [i_step, i_iteration, i_segment, i_field, i_moment]
+    if i_time is not None:
+        numeric.append(i_time)
 
     rows = []
     not_good = 0
@@ -134,7 +138,9 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     line_numbers = np.array([line for line, _ in rows])
     table = np.array([values for _, values in rows], dtype=float)
     if np.unique(table[:, :2], axis=0).shape[0] != 1:
-        raise ForcFormatError(path, "more than one (Step, Iteration) data set: not supported")
+        bad = int(np.flatnonzero(np.any(table[:, :2] != table[0, :2], axis=1))[0])
+        raise ForcFormatError(path, f"expected one (Step, Iteration) data set, found a second "
+                              "one (not supported)", int(line_numbers[bad]))
     segment = table[:, 2]
     if not np.all(segment == np.round(segment)) or segment[0] != 0:
         raise ForcFormatError(path, "expected segment numbers 0, 1, 2, ...", int(line_numbers[0]))
@@ -147,17 +153,24 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     field_T = table[:, 3] * FIELD_TO_T[field_unit]
     moment_Am2 = table[:, 4] * MOMENT_TO_AM2[moment_unit]
     time_s = table[:, 5] if i_time is not None else None
-    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}")
-    if time_s is not None and np.any(np.diff(time_s) < 0):
-        bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
-        raise ForcFormatError(path, "time stamps go backwards", int(line_numbers[bad]))
+    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}",
+                    line_numbers)
+    if time_s is not None:
+        if not np.all(np.isfinite(time_s)):
+            bad = int(np.flatnonzero(~np.isfinite(time_s))[0])
+            raise ForcFormatError(path, "expected a finite time stamp", int(line_numbers[bad]))
+        if np.any(np.diff(time_s) < 0):
+            bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
+            raise ForcFormatError(path, "expected increasing time stamps, found one going back",
+                                  int(line_numbers[bad]))
 
     n_header = header_int(header, ("Number of FORCs",))
     n_segments = int(segment[-1]) + 1
     complete = True
     if n_header is None:
         if not allow_incomplete:
-            raise ForcFormatError(path, "header has no 'Number of FORCs'")
+            raise ForcFormatError(path, "expected 'Number of FORCs' in the header, found none",
+                                  column_line)
     elif n_segments != 2 * n_header:
         if not allow_incomplete:
             raise ForcFormatError(path, f"header declares {n_header} FORCs = {2 * n_header} "
@@ -165,7 +178,8 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
                                   "truncated or garbled", int(line_numbers[-1]))
         complete = False
     if time_s is not None and complete:
-        start, finish = _parse_time(header.get("START TIME")), _parse_time(header.get("FINISH TIME"))
+        start = _parse_time(header.get("START TIME"))
+        finish = _parse_time(header.get("FINISH TIME"))
         if start is not None and finish is not None:
             elapsed = (finish - start).total_seconds()
             steps = np.diff(time_s)
@@ -187,7 +201,8 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
                 break  # calibration point of a curve that is not in the file
             calibration.append(CalibrationPoint(
                 float(field_T[start:stop].mean()), float(moment_Am2[start:stop].mean()),
-                None if time_s is None else float(time_s[start:stop].mean())))
+                None if time_s is None else float(time_s[start:stop].mean()),
+                line=int(line_numbers[start])))
         else:
             curves.append(ForcCurve(
                 reversal_field_T=float(field_T[start]), field_T=field_T[start:stop].copy(),

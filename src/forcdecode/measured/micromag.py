@@ -39,6 +39,7 @@ END_MARKER = "MicroMag 2900/3900 Data File ends"
 _TITLE_RE = re.compile(r"\s*MicroMag 2900/3900 Data File\s*\(Series\s*([0-9][0-9.]*)\)\s*(.*)")
 _DATA_ROW_RE = re.compile(rf"\s*({NUMBER})\s*,\s*({NUMBER})\s*(?:,\s*({NUMBER})\s*)?")
 _TABLE_ROW_RE = re.compile(rf"\s*{NUMBER}\s*(?:,\s*{NUMBER}\s*){{6}}")
+_NUMBER_FIND_RE = re.compile(NUMBER)
 _SECTION_RE = re.compile(r"[A-Z][A-Z ]*[A-Z]")
 _KEY_SPACES_RE = re.compile(r"(\S.*?)(?:\t+\s*|\s{2,})(\S.*)")
 _KEY_COLON_RE = re.compile(r"([A-Za-z][A-Za-z .()/-]*?)\s*:\s*(.*)")
@@ -61,8 +62,9 @@ class _Header:
     columns: list[str] | None
     column_units: list[str] | None
     table: list[tuple[int, list[float]]]  # (line number, 7 values) of the segment table
-    data_start: int  # 0-based index of the first line after the header
+    data_start: int  # 0-based index of the first line after the header = last header line
     preamble: list[str]
+    key_lines: dict  # header key -> its line number
 
 
 def _parse_header(path: Path, lines: list[str]) -> _Header:
@@ -77,6 +79,7 @@ def _parse_header(path: Path, lines: list[str]) -> _Header:
         description, index = (lines[1].strip() if len(lines) > 1 else ""), 2
     sectioned = not series.startswith("0015")
     values: dict = {}
+    key_lines: dict = {}
     table: list[tuple[int, list[float]]] = []
     preamble: list[str] = []
     columns = column_units = None
@@ -88,6 +91,7 @@ def _parse_header(path: Path, lines: list[str]) -> _Header:
         if key in values:
             key = f"{section}/{key}" if section else f"{key} ({len(values)})"
         values[key] = header_value(value)
+        key_lines[key] = index + 1
 
     while index < len(lines):
         raw = lines[index]
@@ -101,15 +105,15 @@ def _parse_header(path: Path, lines: list[str]) -> _Header:
         if in_table or (text.startswith("Segment") and "Averaging" in text):
             in_table = True
             if _TABLE_ROW_RE.fullmatch(raw):
-                table.append((index + 1, [float(v) for v in raw.split(",")]))
+                table.append((index + 1, [float(v) for v in _NUMBER_FIND_RE.findall(raw)]))
             elif table:
                 raise ForcFormatError(path, "expected a row of the segment table (7 numbers) or "
                                       f"a blank line, found {shorten(raw)}", index + 1)
             index += 1
             continue
-        words = text.split()
-        if "Field" in words and "Moment" in words:
-            columns = words
+        words = set(text.split())
+        if {"Field", "Moment"} <= words <= {"Field", "Moment", "Temperature", "Time"}:
+            columns = text.split()
         elif columns is not None and column_units is None and text.startswith("("):
             column_units = re.findall(r"\(([^)]*)\)", text)
         elif sectioned and _SECTION_RE.fullmatch(text):
@@ -128,12 +132,14 @@ def _parse_header(path: Path, lines: list[str]) -> _Header:
         else:
             preamble.append(text)
         index += 1
-    return _Header(series, description, values, columns, column_units, table, index, preamble)
+    return _Header(series, description, values, columns, column_units, table, index, preamble,
+                   key_lines)
 
 
 def _units(path: Path, header: _Header) -> tuple[str, str, str]:
-    """(field unit, moment unit, declaration) from 'Units of measure', cross-checked with columns."""
+    """(field unit, moment unit, declaration) from 'Units of measure', checked with the columns."""
     declared = header.values.get("Units of measure")
+    line = header.key_lines.get("Units of measure", header.data_start)
     declared_text = declared.strip() if isinstance(declared, str) else ""
     from_header = _DECLARED_UNITS.get(declared_text.lower())
     from_columns = None
@@ -145,12 +151,12 @@ def _units(path: Path, header: _Header) -> tuple[str, str, str]:
     if from_header and from_columns and from_header != from_columns:
         raise ForcFormatError(path, f"'Units of measure' says {declared_text!r} "
                               f"({from_header[0]}, {from_header[1]}) but the column units are "
-                              f"{header.column_units}")
+                              f"{header.column_units}", line)
     units = from_header or from_columns
     if units is None:
         raise ForcFormatError(path, "no recognizable 'Units of measure' in the header (expected "
                               f"cgs, SI, Hybrid SI or SiMuNaughtH; found {declared!r}) and no "
-                              "column units: cannot tell the units")
+                              "column units: cannot tell the units", line)
     return units[0], units[1], declared_text or f"({units[0]}, {units[1]})"
 
 
@@ -162,16 +168,18 @@ def _temperature_offset(path: Path, header: _Header) -> float:
     if isinstance(label, str) and label.strip().lower() in _TEMPERATURE_UNITS:
         return _TEMPERATURE_UNITS[label.strip().lower()]
     raise ForcFormatError(path, f"third (temperature) column but no known temperature unit "
-                          f"('Temperature in' is {label!r}; expected Kelvin or Celsius)")
+                          f"('Temperature in' is {label!r}; expected Kelvin or Celsius)",
+                          header.key_lines.get("Temperature in", header.data_start))
 
 
-def _read_blocks(path: Path, lines: list[str], start: int, allow_incomplete: bool):
+def _read_blocks(path: Path, lines: list[str], start: int):
     """The blank-line separated blocks of data rows.
 
-    Returns (values array [n_rows, n_columns], blocks as (first row, end row, first line number),
-    line number of the end marker or None).
+    Returns (values array [n_rows, n_columns], line number of each row, blocks as (first row,
+    end row, first line number), line number of the end marker or None).
     """
     rows: list[tuple[float, ...]] = []
+    row_lines: list[int] = []
     blocks: list[tuple[int, int, int]] = []
     block_start = None
     block_line = 0
@@ -202,13 +210,10 @@ def _read_blocks(path: Path, lines: list[str], start: int, allow_incomplete: boo
         if block_start is None:
             block_start, block_line = len(rows), index + 1
         rows.append(tuple(float(value) for value in row))
+        row_lines.append(index + 1)
     if block_start is not None:
         blocks.append((block_start, len(rows), block_line))
-    if end_line is None:
-        if not allow_incomplete:
-            raise ForcFormatError(path, f"file ends without '{END_MARKER}': truncated",
-                                  len(lines))
-    else:
+    if end_line is not None:
         for index in range(end_line, len(lines)):
             if lines[index].strip():
                 raise ForcFormatError(path, f"expected nothing after '{END_MARKER}', found "
@@ -216,7 +221,7 @@ def _read_blocks(path: Path, lines: list[str], start: int, allow_incomplete: boo
     if not rows:
         raise ForcFormatError(path, "expected data rows after the header, found none",
                               start + 1 if start < len(lines) else len(lines))
-    return np.array(rows, dtype=float), blocks, end_line
+    return np.array(rows, dtype=float), np.array(row_lines), blocks, end_line
 
 
 def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = False
@@ -233,7 +238,8 @@ def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = Fals
                               f"or 'Multiple segments'), found {shorten(header.description)}", 2)
     for key in ("Includes hysteresis loop?", "Includes Msi(H)?"):
         if str(header.values.get(key, "No")).lower().startswith("y"):
-            raise ForcFormatError(path, f"'{key} Yes' is not supported (expected No)")
+            raise ForcFormatError(path, f"'{key} Yes' is not supported (expected No)",
+                                  header.data_start)
     lake_shore = (any("lake shore" in text.lower() for text in header.preamble)
                   or str(header.values.get("Units of measure", "")).lower() == "simunaughth")
     if kind == "irregular":
@@ -246,17 +252,26 @@ def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = Fals
         fmt = "micromag-0016"
 
     field_unit, moment_unit, declared = _units(path, header)
-    values, blocks, end_line = _read_blocks(path, lines, header.data_start, allow_incomplete)
+    values, row_lines, blocks, end_line = _read_blocks(path, lines, header.data_start)
     complete = end_line is not None
+    if not complete and not allow_incomplete:
+        n_header = header_int(header.values, ("NCrv", "NForc", "Number of FORCs"))
+        found = f" after {len(blocks)} blank-line separated blocks"
+        if n_header is not None and kind == "regular":
+            found += f" (about {len(blocks) // 2} of the {n_header} curves the header declares)"
+        raise ForcFormatError(path, f"file ends without '{END_MARKER}'{found}: truncated",
+                              len(lines))
     field_T = values[:, 0] * FIELD_TO_T[field_unit]
     moment_Am2 = values[:, 1] * MOMENT_TO_AM2[moment_unit]
     assumed = f"{declared} (field in {field_unit}, moment in {moment_unit})"
-    check_plausible(path, field_T, moment_Am2, assumed)
+    check_plausible(path, field_T, moment_Am2, assumed, row_lines)
     temperature_K = None
     if values.shape[1] == 3:
         temperature_K = values[:, 2] + _temperature_offset(path, header)
-        if np.any(temperature_K <= 0) or np.any(temperature_K > 2000):
-            raise ForcFormatError(path, "temperature column outside 0-2000 K")
+        bad = (temperature_K <= 0) | (temperature_K > 2000)
+        if np.any(bad):
+            raise ForcFormatError(path, "expected a temperature within 0-2000 K in the third "
+                                  "column", int(row_lines[np.flatnonzero(bad)[0]]))
 
     n_data = header_int(header.values, ("NData", "Number of data"))
     if n_data is not None and n_data != len(values) and complete:
@@ -272,7 +287,8 @@ def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = Fals
             temperature_K=None if temperature_K is None else temperature_K[start:stop].copy())
 
     def calibration_point(row: int) -> CalibrationPoint:
-        return CalibrationPoint(float(field_T[row]), float(moment_Am2[row]))
+        return CalibrationPoint(float(field_T[row]), float(moment_Am2[row]),
+                                line=int(row_lines[row]))
 
     header_values = dict(header.values)
     header_values["Series"] = header.series
@@ -287,12 +303,13 @@ def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = Fals
         curves, calibration, n_header = _assemble_regular(
             path, header, blocks, curve, calibration_point, complete, allow_incomplete, last_line)
     if not curves:
-        raise ForcFormatError(path, "no complete curve in the file", last_line)
+        raise ForcFormatError(path, "expected at least one curve, found none", last_line)
     return ForcMeasurement(
         curves=curves, calibration=calibration, format=fmt,
         units="cgs" if field_unit == "Oe" else "SI", units_declared=declared, source=path,
         header=header_values, drift_percent=drift_percent(calibration), drift_corrected=False,
-        n_curves_header=n_header, complete=complete and (n_header is None or n_header == len(curves)))
+        n_curves_header=n_header,
+        complete=complete and (n_header is None or n_header == len(curves)))
 
 
 def _assemble_regular(path, header, blocks, curve, calibration_point, complete, allow_incomplete,
@@ -300,7 +317,8 @@ def _assemble_regular(path, header, blocks, curve, calibration_point, complete, 
     n_header = header_int(header.values, ("NCrv", "NForc", "Number of FORCs"))
     strict = complete or not allow_incomplete
     if n_header is None and strict:
-        raise ForcFormatError(path, "header has no curve count (expected 'NCrv' or 'NForc')")
+        raise ForcFormatError(path, "expected a curve count ('NCrv' or 'NForc') in the header, "
+                              "found none", header.data_start)
     n_segments = header_int(header.values, ("Number of segments",))
     if n_segments is not None and strict and n_segments != len(blocks):
         raise ForcFormatError(path, f"header declares {n_segments} segments, found {len(blocks)} "
@@ -347,7 +365,8 @@ def _assemble_irregular(path, header, blocks, field_T, moment_Am2, curve, calibr
     """
     table = header.table
     if not table:
-        raise ForcFormatError(path, "'Multiple segments' file without a segment table in SCRIPT")
+        raise ForcFormatError(path, "expected a segment table in the SCRIPT block of a "
+                              "'Multiple segments' file, found none", header.data_start)
     n_segments = header_int(header.values, ("Number of segments",))
     n_data = header_int(header.values, ("Number of data",))
     if n_segments is not None and n_segments != len(table):
@@ -356,11 +375,14 @@ def _assemble_irregular(path, header, blocks, field_T, moment_Am2, curve, calibr
     previous_index = 0
     segments = []  # (kind, number of points, table line)
     for number, (line, row) in enumerate(table, start=1):
-        if int(row[0]) != number:
+        if not all(np.isfinite(row)):
+            raise ForcFormatError(path, "expected finite numbers in the segment table", line)
+        if row[0] != number:
             raise ForcFormatError(path, f"expected segment number {number}, found {row[0]:g}", line)
+        if row[6] != int(row[6]) or row[6] < previous_index:
+            raise ForcFormatError(path, "expected a whole, non-decreasing final data index in the "
+                                  f"segment table, found {row[6]:g}", line)
         final_index = int(row[6])
-        if final_index < previous_index:
-            raise ForcFormatError(path, "segment table: final data index decreases", line)
         segments.append((_segment_kind(row[2], row[4]), final_index - previous_index, line))
         previous_index = final_index
     if n_data is not None and previous_index != n_data:
@@ -395,7 +417,7 @@ def _assemble_irregular(path, header, blocks, field_T, moment_Am2, curve, calibr
             state = "descended"
         elif kind == "hold" and n_points == 1 and state == "descended":
             calibration.append(pending_calibration)
-            curve_start, curve_stop = block
+            curve_start, curve_stop = block[0], block[1]
             state = "curve"
         elif kind == "up" and state == "curve":
             if block is not None:

@@ -47,6 +47,7 @@ class CalibrationPoint:
     field_T: float
     moment_Am2: float
     time_s: float | None = None
+    line: int | None = field(default=None, compare=False, repr=False)  # where it is in the file
 
 
 @dataclass

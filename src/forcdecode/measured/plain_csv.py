@@ -3,8 +3,9 @@
 The header line names the quantities and units, e.g. ``reversal_field_T,field_T,moment_Am2`` or
 ``reversal_field_Oe,field_Oe,moment_emu`` (also ``mT``; spellings like ``field (Oe)`` work).
 Optional columns ``time_s`` and ``temperature_K``. Lines starting with ``#`` before the header are
-comments; ``# n_curves: N`` declares the curve count, which is then checked. Consecutive rows with
-the same reversal field form one curve. No calibration points.
+comments; ``# n_curves: N`` and ``# n_points: N`` declare the curve and row counts, which are
+then checked (without them a file cut at a line end cannot be told from a complete one).
+Consecutive rows with the same reversal field form one curve. No calibration points.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def read_plain_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     header: dict = {}
     index = _first_content_line(lines)
     if index is None:
-        raise ForcFormatError(path, "expected a column line, found only comments")
+        raise ForcFormatError(path, "expected a column line, found only comments", len(lines))
     for line in lines[:index]:
         key, colon, value = line.lstrip("# ").partition(":")
         if colon:
@@ -101,8 +102,9 @@ def read_plain_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     field_T = column("field") * FIELD_TO_T[field_unit]
     moment_Am2 = column("moment") * MOMENT_TO_AM2[moment_unit]
     time_s, temperature_K = column("time"), column("temperature")
-    check_plausible(path, np.r_[field_T, reversal_T], moment_Am2,
-                    f"field in {field_unit}, moment in {moment_unit}")
+    assumed = f"field in {field_unit}, moment in {moment_unit}"
+    check_plausible(path, reversal_T, moment_Am2, assumed, line_numbers)
+    check_plausible(path, field_T, moment_Am2, assumed, line_numbers)
     starts = np.r_[0, np.flatnonzero(np.diff(column("reversal_field")) != 0) + 1]
     stops = np.r_[starts[1:], len(table)]
     curves = [ForcCurve(
@@ -112,13 +114,18 @@ def read_plain_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
         temperature_K=None if temperature_K is None else temperature_K[start:stop].copy())
         for start, stop in zip(starts, stops)]
     n_header = header_int(header, ("n_curves",))
-    if n_header is not None and n_header != len(curves) and not allow_incomplete:
-        raise ForcFormatError(path, f"'# n_curves: {n_header}' but {len(curves)} curves found: "
-                              "truncated or garbled", line_numbers[-1])
+    n_points = header_int(header, ("n_points",))
+    complete = ((n_header is None or n_header == len(curves))
+                and (n_points is None or n_points == len(table)))
+    if not complete and not allow_incomplete:
+        raise ForcFormatError(path, f"the comments declare {n_header} curves and {n_points} "
+                              f"points, found {len(curves)} and {len(table)}: truncated or "
+                              "garbled", line_numbers[-1])
     si = field_unit in ("T", "mT") and reversal_unit in ("T", "mT") and moment_unit == "Am2"
     cgs = field_unit == reversal_unit == "Oe" and moment_unit == "emu"
     return ForcMeasurement(
-        curves=curves, calibration=[], format="csv", units="SI" if si else "cgs" if cgs else "mixed",
+        curves=curves, calibration=[], format="csv",
+        units="SI" if si else "cgs" if cgs else "mixed",
         units_declared=lines[index].strip(), source=path, header=header,
         drift_percent=float("nan"), drift_corrected=False, n_curves_header=n_header,
-        complete=n_header is None or n_header == len(curves))
+        complete=complete)

@@ -83,11 +83,14 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
     if index >= len(lines):
         raise ForcFormatError(path, "expected the column line after '[Data]'", len(lines))
     column_line = index + 1
-    try:
-        rows = list(csv.reader(lines[index:]))
-    except csv.Error as error:
-        raise ForcFormatError(path, f"unreadable CSV: {error}") from None
-    columns = [name.strip() for name in rows[0]]
+    def cells_of(number: int) -> list[str]:
+        try:
+            return next(csv.reader([lines[number]]), [])
+        except csv.Error as error:
+            raise ForcFormatError(path, f"expected a CSV row, found unreadable text ({error})",
+                                  number + 1) from None
+
+    columns = [name.strip() for name in cells_of(index)]
     i_field, i_moment, i_time, i_temperature = _find_columns(path, columns, column_line)
     field_unit = normalize_field_unit(_FIELD_RE.fullmatch(columns[i_field]).group(1))
     moment_unit = normalize_moment_unit(
@@ -99,9 +102,9 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
     wanted = [i_field, i_moment] + [i for i in (i_time, i_temperature) if i is not None]
     values, line_numbers = [], []
     skipped = 0
-    # csv.reader was fed one line per row; no field in these files spans lines.
-    for offset, cells in enumerate(rows[1:], start=1):
-        line = index + offset + 1
+    for number in range(index + 1, len(lines)):
+        cells = cells_of(number)
+        line = number + 1
         if not cells or not any(cell.strip() for cell in cells):
             continue
         if len(cells) <= max(wanted):
@@ -129,7 +132,8 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
     table = np.array(values, dtype=float)
     field_T = table[:, 0] * FIELD_TO_T[field_unit]
     moment_Am2 = table[:, 1] * MOMENT_TO_AM2[moment_unit]
-    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}")
+    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}",
+                    line_numbers)
     column = 2
     time_s = temperature_K = None
     if i_time is not None:
@@ -139,7 +143,8 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
             time_s = time_s - time_s[0]
             if np.any(np.diff(time_s) < 0):
                 bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
-                raise ForcFormatError(path, "time stamps go backwards", line_numbers[bad])
+                raise ForcFormatError(path, "expected increasing time stamps, found one going "
+                                      "back", line_numbers[bad])
         else:
             time_s = None
     if i_temperature is not None:
@@ -158,7 +163,7 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
         if cal_row is not None:
             calibration.append(CalibrationPoint(
                 float(field_T[cal_row]), float(moment_Am2[cal_row]),
-                None if time_s is None else float(time_s[cal_row])))
+                None if time_s is None else float(time_s[cal_row]), line=line_numbers[cal_row]))
     return ForcMeasurement(
         curves=curves, calibration=calibration, format="qd-dat",
         units="cgs" if field_unit == "Oe" else "SI",
@@ -177,7 +182,8 @@ def segment_by_reversals(path: Path, field_T: np.ndarray, line_numbers: list[int
     steps = np.diff(field_T)
     rising = steps[steps > 0]
     if rising.size == 0:
-        raise ForcFormatError(path, "expected rising field sweeps (FORCs), the field never rises")
+        raise ForcFormatError(path, "expected rising field sweeps (FORCs), the field never rises",
+                              line_numbers[-1])
     typical = float(np.median(rising))
     breaks = np.flatnonzero(steps < -0.5 * typical) + 1
     bounds = list(zip(np.r_[0, breaks], np.r_[breaks, field_T.size]))

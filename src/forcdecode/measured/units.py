@@ -50,18 +50,35 @@ def normalize_moment_unit(text: str) -> str | None:
     return None
 
 
-def check_plausible(path: Path, field_T: np.ndarray, moment_Am2: np.ndarray, assumed: str) -> None:
-    """Raise ForcFormatError if the converted values cannot be a magnetometer measurement."""
-    if field_T.size and not np.all(np.isfinite(field_T)):
-        raise ForcFormatError(path, "non-finite field value")
-    if moment_Am2.size and not np.all(np.isfinite(moment_Am2)):
-        raise ForcFormatError(path, "non-finite moment value")
-    if field_T.size and np.max(np.abs(field_T)) > FIELD_LIMIT_T:
+def check_plausible(path: Path, field_T: np.ndarray, moment_Am2: np.ndarray, assumed: str,
+                    line_numbers=None) -> None:
+    """Raise ForcFormatError if the converted values cannot be a magnetometer measurement.
+
+    ``line_numbers`` (aligned with the values) lets the error name the offending line.
+    """
+
+    def line_of(bad: np.ndarray) -> int | None:
+        if line_numbers is None or not np.any(bad):
+            return None
+        return int(line_numbers[int(np.flatnonzero(bad)[0])])
+
+    field_bad = ~np.isfinite(field_T)
+    if np.any(field_bad):
+        raise ForcFormatError(path, "expected a finite field value", line_of(field_bad))
+    moment_bad = ~np.isfinite(moment_Am2)
+    if np.any(moment_bad):
+        raise ForcFormatError(path, "expected a finite moment value", line_of(moment_bad))
+    field_bad = np.abs(field_T) > FIELD_LIMIT_T
+    if np.any(field_bad):
+        value = float(field_T[field_bad][0])
         raise ForcFormatError(
-            path, f"field of {np.max(np.abs(field_T)):.4g} T after conversion assuming {assumed}: "
-            f"beyond {FIELD_LIMIT_T:g} T, so the unit of the file is not {assumed} or it is garbled")
-    if moment_Am2.size and np.max(np.abs(moment_Am2)) > MOMENT_LIMIT_AM2:
+            path, f"field of {value:.4g} T after conversion assuming {assumed}: expected at most "
+            f"{FIELD_LIMIT_T:g} T, so the unit of the file is not {assumed} or it is garbled",
+            line_of(field_bad))
+    moment_bad = np.abs(moment_Am2) > MOMENT_LIMIT_AM2
+    if np.any(moment_bad):
+        value = float(moment_Am2[moment_bad][0])
         raise ForcFormatError(
-            path, f"moment of {np.max(np.abs(moment_Am2)):.4g} A m^2 after conversion assuming "
-            f"{assumed}: beyond {MOMENT_LIMIT_AM2:g} A m^2, so the unit of the file is not "
-            f"{assumed} or it is garbled")
+            path, f"moment of {value:.4g} A m^2 after conversion assuming {assumed}: expected at "
+            f"most {MOMENT_LIMIT_AM2:g} A m^2, so the unit of the file is not {assumed} or it is "
+            "garbled", line_of(moment_bad))
