@@ -52,7 +52,7 @@ def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats):
 
 
 def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0,
-                       torque_tol_T: float = 1e-4, max_iterations: int = 20_000, substeps: int = 1,
+                       torque_tol_T: float = 1e-3, max_iterations: int = 20_000, substeps: int = 1,
                        same_state_tol: float = 0.02, progress=None) -> ForcFamily:
     """Simulate a FORC family with the quasi-static path. ``m0`` is not modified.
 

@@ -5,9 +5,11 @@
   azimuth φ_g ∈ [0, 2π). (K_u(1+Δ) is clipped at 0: a negative uniaxial constant is not drawn.)
 - Pinning sites: ``n_pin`` distinct single cells with K_u = 50 MJ/m³ along z and a random initial
   orientation (uniform on the sphere). Their anisotropy field 2K/M_s ~ 80–500 T makes the LLG stiff.
-  Treatments (``pinning=``): "slaved" (default) keeps each at its local equilibrium in the field of
-  its neighbours (adiabatic elimination: same equilibria as the full treatment, no stiffness);
-  "frozen" holds each at the pole nearest its random start; "full" integrates them like any cell.
+  Treatments (``pinning=``): "full" (default) treats them like any cell: exact, and the minimizer's
+  diagonal preconditioner takes their stiffness out of its step lengths; "slaved" keeps each at its
+  local equilibrium in the field of its neighbours (adiabatic elimination: the same equilibria, and
+  no ~THz precession to limit the LLG time step: use it for LLG protocols); "frozen" holds each at
+  the pole nearest its random start (not exact enough: a tilted pinning cell matters).
   tests/micromag/test_pinning.py compares them.
 """
 
@@ -79,7 +81,7 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
 
 def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
                     sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
-                    pinning: str = "slaved", terms=TERMS, kernel_cache_dir=None):
+                    pinning: str = "full", terms=TERMS, kernel_cache_dir=None):
     """Build the seed paper's film and its initial magnetization.
 
     Returns (film, m0, disorder): m0 is +z everywhere except the pinning cells, which hold their

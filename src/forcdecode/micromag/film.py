@@ -168,7 +168,7 @@ class Film:
         return float(torque_and_max(m, field_, self.frozen, np.empty_like(m)))  # slaved cells count
 
     def minimize(self, m, B_ext_T=0.0, torque_tol_T=1e-4, max_iterations=50_000,
-                 max_rotation_rad=0.2, require_convergence=False) -> MinimizeResult:
+                 max_rotation_rad=0.5, require_convergence=False) -> MinimizeResult:
         """Relax ``m`` in place to a local energy minimum (quasi-static path, see ``minimize``)."""
         self._check_m(m)
         it, torque, ok = minimize_bb(m, self.model, self._field_vector(B_ext_T), float(torque_tol_T),

@@ -1,0 +1,89 @@
+"""Engine benchmark: field-evaluation throughput and LLG step time, ours against magnum.np, and the
+wall time of one FORC family on the laptop grid.
+
+All figures of one run are measured in the same process, one after the other, on the same machine,
+so their ratios are meaningful even where the absolute times are noisy. numba runs single-threaded
+(NUMBA_NUM_THREADS=1 is set by the CLI before numba is imported), magnum.np with one torch thread.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..forc.protocol import quasistatic_family
+from ..micromag import Mesh, disordered_film
+
+# A representative sample of the seed paper's parameter space
+SAMPLE = dict(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=100)
+GRIDS = {"64": (64, 64, 1), "256": (256, 256, 2)}
+CELL = (2e-9, 2e-9, 4e-9)
+
+
+def _film(grid, pinning="full", seed=0, n_grains=255):
+    nx, ny, nz = GRIDS[grid]
+    mesh = Mesh(nx, ny, nz, *CELL)
+    return disordered_film(mesh, rng=np.random.default_rng(seed), pinning=pinning, n_grains=n_grains, **SAMPLE)
+
+
+def _tilted_state(mesh, seed=1):
+    rng = np.random.default_rng(seed)
+    m = np.zeros(mesh.vector_shape)
+    m[2] = 1.0
+    m[:2] = 0.3 * rng.normal(size=(2,) + mesh.shape)
+    return np.ascontiguousarray(m / np.linalg.norm(m, axis=0))
+
+
+def time_ours(grid: str, min_seconds: float = 1.0) -> dict:
+    """Seconds per full effective-field evaluation and per accepted+rejected RK45 LLG step."""
+    from ..micromag.effective_field import compute_effective_field
+
+    film, _, _ = _film(grid)
+    m = _tilted_state(film.mesh)
+    out = np.empty_like(m)
+    B = np.array([0.0, 0.0, 0.1])
+    compute_effective_field(m, film.model, B, out)  # compile / warm up
+    n, start = 0, time.perf_counter()
+    while time.perf_counter() - start < min_seconds or n < 5:
+        compute_effective_field(m, film.model, B, out)
+        n += 1
+    field_s = (time.perf_counter() - start) / n
+    film.run_llg(m.copy(), 1e-13, 0.1, alpha=0.1)  # warm up
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < min_seconds or steps < 5:
+        run = film.run_llg(m, 2e-13 if grid == "64" else 5e-14, 0.1, alpha=0.1, dt_s=2e-14)
+        steps += run.accepted_steps + run.rejected_steps
+    step_s = (time.perf_counter() - start) / steps
+    return {"field_eval_s": field_s, "cells_per_s": film.mesh.n_cells / field_s, "llg_step_s": step_s,
+            "field_evals_per_llg_step": 6}
+
+
+def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10) -> dict:
+    """The same film in magnum.np (CPU): seconds per field evaluation and per LLG step."""
+    from ..reference.magnumnp_film import MagnumFilm
+
+    film, _, _ = _film(grid)
+    mesh = film.mesh
+    m = _tilted_state(mesh)
+    start = time.perf_counter()
+    reference = MagnumFilm(mesh.nx, mesh.ny, mesh.nz, mesh.dx, mesh.dy, mesh.dz, film.Ms, film.A_ex, film.K_u,
+                           film.easy_axis, film.D, cache_dir=cache_dir, alpha=0.1)
+    setup_s = time.perf_counter() - start
+    field_s = reference.time_field_evaluation(m, repeats=repeats, B_ext_T=0.1)
+    step_s = reference.time_llg_step(m, n_steps=max(3, repeats // 2), B_ext_T=0.1)
+    return {"field_eval_s": field_s, "cells_per_s": mesh.n_cells / field_s, "llg_step_s": step_s,
+            "setup_s": setup_s}
+
+
+def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, progress=None) -> dict:
+    """Wall time of one FORC family (``n_fields`` reversal fields) on the 64×64×1 laptop grid."""
+    film, m0, _ = _film("64")
+    # warm-up on a tiny family so compilation is not counted
+    quasistatic_family(film, m0, n_fields=3, torque_tol_T=torque_tol_T)
+    start = time.perf_counter()
+    family = quasistatic_family(film, m0, n_fields=n_fields, torque_tol_T=torque_tol_T, progress=progress)
+    wall = time.perf_counter() - start
+    return {"family_s": wall, "relaxations": family.stats["relaxations"],
+            "iterations": family.stats["iterations"], "unconverged": family.stats["unconverged"],
+            "curves_shortened": family.stats["curves_shortened"]}
