@@ -51,6 +51,29 @@ def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats):
     return result
 
 
+def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_tol_T: float = 1e-3,
+                      max_iterations: int = 20_000, substeps: int = 1, stats=None, keep_states=False):
+    """Saturate at ``fields_T[-1]`` (the largest) and descend through ``fields_T`` (increasing grid)
+    to its first value. Returns (⟨m_z⟩ per field, states or None, final m)."""
+    stats = stats if stats is not None else {"iterations": 0, "relaxations": 0, "unconverged": 0}
+    n = len(fields_T)
+    m = np.array(m0, dtype=np.float64, order="C", copy=True)
+    _relax(film, m, fields_T[-1], torque_tol_T, max_iterations, stats)
+    states = np.empty((n,) + m.shape, dtype=np.float64) if keep_states else None
+    descending = np.empty(n)
+    previous = fields_T[-1]
+    for j in range(n - 1, -1, -1):
+        for B in np.linspace(previous, fields_T[j], substeps + 1)[1:]:
+            _relax(film, m, B, torque_tol_T, max_iterations, stats)
+        previous = fields_T[j]
+        if not np.all(np.isfinite(m)):
+            raise SimulationError(f"non-finite magnetization on the descending branch at {fields_T[j]:+.3f} T")
+        if keep_states:
+            states[j] = m
+        descending[j] = m[2].mean()
+    return descending, states, m
+
+
 def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0,
                        torque_tol_T: float = 1e-3, max_iterations: int = 20_000, substeps: int = 1,
                        same_state_tol: float = 0.02, progress=None) -> ForcFamily:
@@ -67,19 +90,8 @@ def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: 
     start = time.perf_counter()
     fields = np.linspace(-B_max_T, B_max_T, n_fields)
     stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0}
-    m = np.array(m0, dtype=np.float64, order="C", copy=True)
-    _relax(film, m, B_max_T, torque_tol_T, max_iterations, stats)
-    states = np.empty((n_fields,) + m.shape, dtype=np.float64)
-    descending = np.empty(n_fields)
-    previous = B_max_T
-    for j in range(n_fields - 1, -1, -1):
-        for B in np.linspace(previous, fields[j], substeps + 1)[1:]:
-            _relax(film, m, B, torque_tol_T, max_iterations, stats)
-        previous = fields[j]
-        if not np.all(np.isfinite(m)):
-            raise SimulationError(f"non-finite magnetization on the descending branch at {fields[j]:+.3f} T")
-        states[j] = m
-        descending[j] = m[2].mean()
+    descending, states, m = descending_branch(film, m0, fields, torque_tol_T, max_iterations, substeps, stats,
+                                              keep_states=True)
     curves = np.full((n_fields, n_fields), np.nan)
     for i in range(n_fields - 1, -1, -1):
         curves[i, i] = descending[i]

@@ -1,0 +1,39 @@
+# forcdecode: two commands for a fresh machine
+#   make run    install into .venv, then run the main job (Snakemake, config/config.yaml)
+#   make test   install into .venv (with the test extras), then run the tests
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+CORES  ?= 2
+
+.PHONY: install install-test run test test-all bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test,reference]"
+	touch $(VENV)/.installed $@
+
+install: $(VENV)/.installed
+install-test: $(VENV)/.installed-test
+
+run: install
+	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml
+
+test: install-test
+	$(BIN)/python -m pytest
+
+test-all: install-test
+	$(BIN)/python -m pytest -m ""
+
+bench: install-test
+	$(BIN)/forcdecode bench engine --json
+
+clean:
+	rm -rf results/* .snakemake

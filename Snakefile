@@ -1,0 +1,18 @@
+# forcdecode main job: config -> parameter draw -> screening -> FORC families -> dataset (+ figures).
+# Rules live in workflow/rules/, one file per stage; they call the package's CLI (no physics here).
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/draw.smk"
+include: "workflow/rules/screen.smk"
+include: "workflow/rules/simulate.smk"
+include: "workflow/rules/merge.smk"
+include: "workflow/rules/figures.smk"
+
+
+rule all:
+    input:
+        rules.merge.output,
+        rules.figure1.output,
+    default_target: True

@@ -1,0 +1,1 @@
+"""The training set: parameter draw, screening, FORC families, rasterization, merge."""

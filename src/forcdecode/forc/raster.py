@@ -1,0 +1,56 @@
+"""Rasterize a FORC family into the networks' 64×64 image.
+
+Rows are reversal fields H_r (row 0 = most negative), columns applied fields H (column 0 = −B_max),
+both on the same uniform grid of ``n`` fields over [−B_max, +B_max]. Pixel value: ⟨m_z⟩ ∈ [−1, 1]
+mapped linearly to 0..255 (round(127.5 (m + 1))). **Rule for H < H_r** (left of the diagonal, never
+visited by the curve): the magnetization at the reversal point, m(H_r, H_r), so every row is
+continuous at the diagonal and carries no invented physics.
+
+Curves sampled on other fields (LLG protocol, measured data) are interpolated linearly in H on each
+curve; a row whose reversal field is not on the grid takes the nearest recorded curve (the grid
+spacing is the row resolution).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def quantize(mz) -> np.ndarray:
+    """⟨m_z⟩ in [−1, 1] → uint8 0..255."""
+    return np.clip(np.rint(127.5 * (np.asarray(mz, dtype=float) + 1.0)), 0, 255).astype(np.uint8)
+
+
+def fill_below_reversal(curves_on_grid: np.ndarray) -> np.ndarray:
+    """Fill the H < H_r half (NaN) of a grid family with m(H_r, H_r), row by row."""
+    out = np.array(curves_on_grid, dtype=float, copy=True)
+    n = out.shape[0]
+    for i in range(n):
+        out[i, :i] = out[i, i]
+    if not np.all(np.isfinite(out)):
+        raise ValueError("family has missing values on or above the diagonal")
+    return out
+
+
+def rasterize_grid_family(curves_mz: np.ndarray) -> np.ndarray:
+    """A family already on the square grid (``ForcFamily.curves_mz``) → uint8 image."""
+    return quantize(fill_below_reversal(curves_mz))
+
+
+def resample_curves(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64) -> np.ndarray:
+    """Curves on arbitrary fields → the square grid (NaN below the diagonal).
+
+    ``curves`` is a sequence of (field_T, mz) arrays, one per reversal field, fields increasing.
+    Values outside a curve's recorded range stay NaN except at the right end, where the last value
+    is held (a curve stopped once it rejoined saturation).
+    """
+    grid = np.linspace(-B_max_T, B_max_T, n)
+    reversal_fields_T = np.asarray(reversal_fields_T, dtype=float)
+    out = np.full((n, n), np.nan)
+    for i, h_r in enumerate(grid):
+        k = int(np.argmin(np.abs(reversal_fields_T - h_r)))
+        field, mz = (np.asarray(a, dtype=float) for a in curves[k])
+        columns = grid >= grid[i] - 1e-12
+        values = np.interp(grid[columns], field, mz, left=mz[0], right=mz[-1])
+        out[i, columns] = values
+    return out

@@ -1,0 +1,51 @@
+import numpy as np
+import pytest
+
+from forcdecode.dataset.params import DEFAULT_BOUNDS, MU0, denormalize, draw_parameters, normalize
+
+
+def test_draws_are_reproducible_and_independent_per_sample():
+    assert draw_parameters(1, 5) == draw_parameters(1, 5)
+    assert draw_parameters(1, 5) != draw_parameters(1, 6)
+    assert draw_parameters(1, 5) != draw_parameters(2, 5)
+
+
+@pytest.fixture(scope="module")
+def draws():
+    return [draw_parameters(3, i) for i in range(3000)]
+
+
+def test_draws_respect_the_paper_bounds(draws):
+    for name, (lo, hi) in DEFAULT_BOUNDS.items():
+        values = np.array([d[name] for d in draws])
+        assert values.min() >= lo and values.max() <= hi, name
+    l_ex = np.array([np.sqrt(2 * d["A_ex"] / (MU0 * d["Ms"] ** 2)) for d in draws])
+    assert l_ex.min() > 5e-9
+
+
+def test_distributions(draws):
+    Ms = np.array([d["Ms"] for d in draws])
+    assert Ms.mean() == pytest.approx(8e5, rel=0.03)  # U(200, 1400) kA/m
+    # ln K triangular with mode at the maximum: P(ln K > midpoint) = 3/4
+    lnK = np.log([d["K_u"] for d in draws])
+    mid = 0.5 * (np.log(1e3) + np.log(1.5e6))
+    assert np.mean(lnK > mid) == pytest.approx(0.75, abs=0.03)
+    N_pin = np.array([d["N_pin"] for d in draws])
+    assert set(np.unique(N_pin)) <= set(range(256)) and N_pin.max() >= 250
+
+
+def test_exchange_follows_the_target_length_where_it_fits(draws):
+    """Low M_s: A = l² μ0 M_s²/2 with l ~ N(10 nm, 1 nm) lies inside 1–35 pJ/m and is used as is."""
+    low = [d for d in draws if d["Ms"] < 4e5]
+    l_ex = np.array([np.sqrt(2 * d["A_ex"] / (MU0 * d["Ms"] ** 2)) for d in low])
+    assert l_ex.mean() == pytest.approx(10e-9, rel=0.05)
+    assert l_ex.std() == pytest.approx(1e-9, rel=0.25)
+
+
+@pytest.mark.parametrize("name", list(DEFAULT_BOUNDS))
+def test_normalization_round_trip_uses_bounds(name):
+    lo, hi = DEFAULT_BOUNDS[name]
+    assert normalize(name, lo) == pytest.approx(0.0, abs=1e-12)
+    assert normalize(name, hi) == pytest.approx(1.0)
+    mid = denormalize(name, 0.37)
+    assert normalize(name, mid) == pytest.approx(0.37)
