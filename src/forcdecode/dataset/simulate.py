@@ -11,6 +11,7 @@ import traceback
 
 import numpy as np
 
+from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.protocol import descending_branch, quasistatic_family
 from ..forc.raster import rasterize_grid_family
 from ..micromag import Mesh, disordered_film
@@ -93,12 +94,20 @@ def simulate(cfg: dict, params: dict, sample_id: int) -> dict:
            "descending_mz": None, "family_s": np.nan, "relaxations": 0, "unconverged": 0}
     try:
         protocol = cfg["protocol"]["name"]
-        if protocol != "quasistatic":
-            raise NotImplementedError(f"protocol {protocol!r} is not available in this version")
-        film, m0, _ = build_film(cfg, params, sample_id)
-        fam = quasistatic_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
-                                 torque_tol_T=cfg["minimizer"]["torque_tol_T"],
-                                 max_iterations=cfg["minimizer"]["max_iterations"])
+        if protocol == "llg":
+            film, m0, _ = build_film(cfg, params, sample_id, pinning="slaved")
+            p = cfg["protocol"]
+            settings = SlewRate(alpha=p["alpha"], safety=p["safety"], rate_min_T_per_s=p["rate_min_T_per_s"],
+                                rate_max_T_per_s=p["rate_max_T_per_s"])
+            fam = adaptive_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
+                                  settings=settings)
+            fam.stats.setdefault("relaxations", 0)
+            fam.stats.setdefault("unconverged", 0)
+        else:
+            film, m0, _ = build_film(cfg, params, sample_id)
+            fam = quasistatic_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
+                                     torque_tol_T=cfg["minimizer"]["torque_tol_T"],
+                                     max_iterations=cfg["minimizer"]["max_iterations"])
         out.update(status="ok", image=rasterize_grid_family(fam.curves_mz), curves_mz=fam.curves_mz,
                    descending_mz=fam.descending_mz, relaxations=fam.stats["relaxations"],
                    unconverged=fam.stats["unconverged"])
