@@ -118,3 +118,23 @@ def test_self_kernel_trace_is_one():
     trace = (kernel.xx + kernel.yy + kernel.zz)[0].ravel()
     assert trace[0] == pytest.approx(1.0, abs=1e-12)  # k = 0: N_zz = 1 alone
     np.testing.assert_allclose(trace[1:], 1.0, atol=2e-4)
+
+
+def test_splitting_layers_in_two_leaves_the_layer_averaged_field_unchanged():
+    """Four layers of t/2 holding the magnetization of two layers of t (pairwise equal), random at the
+    cell scale: the field averaged over each pair equals the two-layer field (exact superposition)."""
+    rng = np.random.default_rng(2)
+    m2 = rng.normal(size=(3, 2, 8, 12))
+    m2 = np.ascontiguousarray(m2 / np.linalg.norm(m2, axis=0))
+    B2 = demag_only(Mesh(12, 8, 2, 2e-9, 2.5e-9, 3e-9)).effective_field(m2)
+    B4 = demag_only(Mesh(12, 8, 4, 2e-9, 2.5e-9, 1.5e-9)).effective_field(np.ascontiguousarray(np.repeat(m2, 2, axis=1)))
+    np.testing.assert_allclose(B4.reshape(3, 2, 2, 8, 12).mean(axis=2), B2, atol=1e-12)
+
+
+def test_odd_components_vanish_only_where_they_are_odd():
+    """At the x Nyquist column N_xz and N_xy vanish (odd in q_x) but N_yz (odd in q_y) does not."""
+    kernel = build_periodic_film_kernel(Mesh(8, 8, 2, 2e-9, 2e-9, 3e-9), n_alias=10)
+    cross = 0  # offset d = −1
+    assert np.abs(kernel.xz_imag[cross, :, -1]).max() == 0.0
+    assert np.abs(kernel.xy[:, :, -1]).max() == 0.0
+    assert np.abs(kernel.yz_imag[cross, 1:4, -1]).min() > 1e-3

@@ -167,18 +167,20 @@ def build_periodic_film_kernel(mesh: Mesh, n_alias: int = 20) -> DemagKernel:
             acc[1] = projector[1] - (truncated[1] - acc[1])
             acc[3] = projector[2] - (truncated[2] - acc[3])
         out[:, offset_index] = acc
-    # Odd components: the alias sum at a Nyquist frequency pairs +q with −q, so they vanish there.
+    # Components odd in q_x (xy, xz) vanish at the x Nyquist frequency, where the alias sum pairs
+    # +q_x with −q_x; likewise those odd in q_y (xy, yz) at the y Nyquist frequency. (N_yz is even in
+    # q_x and survives there.) The truncated sum misses one partner, so set them exactly.
     if nx % 2 == 0:
+        out[3, :, :, -1] = 0.0
         out[4, :, :, -1] = 0.0
-        out[5, :, :, -1] = 0.0
     if ny % 2 == 0:
-        out[4, :, ny // 2, :] = 0.0
+        out[3, :, ny // 2, :] = 0.0
         out[5, :, ny // 2, :] = 0.0
     return DemagKernel(*(np.ascontiguousarray(a) for a in out))
 
 
 def _cache_key(mesh: Mesh, n_alias: int) -> str:
-    text = f"v2 {mesh.nx} {mesh.ny} {mesh.nz} {mesh.dx:.6e} {mesh.dy:.6e} {mesh.dz:.6e} {n_alias}"
+    text = f"v3 {mesh.nx} {mesh.ny} {mesh.nz} {mesh.dx:.6e} {mesh.dy:.6e} {mesh.dz:.6e} {n_alias}"
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
