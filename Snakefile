@@ -1,6 +1,9 @@
 # forcdecode main job: config -> parameter draw -> screening -> FORC families -> dataset (+ figures).
 # Rules live in workflow/rules/, one file per stage; they call the package's CLI (no physics here).
-configfile: "config/config.yaml"
+import os
+
+# the laptop default, found next to this Snakefile (so --directory elsewhere works too)
+configfile: os.path.join(workflow.basedir, "config", "config.yaml")
 
 
 include: "workflow/rules/common.smk"
@@ -9,6 +12,9 @@ include: "workflow/rules/screen.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/merge.smk"
 include: "workflow/rules/figures.smk"
+
+
+localrules: all
 
 
 rule all:

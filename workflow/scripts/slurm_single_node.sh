@@ -180,6 +180,8 @@ SchedulerType=sched/backfill
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core_Memory
 ReturnToService=2
+# Reject at submission what this one node can never run (instead of pending forever).
+EnforcePartLimits=ALL
 MinJobAge=3600
 StateSaveLocation=/var/spool/slurmctld
 SlurmdSpoolDir=/var/spool/slurmd

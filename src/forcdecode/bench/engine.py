@@ -59,7 +59,7 @@ def time_ours(grid: str, min_seconds: float = 1.0) -> dict:
             "field_evals_per_llg_step": 6}
 
 
-def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10) -> dict:
+def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10, compile: bool = True) -> dict:
     """The same film in magnum.np (CPU): seconds per field evaluation and per LLG step."""
     from ..reference.magnumnp_film import MagnumFilm
 
@@ -68,12 +68,13 @@ def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10) -> dict:
     m = _tilted_state(mesh)
     start = time.perf_counter()
     reference = MagnumFilm(mesh.nx, mesh.ny, mesh.nz, mesh.dx, mesh.dy, mesh.dz, film.Ms, film.A_ex, film.K_u,
-                           film.easy_axis, film.D, cache_dir=cache_dir, alpha=0.1)
+                           film.easy_axis, film.D, cache_dir=cache_dir, alpha=0.1, compile=compile)
+    reference.effective_field_T(m, 0.1)  # first call compiles (torch.compile); not timed
     setup_s = time.perf_counter() - start
     field_s = reference.time_field_evaluation(m, repeats=repeats, B_ext_T=0.1)
     step_s = reference.time_llg_step(m, n_steps=max(3, repeats // 2), B_ext_T=0.1)
     return {"field_eval_s": field_s, "cells_per_s": mesh.n_cells / field_s, "llg_step_s": step_s,
-            "setup_s": setup_s}
+            "setup_s": setup_s, "compiled": compile}
 
 
 def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, progress=None) -> dict:
@@ -87,3 +88,42 @@ def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, progress=
     return {"family_s": wall, "relaxations": family.stats["relaxations"],
             "iterations": family.stats["iterations"], "unconverged": family.stats["unconverged"],
             "curves_shortened": family.stats["curves_shortened"]}
+
+
+def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, seed: int = 1, progress=None) -> dict:
+    """Quasi-static and adaptive-LLG families of the same samples (drawn as in the dataset, on a small
+    grid so the LLG protocol stays affordable): wall time of each and their image difference."""
+    from ..dataset.params import draw_parameters
+    from ..forc.adaptive import adaptive_family
+    from ..forc.raster import rasterize_grid_family
+
+    mesh = Mesh(grid, grid, 1, *CELL)
+    rows = []
+    sample_id = 0
+    while len(rows) < n_samples and sample_id < 200:
+        p = draw_parameters(seed, sample_id)
+        sample_id += 1
+        if p["K_u"] < 2e5 or p["Ms"] > 1.0e6:  # keep perpendicular, switchable samples (cheap screen)
+            continue
+        kwargs = dict(Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
+                      sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=int(round(p["N_pin"] * mesh.n_cells / 131072)),
+                      n_grains=max(4, 255 * mesh.n_cells // 131072))
+        film, m0, _ = disordered_film(mesh, rng=np.random.default_rng([seed, sample_id]), pinning="full", **kwargs)
+        start = time.perf_counter()
+        quasi = quasistatic_family(film, m0, n_fields=n_fields)
+        t_quasi = time.perf_counter() - start
+        film, m0, _ = disordered_film(mesh, rng=np.random.default_rng([seed, sample_id]), pinning="slaved", **kwargs)
+        start = time.perf_counter()
+        llg = adaptive_family(film, m0, n_fields=n_fields)
+        t_llg = time.perf_counter() - start
+        difference = np.abs(quasi.curves_mz - llg.curves_mz)
+        images = np.abs(rasterize_grid_family(quasi.curves_mz).astype(int) - rasterize_grid_family(llg.curves_mz).astype(int))
+        rows.append({"sample_id": sample_id - 1, "quasistatic_s": t_quasi, "llg_s": t_llg,
+                     "mean_abs_dmz": float(np.nanmean(difference)), "max_abs_dmz": float(np.nanmax(difference)),
+                     "image_mean_abs_diff_levels": float(images.mean()), "llg_steps": llg.stats["llg_steps"],
+                     "tau_z_max_per_s": llg.stats["tau_z_max_per_s"], "alpha_prime": llg.stats["alpha_prime"]})
+        if progress is not None:
+            progress(rows[-1])
+    return {"grid": f"{grid}x{grid}x1", "n_fields": n_fields, "samples": rows,
+            "time_ratio_llg_over_quasistatic": float(np.mean([r["llg_s"] / r["quasistatic_s"] for r in rows])),
+            "mean_abs_dmz": float(np.mean([r["mean_abs_dmz"] for r in rows]))}
