@@ -17,10 +17,12 @@ def figure1(dataset_path: str, out_path: str, index: int | None = None) -> None:
     with h5py.File(dataset_path, "r") as h5:
         if h5["images"].shape[0] == 0:
             raise SystemExit(f"error: {dataset_path} holds no FORC family to plot")
-        if index is None:  # the family with most minor-loop structure: largest spread of its curves
-            curves_all = h5["curves_mz"][:]
-            spread = np.nanstd(curves_all, axis=(1, 2))
-            index = int(np.argmax(spread))
+        if index is None:  # the richest minor loops: FORCs farthest from both major-loop branches
+            curves_all = h5["curves_mz"][:].astype(float)
+            ascending = curves_all[:, :1, :]
+            descending = np.diagonal(curves_all, axis1=1, axis2=2)[:, None, :]
+            away = np.minimum(np.abs(curves_all - ascending), np.abs(curves_all - descending))
+            index = int(np.argmax(np.nanmean(away, axis=(1, 2))))
         curves = h5["curves_mz"][index].astype(float)
         image = h5["images"][index]
         fields = h5["fields_T"][:]
@@ -31,7 +33,7 @@ def figure1(dataset_path: str, out_path: str, index: int | None = None) -> None:
         left.plot(fields[i:], curves[i, i:], "--", color="0.25", lw=0.6)
     descending = np.diag(curves)
     left.plot(fields, descending, "-", color="tab:blue", lw=1.6, label="major loop")
-    left.plot(-fields[::-1], -descending[::-1], "-", color="tab:blue", lw=1.6)
+    left.plot(fields, curves[0], "-", color="tab:blue", lw=1.6)  # ascending: the FORC from -B_max
     # highlight the minor loop whose reversal field is nearest the coercive field
     k = int(np.argmin(np.abs(descending)))
     left.plot(fields[k:], curves[k, k:], "-", color="tab:red", lw=2.0, label=f"FORC at $\\mu_0H_r$={fields[k]:+.2f} T")
