@@ -49,3 +49,28 @@ def test_normalization_round_trip_uses_bounds(name):
     assert normalize(name, hi) == pytest.approx(1.0)
     mid = denormalize(name, 0.37)
     assert normalize(name, mid) == pytest.approx(0.37)
+
+
+def test_a_sample_that_cannot_be_simulated_is_recorded_not_raised():
+    import json
+    from pathlib import Path
+
+    import yaml
+    from jsonschema import Draft202012Validator
+
+    from forcdecode.dataset.simulate import screen, simulate
+
+    root = Path(__file__).resolve().parents[2]
+    cfg = yaml.safe_load((root / "config" / "test.yaml").read_text())
+    schema = yaml.safe_load((root / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    Draft202012Validator(schema).validate(cfg)
+    cfg.setdefault("n_grains", 8)
+    cfg["pinning"].setdefault("treatment", "full")
+    cfg.setdefault("protocol", {"name": "quasistatic"})
+    params = draw_parameters(cfg["seed"], 0)
+    params["Ms"] = float("nan")  # e.g. a corrupt parameter table
+    row = screen(cfg, params, 0)
+    assert row["screen_status"] == "failed" and "Ms" in row["screen_reason"]
+    result = simulate(cfg, params, 0)
+    assert result["status"] == "failed" and "Ms" in result["reason"]
+    json.dumps({k: v for k, v in row.items() if k != "traceback"})  # serializable for the table

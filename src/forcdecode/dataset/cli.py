@@ -142,4 +142,18 @@ def _simulate_chunk(cfg, params, args) -> int:
             h5.create_dataset("images", data=images, compression="gzip")
             h5.create_dataset("curves_mz", data=curves, compression="gzip")
             h5.create_dataset("descending_mz", data=descending, compression="gzip")
+            # raw recorded points of the LLG protocol (not on the grid), per sample: the closed loop uses them
+            for r in results:
+                if r["status"] == "ok" and r.get("raw_curves") is not None:
+                    group = h5.create_group(f"raw/{r['sample_id']}")
+                    write_raw_curves(group, r["raw_curves"])
     return 0
+
+
+def write_raw_curves(group, raw_curves) -> None:
+    """Ragged curves as one flat array each for fields and m_z, plus offsets (curve k is
+    [offsets[k], offsets[k+1]))."""
+    lengths = [len(f) for f, _ in raw_curves]
+    group["offsets"] = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    group["field_T"] = np.concatenate([f for f, _ in raw_curves]).astype(np.float64)
+    group["mz"] = np.concatenate([m for _, m in raw_curves]).astype(np.float64)

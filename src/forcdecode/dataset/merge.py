@@ -24,7 +24,7 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
     params = pd.read_parquet(params_path)
     screens = pd.concat([pd.read_parquet(p) for p in screen_paths], ignore_index=True)
     table = params.merge(screens.drop(columns=[c for c in ("traceback",) if c in screens]), on="sample_id", how="left")
-    family_rows, images, curves, descending, ok_ids = [], [], [], [], []
+    family_rows, images, curves, descending, ok_ids, raw_sources = [], [], [], [], [], []
     for path in family_paths:
         with h5py.File(path, "r") as h5:
             ids = h5["sample_id"][:]
@@ -36,6 +36,8 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
                                     "family_reason": reason[k], "family_s": float(seconds[k])})
                 if status[k] == "ok":
                     ok_ids.append(int(sample_id))
+                    if f"raw/{int(sample_id)}" in h5:
+                        raw_sources.append((path, int(sample_id)))
                     images.append(h5["images"][k])
                     curves.append(h5["curves_mz"][k])
                     descending.append(h5["descending_mz"][k])
@@ -59,6 +61,9 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
             dset = h5.create_dataset("parameters", data=values)
             dset.attrs["columns"] = list(PARAMETERS)
             dset.attrs["units"] = ["A/m", "J/m", "J/m^3", "J/m^2", "count (256x256x2 grid)", "deg", "fraction"]
+            for path, sample_id in raw_sources:
+                with h5py.File(path, "r") as source:
+                    source.copy(source[f"raw/{sample_id}"], h5, name=f"raw_curves/{sample_id}")
             h5.attrs["config_hash"] = config_hash(cfg)
             h5.attrs["config_json"] = json.dumps(cfg, sort_keys=True)
             h5.attrs["seed"] = cfg["seed"]

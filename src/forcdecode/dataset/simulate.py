@@ -110,7 +110,7 @@ def simulate(cfg: dict, params: dict, sample_id: int) -> dict:
                                      max_iterations=cfg["minimizer"]["max_iterations"])
         out.update(status="ok", image=rasterize_grid_family(fam.curves_mz), curves_mz=fam.curves_mz,
                    descending_mz=fam.descending_mz, relaxations=fam.stats["relaxations"],
-                   unconverged=fam.stats["unconverged"])
+                   unconverged=fam.stats["unconverged"], raw_curves=getattr(fam, "raw_curves", None))
         if fam.stats["unconverged"]:
             out["reason"] = f"{fam.stats['unconverged']} relaxations hit max_iterations"
     except Exception as error:
