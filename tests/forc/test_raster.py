@@ -42,3 +42,22 @@ def test_hysteresis_area_of_a_square_loop():
     fields = np.linspace(-1, 1, 2001)
     descending = np.where(fields > -0.2, 1.0, -1.0)
     assert hysteresis_area(fields, descending) == pytest.approx(0.8, abs=2e-3)
+
+
+def test_measured_family_inside_the_window_is_in_domain():
+    from forcdecode.forc.raster import measured_image
+
+    grid = np.linspace(-1, 1, 64)
+    curves = [(np.linspace(hr, 1, 40), 2e-6 * np.tanh(5 * (np.linspace(hr, 1, 40) - 0.2)) / np.tanh(4)) for hr in grid]
+    image, family, note = measured_image(grid, curves, 2e-6)
+    assert note is None and image.shape == (64, 64) and image.dtype == np.uint8
+    np.testing.assert_allclose(family[10, 10:], np.tanh(5 * (grid[10:] - 0.2)) / np.tanh(4), atol=5e-3)  # linear interpolation of 40 points
+
+
+def test_measured_family_outside_the_window_is_flagged():
+    from forcdecode.forc.raster import measured_image
+
+    grid = np.linspace(-0.2, 0.2, 30)  # a rock-magnetic measurement: ±0.2 T, unsaturated
+    curves = [(np.linspace(hr, 0.2, 20), 1e-6 * np.tanh(3 * np.linspace(hr, 0.2, 20))) for hr in grid]
+    _, _, note = measured_image(grid, curves, 1e-6)
+    assert note is not None and "does not reach -1.0 T" in note and "not saturated" in note

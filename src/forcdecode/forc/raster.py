@@ -54,3 +54,29 @@ def resample_curves(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64
         values = np.interp(grid[columns], field, mz, left=mz[0], right=mz[-1])
         out[i, columns] = values
     return out
+
+
+def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_max_T: float = 1.0, n: int = 64,
+                   saturation_tolerance: float = 0.05):
+    """A measured family on the training grid: moments normalized by the saturation moment, curves
+    resampled onto the 64-point grid over ±B_max. Returns (image uint8, grid family, domain note).
+
+    Out of domain (note is not None) when the family does not span the training window or does not
+    saturate inside it: the first FORC must start below −B_max·(1 − 1/n) and the curves must end
+    above +B_max·(1 − 1/n) with the top value within ``saturation_tolerance`` of saturation."""
+    reversal_fields_T = np.asarray(reversal_fields_T, dtype=float)
+    normalized = [(np.asarray(f, dtype=float), np.asarray(m, dtype=float) / moment_saturation_Am2) for f, m in curves]
+    reasons = []
+    margin = B_max_T * (1 - 1 / n)
+    if reversal_fields_T.min() > -margin:
+        reasons.append(f"lowest reversal field {reversal_fields_T.min():+.3f} T does not reach -{B_max_T} T")
+    top = max(f.max() for f, _ in normalized)
+    if top < margin:
+        reasons.append(f"largest field {top:+.3f} T does not reach +{B_max_T} T")
+    end_values = np.array([m[np.argmax(f)] for f, m in normalized])
+    if np.any(np.abs(end_values - 1.0) > saturation_tolerance):
+        reasons.append(f"curves end at m = {end_values.min():.3f}..{end_values.max():.3f}, not saturated")
+    grid_family = resample_curves(reversal_fields_T, normalized, B_max_T, n)
+    image = quantize(fill_below_reversal(np.where(np.isnan(grid_family) & (np.arange(n)[None, :] >= np.arange(n)[:, None]),
+                                                   np.nanmax(grid_family), grid_family)))
+    return image, grid_family, ("; ".join(reasons) if reasons else None)
