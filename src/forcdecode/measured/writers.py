@@ -1,0 +1,83 @@
+"""Write FORC families in a real instrument format (MicroMag 2900/3900 Series 0015, "Hybrid SI"),
+so that simulated "measurements" (with or without an undeclared effect) go through exactly the
+readers a lab's file would.
+
+Layout (as the instrument writes it, CRLF line ends): the title lines and a ``Name = value`` header
+(NCrv curves, NData rows counting calibration points, HCal the calibration field), then per curve a
+calibration point at HCal, a blank line, the (field, moment) rows from the reversal field upward,
+a blank line; curves in order of decreasing reversal field; the end marker.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..dataset.io import atomic_path
+
+
+def _number(x: float) -> str:
+    return f"{x:+.6E}"
+
+
+def write_micromag_0015(path, reversal_fields_T, curves, calibration_moments_Am2=None, calibration_field_T=None,
+                        sample_name: str = "forcdecode simulation") -> Path:
+    """``curves``: per reversal field, (field_T, moment_Am2) arrays from H_r upward. Fields in T,
+    moments in A·m² (Hybrid SI). ``calibration_moments_Am2``: one per curve (default: the same value
+    for every curve, the top point of the highest curve: a measurement without drift)."""
+    order = np.argsort(reversal_fields_T)[::-1]  # decreasing reversal field, as measured
+    curves = [(np.asarray(curves[k][0], float), np.asarray(curves[k][1], float)) for k in order]
+    h_cal = float(calibration_field_T if calibration_field_T is not None else max(f.max() for f, _ in curves))
+    if calibration_moments_Am2 is None:
+        cal = [curves[0][1][np.argmax(curves[0][0])]] * len(curves)
+    else:
+        cal = list(np.asarray(calibration_moments_Am2, float)[order])
+    n_data = sum(len(f) for f, _ in curves) + len(curves)
+    header = [
+        "MicroMag 2900/3900 Data File (Series 0015)",
+        "First-order reversal curves",
+        "Configuration   :  VSM",
+        "Hardware version:  0004",
+        "Software version:  06/21/2004",
+        "Units of measure:  Hybrid SI",
+        "Temperature in  :  Kelvin",
+        "01/01/2026  00:00",
+        f'"{sample_name}"',
+        "",
+        "Averaging time = +1.000000E-01",
+        f"Hb1            = {_number(-0.5 * h_cal)}",
+        f"Hb2            = {_number(0.5 * h_cal)}",
+        "Hc1            =  0.000000E+00",
+        f"Hc2            = {_number(h_cal)}",
+        f"HCal           = {_number(h_cal)}",
+        f"HNcr           = {_number(float(np.median(np.diff(np.sort(reversal_fields_T)))))}",
+        f"HSat           = {_number(h_cal)}",
+        f"NCrv           = {len(curves)}",
+        "PauseCal       = +1.000000E+00",
+        "PauseNtl       = +1.000000E+00",
+        "PauseSat       = +1.000000E+00",
+        "SlewRate       = +1.000000E+00",
+        "Smoothing      = 3",
+        "",
+        f"Field range    = {_number(h_cal)}",
+        f"Moment range   = {_number(max(np.abs(m).max() for _, m in curves))}",
+        "Temperature    = N/A",
+        "Orientation    =  0.000000E+00",
+        "Elapsed time   = +1.000000E+03",
+        "Slope corr.    = N/A",
+        "Saturation     = N/A",
+        f"NData          = {n_data}",
+        "",
+    ]
+    lines = list(header)
+    for (fields, moments), m_cal in zip(curves, cal):
+        lines.append(f"{_number(h_cal)},{_number(m_cal)}")
+        lines.append("")
+        lines.extend(f"{_number(h)},{_number(m)}" for h, m in zip(fields, moments))
+        lines.append("")
+    lines.append("MicroMag 2900/3900 Data File ends")
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(("\r\n".join(lines) + "\r\n").encode("latin-1"))
+    return path
