@@ -54,3 +54,39 @@ def test_control_without_effect_is_left_alone(seed):
     fields, sim, measured, order = measured_with("none", 0.0, seed)
     result = select_effect(measured, sim, fields, order, seed=seed)
     assert result["chosen"] == "none"
+
+
+def test_undeclared_background_in_a_simulated_instrument_file(tmp_path):
+    """Simulator → + substrate background (10 % of the film moment at 1 T) + noise → MicroMag file →
+    reader → grid → effect selection against the clean re-simulation: the background is named."""
+    from pathlib import Path
+
+    import yaml
+
+    from forcdecode.dataset.params import draw_parameters
+    from forcdecode.dataset.simulate import mesh_from_config
+    from forcdecode.forc.raster import resample_curves
+    from forcdecode.loop import resimulate
+    from forcdecode.measured import read_forc
+    from forcdecode.measured.writers import write_micromag_0015
+
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[2] / "config" / "test.yaml").read_text())
+    cfg["field"]["n_fields"] = 24
+    params = {**draw_parameters(1, 0), "Ms": 6e5, "A_ex": 1.0e-11, "K_u": 6e5, "D": 1e-3, "N_pin": 2,
+              "sigma_theta_deg": 5.0, "sigma_K": 0.1}
+    truth = resimulate(cfg, params, n_profiles=1)
+    mesh = mesh_from_config(cfg)
+    moment_scale = params["Ms"] * mesh.n_cells * mesh.cell_volume  # A·m² of the film at m = 1
+    fields = np.linspace(-1, 1, 24)
+    rng = np.random.default_rng(4)
+    curves = []
+    for i in range(24):
+        m = truth[i, i:] + 0.10 * fields[i:] + 0.002 * rng.normal(size=24 - i)
+        curves.append((fields[i:], m * moment_scale))
+    data = read_forc(write_micromag_0015(tmp_path / "film.frc", fields, curves), drift_correction=False)
+    measured = resample_curves([c.reversal_field_T for c in data.curves],
+                               [(c.field_T, c.moment_Am2 / moment_scale) for c in data.curves], 1.0, 24)
+    result = select_effect(measured, truth, fields, every_k=3)
+    assert result["chosen"] == "background"
+    assert result["candidates"]["background"]["parameters"]["chi_per_T"] == pytest.approx(0.10, abs=0.01)
+    assert result["heldout_rms_after"] < 0.3 * result["heldout_rms_before"]
