@@ -12,7 +12,7 @@ def textured_film():
     rng = np.random.default_rng(7)
     K = 5e5 * (1 + 0.3 * rng.random(mesh.shape))
     axis = rng.normal(size=mesh.vector_shape) * 0.2 + np.array([0, 0, 1.0])[:, None, None, None]
-    film = Film(mesh, Ms=7e5, A_ex=1.2e-11, K_u=K, easy_axis=axis, D=2e-3)
+    film = Film(mesh, Ms=7e5, A_ex=1.2e-11, K_u=K, easy_axis=axis, D=2e-3, K_2=1.5e5, B_bias_T=(0.01, 0.0, 0.02))
     m = rng.normal(size=mesh.vector_shape)
     m /= np.linalg.norm(m, axis=0)
     return film, np.ascontiguousarray(m)

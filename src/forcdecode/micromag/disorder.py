@@ -81,7 +81,8 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
 
 def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
                     sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
-                    pinning: str = "full", terms=TERMS, kernel_cache_dir=None):
+                    pinning: str = "full", terms=TERMS, kernel_cache_dir=None, K_2: float = 0.0,
+                    B_bias_T=(0.0, 0.0, 0.0)):
     """Build the seed paper's film and its initial magnetization.
 
     Returns (film, m0, disorder): m0 is +z everywhere except the pinning cells, which hold their
@@ -101,5 +102,5 @@ def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, si
     film = Film(mesh, Ms, A_ex, disorder.K_u, disorder.easy_axis, D,
                 frozen=disorder.pinning_mask if pinning == "frozen" else None,
                 slaved=disorder.pinning_mask if pinning == "slaved" else None, terms=tuple(terms),
-                kernel_cache_dir=kernel_cache_dir)
+                kernel_cache_dir=kernel_cache_dir, K_2=K_2, B_bias_T=B_bias_T)
     return film, m0, disorder

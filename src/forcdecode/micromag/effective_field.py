@@ -20,7 +20,8 @@ from .zeeman import add_zeeman_field
 FieldModel = namedtuple(
     "FieldModel",
     [
-        "Ms", "A_ex", "D", "dx", "dy", "dz",  # floats (SI)
+        "Ms", "A_ex", "D", "dx", "dy", "dz", "K_2",  # floats (SI)
+        "B_bias",  # (3,) tesla: exchange-bias-like unidirectional field (zero by default)
         "K_u", "easy_axis", "frozen",  # (nz,ny,nx), (3,nz,ny,nx), (nz,ny,nx) bool (fixed or slaved cells)
         "slaved_cells",  # (n, 3) int64 (k, j, i) of cells held at their local equilibrium
         "kxx", "kyy", "kzz", "kxy", "kxz_imag", "kyz_imag",  # demag kernel
@@ -36,7 +37,7 @@ def compute_effective_field(m, model, B_ext, out):
     if model.use_exchange:
         add_exchange_field(m, model.Ms, model.A_ex, model.dx, model.dy, model.dz, out)
     if model.use_anisotropy:
-        add_anisotropy_field(m, model.Ms, model.K_u, model.easy_axis, out)
+        add_anisotropy_field(m, model.Ms, model.K_u, model.easy_axis, out, model.K_2)
     if model.use_dmi:
         add_dmi_field(m, model.Ms, model.D, model.dx, model.dy, out)
     if model.use_demag:
@@ -44,22 +45,30 @@ def compute_effective_field(m, model, B_ext, out):
                         model.kxz_imag, model.kyz_imag, out)
     if model.use_zeeman:
         add_zeeman_field(B_ext, out)
+    add_zeeman_field(model.B_bias, out)
 
 
 @numba.njit(cache=True)
 def total_energy(m, model, B_ext, field_buffer, cell_volume):
-    """Total energy (J): E = −M_s V Σ_i m_i·(½ B_internal,i + B_ext). Fills ``field_buffer`` with B_eff."""
+    """Total energy (J): E = −M_s V Σ_i m_i·(½ B_bilinear,i + B_linear) − K_2 V Σ_i (u·m)⁴, with the
+    linear fields B_ext and B_bias. Fills ``field_buffer`` with B_eff."""
     compute_effective_field(m, model, B_ext, field_buffer)
     _, nz, ny, nx = m.shape
     acc = 0.0
+    quartic = 0.0
     for k in range(nz):
         for j in range(ny):
             for i in range(nx):
+                projection = 0.0
                 for c in range(3):
-                    b_ext = B_ext[c] if model.use_zeeman else 0.0
-                    # B_eff = B_int + B_ext, energy density −M_s m·(½B_int + B_ext) = −½M_s m·(B_eff + B_ext)
-                    acc += m[c, k, j, i] * (field_buffer[c, k, j, i] + b_ext)
-    return -0.5 * model.Ms * cell_volume * acc
+                    b_lin = (B_ext[c] if model.use_zeeman else 0.0) + model.B_bias[c]
+                    # B_eff = B_bil + B_quartic + B_lin; −M_s m·(½B_bil + B_lin) = −½M_s m·(B_eff + B_lin) + ½M_s m·B_quartic
+                    acc += m[c, k, j, i] * (field_buffer[c, k, j, i] + b_lin)
+                    projection += model.easy_axis[c, k, j, i] * m[c, k, j, i]
+                quartic += projection**4
+    # the quartic term's field enters m·B_eff with weight 4K_2(u·m)⁴/M_s; its energy is −K_2(u·m)⁴
+    k2 = model.K_2 if model.use_anisotropy else 0.0
+    return -0.5 * model.Ms * cell_volume * acc + k2 * cell_volume * quartic
 
 
 @numba.njit(cache=True)

@@ -69,6 +69,8 @@ class Film:
     terms: tuple[str, ...] = TERMS
     n_alias: int = 20
     kernel_cache_dir: str | Path | None = None
+    K_2: float = 0.0
+    B_bias_T: tuple = (0.0, 0.0, 0.0)
     model: FieldModel = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -105,7 +107,8 @@ class Film:
             empty = np.zeros((1, 1, 1))
             kernel = (empty,) * 6
         self.model = FieldModel(
-            float(self.Ms), float(self.A_ex), float(self.D), mesh.dx, mesh.dy, mesh.dz,
+            float(self.Ms), float(self.A_ex), float(self.D), mesh.dx, mesh.dy, mesh.dz, float(self.K_2),
+            np.asarray(self.B_bias_T, dtype=np.float64).reshape(3),
             K_u, axis, immobile, slaved_cells, *kernel,
             "exchange" in self.terms, "anisotropy" in self.terms, "dmi" in self.terms,
             "demag" in self.terms, "zeeman" in self.terms,
@@ -160,7 +163,8 @@ class Film:
     def with_terms(self, terms) -> "Film":
         """A copy with another set of terms (shares arrays and the cached demag kernel)."""
         return Film(self.mesh, self.Ms, self.A_ex, self.K_u, self.easy_axis, self.D, self.frozen,
-                    self.slaved, tuple(terms), self.n_alias, self.kernel_cache_dir)
+                    self.slaved, tuple(terms), self.n_alias, self.kernel_cache_dir, self.K_2,
+                    self.B_bias_T if "zeeman" in terms else (0.0, 0.0, 0.0))
 
     def max_torque(self, m, B_ext_T=0.0) -> float:
         """max_i |m_i × B_eff,i| (T) over non-frozen cells."""
