@@ -42,6 +42,7 @@ def build_film(cfg: dict, params: dict, sample_id: int, pinning: str | None = No
         sigma_K=params["sigma_K"], sigma_theta_rad=np.radians(params["sigma_theta_deg"]),
         n_pin=pinning_cells(params["N_pin"], mesh, cfg), rng=rng, n_grains=cfg["n_grains"],
         pinning=pinning or cfg["pinning"]["treatment"], kernel_cache_dir=cfg.get("kernel_cache_dir"),
+        K_2=float(params.get("K_2", 0.0)), B_bias_T=(0.0, 0.0, float(params.get("B_bias_T", 0.0))),
     )
 
 
