@@ -10,7 +10,7 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=["engine", "protocols"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
@@ -29,6 +29,16 @@ def run(args) -> int:
     def say(text):
         print(text, flush=True)
 
+    if args.target == "effects":
+        result = engine.effects_confusion()
+        say(f"effect selection on synthetic families: {result['accuracy']:.0%} correct over {result['n_cases']} cases")
+        names = list(result["confusion"])
+        say("true \\ chosen".ljust(22) + "".join(n[:12].rjust(13) for n in names))
+        for true in names:
+            say(true.ljust(22) + "".join(str(result["confusion"][true].get(n, 0)).rjust(13) for n in names))
+        if args.json:
+            print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
+        return 0
     if args.target == "protocols":
         result = engine.compare_protocols(args.samples, progress=lambda row: say(
             f"sample {row['sample_id']}: quasi-static {row['quasistatic_s']:.2f} s, LLG {row['llg_s']:.1f} s, "
