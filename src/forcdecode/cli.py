@@ -16,6 +16,7 @@ COMMANDS = {
     "bench": ("forcdecode.bench.cli", "benchmarks that print figures (engine throughput, FORC family)"),
     "read": ("forcdecode.measured.cli", "read a measured FORC file and print a summary"),
     "diagram": ("forcdecode.forc.cli", "FORC diagram (Pike et al. local polynomial) of a measured or simulated family"),
+    "loop": ("forcdecode.loop.cli", "close the loop on a measured file: domain check, re-simulation, residual effects"),
     "dataset": ("forcdecode.dataset.cli", "workflow stages: draw, screen, select, simulate, merge, figure1"),
 }
 

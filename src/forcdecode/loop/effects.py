@@ -97,12 +97,23 @@ def fit_effect(effect: Effect, measured, sim, fields, order, rows):
 
 
 def _per_curve_mse(measured, model, rows):
-    out = []
-    for i in rows:
+    """Mean-square misfit of each curve in ``rows`` (aligned with rows; NaN where nothing to compare)."""
+    out = np.full(len(rows), np.nan)
+    for k, i in enumerate(rows):
         ok = np.isfinite(measured[i]) & np.isfinite(model[i])
         if ok.any():
-            out.append(np.mean((model[i, ok] - measured[i, ok]) ** 2))
-    return np.array(out)
+            out[k] = np.mean((model[i, ok] - measured[i, ok]) ** 2)
+    return out
+
+
+def _bootstrap_gain(base_mse, mse, rng, n_boot):
+    """Paired gain base − candidate over the curves both can score; (mean, 5 %, 95 %)."""
+    both = np.isfinite(base_mse) & np.isfinite(mse)
+    gain = (base_mse - mse)[both]
+    if gain.size == 0:
+        return float("nan"), float("-inf"), float("-inf")
+    boots = gain[rng.integers(0, gain.size, size=(n_boot, gain.size))].mean(axis=1)
+    return float(gain.mean()), float(np.quantile(boots, 0.05)), float(np.quantile(boots, 0.95))
 
 
 def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
@@ -129,16 +140,15 @@ def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: i
         theta, errors = fit_effect(effect, measured, sim, fields, order, train)
         model = effect.model(sim, fields, order, theta)
         mse = _per_curve_mse(measured, model, held)
-        gain = base_mse - mse
-        boots = gain[rng.integers(0, gain.size, size=(n_boot, gain.size))].mean(axis=1)
+        gain, low, high = _bootstrap_gain(base_mse, mse, rng, n_boot)
         results[name] = {
             "parameters": dict(zip(effect.parameters, map(float, theta))),
             "uncertainties": dict(zip(effect.parameters, map(float, errors))),
-            "heldout_rms": float(np.sqrt(mse.mean())),
-            "gain_mse": float(gain.mean()),
-            "gain_ci90": [float(np.quantile(boots, 0.05)), float(np.quantile(boots, 0.95))],
+            "heldout_rms": float(np.sqrt(np.nanmean(mse))),
+            "gain_mse": gain,
+            "gain_ci90": [low, high],
         }
-    base = float(np.mean(base_mse))
+    base = float(np.nanmean(base_mse))
     accepted = [k for k, v in results.items()
                 if k != "none" and v["gain_ci90"][0] > max(0.0, min_relative_gain * base)]
     chosen = "none"
@@ -166,20 +176,18 @@ def select_physics_effect(measured, base_family, candidate_families: dict, every
     train, held = _heldout_split(np.asarray(measured, float), every_k)
     rng = np.random.default_rng(seed)
     base_mse = _per_curve_mse(measured, base_family, held)
-    results = {"none": {"value": None, "heldout_rms": float(np.sqrt(base_mse.mean())), "gain_ci90": [0.0, 0.0]}}
+    results = {"none": {"value": None, "heldout_rms": float(np.sqrt(np.nanmean(base_mse))), "gain_ci90": [0.0, 0.0]}}
     for name, families in candidate_families.items():
-        train_error = {v: _per_curve_mse(measured, fam, train).mean() for v, fam in families.items()}
+        train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
         best_value = min(train_error, key=train_error.get)
         values = sorted(families)
         k = values.index(best_value)
         step = (values[min(k + 1, len(values) - 1)] - values[max(k - 1, 0)]) / 2 if len(values) > 1 else 0.0
         mse = _per_curve_mse(measured, families[best_value], held)
-        gain = base_mse - mse
-        boots = gain[rng.integers(0, gain.size, size=(n_boot, gain.size))].mean(axis=1)
+        gain, low, high = _bootstrap_gain(base_mse, mse, rng, n_boot)
         results[name] = {"value": float(best_value), "uncertainty": float(abs(step)),
-                         "heldout_rms": float(np.sqrt(mse.mean())), "gain_mse": float(gain.mean()),
-                         "gain_ci90": [float(np.quantile(boots, 0.05)), float(np.quantile(boots, 0.95))]}
-    base = float(base_mse.mean())
+                         "heldout_rms": float(np.sqrt(np.nanmean(mse))), "gain_mse": gain, "gain_ci90": [low, high]}
+    base = float(np.nanmean(base_mse))
     accepted = [k for k, v in results.items() if k != "none" and v["gain_ci90"][0] > min_relative_gain * base]
     chosen = min(accepted, key=lambda k: results[k]["heldout_rms"]) if accepted else "none"
     return {"chosen": chosen, "candidates": results, "heldout_curves": held,
