@@ -1,0 +1,1 @@
+"""Learning: per-parameter CNNs ("Alice") with distribution-matching outputs (and, later, "Bob")."""

@@ -1,0 +1,55 @@
+"""The seed paper's CNN and a smaller laptop head (PyTorch).
+
+Input: a 64×64 FORC image (uint8, scaled to [0, 1]) and the normalized M_s. ``PaperCNN``: conv
+1→8 (3×3, 64→62), conv 8→16 (3×3, →60), flatten 57,600, concatenated with 625 nodes each carrying
+the normalized M_s (58,225), dense → 4,096 → 11; ReLU; dropout 0.5 on every layer but the first
+convolution. ``SmallCNN``: the same convolutions, a 4×4 average pool (16·15·15 = 3,600 features)
+before the dense block, dense → ``width`` → 11.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+MS_NODES = 625
+
+
+class _Base(nn.Module):
+    def __init__(self, pooled: bool, width: int, dropout: float = 0.5):
+        super().__init__()
+        self.conv1 = nn.Conv2d(1, 8, 3)
+        self.conv2 = nn.Conv2d(8, 16, 3)
+        self.pool = nn.AvgPool2d(4) if pooled else nn.Identity()
+        features = 16 * (15 * 15 if pooled else 60 * 60)
+        self.drop_conv = nn.Dropout(dropout)
+        self.drop_in = nn.Dropout(dropout)
+        self.dense1 = nn.Linear(features + MS_NODES, width)
+        self.drop_hidden = nn.Dropout(dropout)
+        self.dense2 = nn.Linear(width, 11)
+
+    def forward(self, image: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+        """``image``: (n, 64, 64) or (n, 1, 64, 64) in [0, 1]; ``ms_norm``: (n,)."""
+        x = image.unsqueeze(1) if image.dim() == 3 else image
+        x = torch.relu(self.conv1(x))
+        x = self.drop_conv(torch.relu(self.conv2(x)))
+        x = self.pool(x).flatten(1)
+        ms = ms_norm.reshape(-1, 1).expand(-1, MS_NODES)
+        x = self.drop_in(torch.cat([x, ms], dim=1))
+        x = self.drop_hidden(torch.relu(self.dense1(x)))
+        return self.dense2(x)
+
+
+class PaperCNN(_Base):
+    def __init__(self, dropout: float = 0.5):
+        super().__init__(pooled=False, width=4096, dropout=dropout)
+
+
+class SmallCNN(_Base):
+    def __init__(self, width: int = 256, dropout: float = 0.5):
+        super().__init__(pooled=True, width=width, dropout=dropout)
+
+
+def image_tensor(images_uint8) -> torch.Tensor:
+    """uint8 images → float32 tensor in [0, 1]."""
+    return torch.as_tensor(images_uint8, dtype=torch.float32) / 255.0
