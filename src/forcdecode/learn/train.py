@@ -1,0 +1,93 @@
+"""Training one Alice network (one parameter): splits, Adadelta, early stopping on validation.
+
+Splits are made once, reproducibly from a seed: train / validation (early stopping and model choice)
+/ test (reported only). ``fit_alice`` keeps the weights of the epoch with the lowest validation
+loss; the test set is never looked at here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .encoding import encode, readout
+from .models import PaperCNN, SmallCNN, image_tensor
+
+
+def split_indices(n: int, seed: int, fractions=(0.7, 0.15, 0.15)):
+    """Reproducible (train, validation, test) index arrays; the paper's 80/20 is fractions=(0.8, 0.2, 0)."""
+    if not np.isclose(sum(fractions), 1.0):
+        raise ValueError("split fractions must sum to 1")
+    order = np.random.default_rng(seed).permutation(n)
+    n_train = int(round(fractions[0] * n))
+    n_val = int(round(fractions[1] * n))
+    return order[:n_train], order[n_train:n_train + n_val], order[n_train + n_val:]
+
+
+@dataclass
+class Alice:
+    """A fitted network for one normalized parameter."""
+
+    net: torch.nn.Module
+    history: dict = field(default_factory=dict)
+    best_epoch: int = -1
+
+    def outputs(self, images, ms_norm, batch_size: int = 256) -> np.ndarray:
+        self.net.eval()
+        chunks = []
+        with torch.no_grad():
+            for start in range(0, len(images), batch_size):
+                x = image_tensor(images[start:start + batch_size])
+                ms = torch.as_tensor(np.asarray(ms_norm[start:start + batch_size]), dtype=torch.float32)
+                chunks.append(self.net(x, ms).numpy())
+        return np.concatenate(chunks) if chunks else np.zeros((0, 11))
+
+    def predict(self, images, ms_norm, method: str = "parabola") -> np.ndarray:
+        """Normalized parameter u ∈ [0, 1] per image."""
+        return readout(self.outputs(images, ms_norm), method)
+
+
+def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = "small", width: int = 256,
+              epochs: int = 50, batch_size: int = 64, lr: float = 0.01, patience: int = 10, seed: int = 0,
+              log=None) -> Alice:
+    """Adadelta (lr 0.01, ρ 0.9, no weight decay), MSE on the 11 raw outputs against the encoding."""
+    torch.manual_seed(seed)
+    net = PaperCNN() if model == "paper" else SmallCNN(width=width)
+    optimizer = torch.optim.Adadelta(net.parameters(), lr=lr, rho=0.9, weight_decay=0.0)
+    x_all = image_tensor(images)
+    ms_all = torch.as_tensor(np.asarray(ms_norm), dtype=torch.float32)
+    t_all = torch.as_tensor(encode(target_norm), dtype=torch.float32)
+    generator = torch.Generator().manual_seed(seed)
+    train_idx = torch.as_tensor(np.asarray(train_idx))
+    val_idx = torch.as_tensor(np.asarray(val_idx))
+    history = {"train_loss": [], "val_loss": []}
+    best, best_state, best_epoch, waited = np.inf, None, -1, 0
+    for epoch in range(epochs):
+        net.train()
+        permutation = train_idx[torch.randperm(len(train_idx), generator=generator)]
+        total = 0.0
+        for start in range(0, len(permutation), batch_size):
+            batch = permutation[start:start + batch_size]
+            optimizer.zero_grad()
+            loss = torch.nn.functional.mse_loss(net(x_all[batch], ms_all[batch]), t_all[batch])
+            loss.backward()
+            optimizer.step()
+            total += float(loss) * len(batch)
+        net.eval()
+        with torch.no_grad():
+            val = float(torch.nn.functional.mse_loss(net(x_all[val_idx], ms_all[val_idx]), t_all[val_idx]))
+        history["train_loss"].append(total / len(train_idx))
+        history["val_loss"].append(val)
+        if log is not None:
+            log(f"epoch {epoch + 1}/{epochs}: train {history['train_loss'][-1]:.4f}, validation {val:.4f}")
+        if val < best:
+            best, best_epoch, waited = val, epoch, 0
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        else:
+            waited += 1
+            if waited >= patience:
+                break
+    net.load_state_dict(best_state)
+    return Alice(net, history, best_epoch)

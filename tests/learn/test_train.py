@@ -1,0 +1,54 @@
+"""Alice on a synthetic task whose answer is in the image: a bright bar at a row set by the target."""
+
+import numpy as np
+import pytest
+
+from forcdecode.learn.train import fit_alice, split_indices
+
+
+def synthetic(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.random(n)
+    images = np.zeros((n, 64, 64), dtype=np.uint8)
+    rows = np.rint(u * 63).astype(int)
+    for k, r in enumerate(rows):
+        images[k, :r + 1, :] = 255  # image filled up to the row: brightness encodes the target
+    images = np.clip(images + rng.integers(0, 20, size=images.shape), 0, 255).astype(np.uint8)
+    return images, rng.random(n), u
+
+
+def test_splits_are_reproducible_and_disjoint():
+    a = split_indices(100, 3)
+    b = split_indices(100, 3)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+    assert len(set(np.concatenate(a))) == 100 and [len(x) for x in a] == [70, 15, 15]
+    with pytest.raises(ValueError):
+        split_indices(10, 0, (0.5, 0.2, 0.2))
+
+
+@pytest.fixture(scope="module")
+def trained():
+    images, ms, u = synthetic()
+    train, val, test = split_indices(len(u), 0)
+    alice = fit_alice(images, ms, u, train, val, width=32, epochs=12, batch_size=32, lr=1.0, patience=4, seed=0)
+    return alice, images, ms, u, test
+
+
+def test_alice_beats_the_median_baseline(trained):
+    alice, images, ms, u, test = trained
+    mae = np.abs(alice.predict(images[test], ms[test]) - u[test]).mean()
+    baseline = np.abs(np.median(u) - u[test]).mean()
+    assert mae < 0.5 * baseline, (mae, baseline)
+
+
+def test_best_epoch_is_the_lowest_validation_loss(trained):
+    alice = trained[0]
+    assert alice.best_epoch == int(np.argmin(alice.history["val_loss"]))
+
+
+def test_training_is_deterministic():
+    images, ms, u = synthetic(120, 1)
+    train, val, _ = split_indices(len(u), 1)
+    a = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
+    b = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
+    np.testing.assert_array_equal(a.outputs(images[:10], ms[:10]), b.outputs(images[:10], ms[:10]))
