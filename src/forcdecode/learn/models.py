@@ -27,9 +27,13 @@ class _Base(nn.Module):
         self.dense1 = nn.Linear(features + MS_NODES, width)
         self.drop_hidden = nn.Dropout(dropout)
         self.dense2 = nn.Linear(width, 11)
+        # float32 whatever torch's default dtype is (importing magnum.np switches it to float64)
+        self.float()
 
     def forward(self, image: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
         """``image``: (n, 64, 64) or (n, 1, 64, 64) in [0, 1]; ``ms_norm``: (n,)."""
+        image = image.to(torch.float32)
+        ms_norm = ms_norm.to(torch.float32)
         x = image.unsqueeze(1) if image.dim() == 3 else image
         x = torch.relu(self.conv1(x))
         x = self.drop_conv(torch.relu(self.conv2(x)))

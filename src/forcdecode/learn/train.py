@@ -74,7 +74,7 @@ def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = 
             loss = torch.nn.functional.mse_loss(net(x_all[batch], ms_all[batch]), t_all[batch])
             loss.backward()
             optimizer.step()
-            total += float(loss) * len(batch)
+            total += loss.item() * len(batch)
         net.eval()
         with torch.no_grad():
             val = float(torch.nn.functional.mse_loss(net(x_all[val_idx], ms_all[val_idx]), t_all[val_idx]))
