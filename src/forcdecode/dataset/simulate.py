@@ -67,9 +67,9 @@ def screen(cfg: dict, params: dict, sample_id: int) -> dict:
         fields = field_grid(cfg)
         sc = cfg["screening"]
         descending, states, _ = descending_branch(film, m0, fields, cfg["minimizer"]["torque_tol_T"],
-                                                  cfg["minimizer"]["max_iterations"], keep_states=True)
+                                                  cfg["minimizer"]["max_iterations"], keep_states=(0, -1))
         free = ~disorder.pinning_mask
-        mz_max = float(states[-1][2][free].mean())
+        mz_max = float(states[len(fields) - 1][2][free].mean())
         mz_min = float(states[0][2][free].mean())
         area = hysteresis_area(fields, descending)
         row.update(hysteresis_area_T=area, mz_at_max=mz_max, mz_at_min=mz_min)

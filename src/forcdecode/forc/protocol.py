@@ -54,12 +54,19 @@ def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats):
 def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_tol_T: float = 1e-3,
                       max_iterations: int = 20_000, substeps: int = 1, stats=None, keep_states=False):
     """Saturate at ``fields_T[-1]`` (the largest) and descend through ``fields_T`` (increasing grid)
-    to its first value. Returns (⟨m_z⟩ per field, states or None, final m)."""
+    to its first value. Returns (⟨m_z⟩ per field, states, final m): ``states`` holds the state at
+    every field (``keep_states=True``), at the given indices only (a dict index → state, for a
+    sequence of indices), or is None."""
     stats = stats if stats is not None else {"iterations": 0, "relaxations": 0, "unconverged": 0}
     n = len(fields_T)
     m = np.array(m0, dtype=np.float64, order="C", copy=True)
     _relax(film, m, fields_T[-1], torque_tol_T, max_iterations, stats)
-    states = np.empty((n,) + m.shape, dtype=np.float64) if keep_states else None
+    if keep_states is True:
+        states = np.empty((n,) + m.shape, dtype=np.float64)
+        wanted = range(n)
+    else:
+        wanted = {j % n for j in keep_states} if keep_states else set()
+        states = {} if keep_states else None
     descending = np.empty(n)
     previous = fields_T[-1]
     for j in range(n - 1, -1, -1):
@@ -68,8 +75,8 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
         previous = fields_T[j]
         if not np.all(np.isfinite(m)):
             raise SimulationError(f"non-finite magnetization on the descending branch at {fields_T[j]:+.3f} T")
-        if keep_states:
-            states[j] = m
+        if j in wanted:
+            states[j] = m.copy() if isinstance(states, dict) else m
         descending[j] = m[2].mean()
     return descending, states, m
 

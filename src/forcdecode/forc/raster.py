@@ -77,6 +77,5 @@ def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_ma
     if np.any(np.abs(end_values - 1.0) > saturation_tolerance):
         reasons.append(f"curves end at m = {end_values.min():.3f}..{end_values.max():.3f}, not saturated")
     grid_family = resample_curves(reversal_fields_T, normalized, B_max_T, n)
-    image = quantize(fill_below_reversal(np.where(np.isnan(grid_family) & (np.arange(n)[None, :] >= np.arange(n)[:, None]),
-                                                   np.nanmax(grid_family), grid_family)))
+    image = quantize(fill_below_reversal(grid_family))  # resample_curves leaves no gap above the diagonal
     return image, grid_family, ("; ".join(reasons) if reasons else None)

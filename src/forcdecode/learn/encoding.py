@@ -25,10 +25,10 @@ def encode(u) -> np.ndarray:
     return 20.0 - 0.5 * (NODES - y[..., None]) ** 2
 
 
-def _softmax_mean(outputs, centre_k=None, window=None):
-    z = outputs - outputs.max(axis=-1, keepdims=True)
-    w = np.exp(z)
-    return (w * (NODES if window is None else window)).sum(axis=-1) / w.sum(axis=-1)
+def _softmax_mean(outputs):
+    """Expectation of the node index under softmax(outputs)."""
+    w = np.exp(outputs - outputs.max(axis=-1, keepdims=True))
+    return (w * NODES).sum(axis=-1) / w.sum(axis=-1)
 
 
 def readout(outputs, method: str = "parabola") -> np.ndarray:

@@ -116,6 +116,14 @@ def _bootstrap_gain(base_mse, mse, rng, n_boot):
     return float(gain.mean()), float(np.quantile(boots, 0.05)), float(np.quantile(boots, 0.95))
 
 
+def _heldout_split(measured, every_k):
+    """Curves with at least two points; every ``every_k``-th of them held out. (train, held)."""
+    n = measured.shape[0]
+    usable = [i for i in range(n) if np.isfinite(measured[i]).sum() >= 2]
+    held = usable[every_k // 2::every_k]
+    return [i for i in usable if i not in held], held
+
+
 def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
                   candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05) -> dict:
     """Fit candidates on training curves, compare on held-out curves (every ``every_k``-th), choose.
@@ -126,11 +134,8 @@ def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: i
     the fewest parameters wins (nested models: scale ⊂ background, drift)."""
     measured = np.asarray(measured, dtype=float)
     sim = np.asarray(sim, dtype=float)
-    n = measured.shape[0]
-    order = np.linspace(0.0, 1.0, n) if order is None else np.asarray(order, dtype=float)
-    usable = [i for i in range(n) if np.isfinite(measured[i]).sum() >= 2]
-    held = usable[every_k // 2::every_k]
-    train = [i for i in usable if i not in held]
+    order = np.linspace(0.0, 1.0, measured.shape[0]) if order is None else np.asarray(order, dtype=float)
+    train, held = _heldout_split(measured, every_k)
     rng = np.random.default_rng(seed)
     base_model = EFFECTS["none"].model(sim, fields, order, ())
     base_mse = _per_curve_mse(measured, base_model, held)
@@ -159,13 +164,6 @@ def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: i
         chosen = min(equivalent, key=lambda k: (len(EFFECTS[k].parameters), results[k]["heldout_rms"]))
     return {"chosen": chosen, "candidates": results, "heldout_curves": held,
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}
-
-
-def _heldout_split(measured, every_k):
-    n = measured.shape[0]
-    usable = [i for i in range(n) if np.isfinite(measured[i]).sum() >= 2]
-    held = usable[every_k // 2::every_k]
-    return [i for i in usable if i not in held], held
 
 
 def select_physics_effect(measured, base_family, candidate_families: dict, every_k: int = 4, n_boot: int = 2000,
