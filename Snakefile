@@ -1,4 +1,5 @@
-# forcdecode main job: config -> parameter draw -> screening -> FORC families -> dataset (+ figures).
+# forcdecode main job: config -> parameter draw -> screening -> FORC families -> dataset -> Alice/Bob
+# per parameter -> metrics and figures.
 # Rules live in workflow/rules/, one file per stage; they call the package's CLI (no physics here).
 import os
 
@@ -12,6 +13,7 @@ include: "workflow/rules/screen.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/merge.smk"
 include: "workflow/rules/figures.smk"
+include: "workflow/rules/learn.smk"
 
 
 localrules: all
@@ -21,4 +23,6 @@ rule all:
     input:
         rules.merge.output,
         rules.figure1.output,
+        rules.evaluate.output,
+        rules.closed_loop.output,
     default_target: True

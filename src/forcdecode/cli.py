@@ -18,6 +18,9 @@ COMMANDS = {
     "diagram": ("forcdecode.forc.cli", "FORC diagram (Pike et al. local polynomial) of a measured or simulated family"),
     "loop": ("forcdecode.loop.cli", "close the loop on a measured file: domain check, re-simulation, residual effects"),
     "dataset": ("forcdecode.dataset.cli", "workflow stages: draw, screen, select, simulate, merge, figure1"),
+    "learn": ("forcdecode.learn.cli", "workflow stages: train Alice and Bob for one parameter, evaluate and plot"),
+    "closed-loop": ("forcdecode.loop.closed_loop_cli", "workflow stage: re-simulate the predicted Hamiltonians of the simulated test set"),
+    "predict": ("forcdecode.learn.predict_cli", "predict the Hamiltonian (with uncertainties) from a FORC file or image and M_s"),
 }
 
 

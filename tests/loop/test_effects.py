@@ -26,9 +26,11 @@ def measured_with(effect, size, seed):
     if effect == "background":
         m = sim + size * H
     elif effect == "field_offset":
-        from forcdecode.loop.effects import _shift_field
+        # the instrument reports every field (reversal fields too) off by ``size``; the curves are
+        # put back on the grid as measured files are (nearest row, linear in H)
+        from forcdecode.forc.raster import resample_curves
 
-        m = _shift_field(sim, fields, size)
+        m = resample_curves(fields + size, [(fields[i:] + size, sim[i, i:]) for i in range(n)], 1.0, n)
     elif effect == "additive_drift":
         m = sim + size * order[:, None]
     elif effect == "multiplicative_drift":

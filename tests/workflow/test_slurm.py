@@ -58,8 +58,10 @@ SNAKEFILE: Path | None = REPO / "Snakefile"
 WORKDIR: Path | str = "{tmp}"
 SNAKEMAKE_ARGS: list[str] = [*COMMON_ARGS, "--configfile", str(REPO / "config" / "test.yaml")]
 EXPECTED_OUTPUTS: list[str] = ["results/dataset.h5", "results/samples.parquet", "results/figures/figure1.png",
-                               "results/screen/selection.json"]
-EXPECTED_RULES: set[str] = {"resolve_config", "draw", "screen", "select", "simulate_family", "merge", "figure1"}
+                               "results/screen/selection.json", "results/metrics.json", "results/models/D.pt",
+                               "results/closed_loop.json"]
+EXPECTED_RULES: set[str] = {"resolve_config", "draw", "screen", "select", "simulate_family", "merge", "figure1",
+                            "resolve_learning", "train_parameter", "evaluate", "closed_loop"}
 CHECK_TINY_OUTPUTS = False
 
 SETUP_TIMEOUT_S = 900      # apt-get install on a fresh machine + daemon start

@@ -25,7 +25,7 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     run = snakemake("--config", f"results_dir={out}")
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     samples = pd.read_parquet(out / "samples.parquet")
-    assert len(samples) == 6  # one row per drawn sample, rejected ones included
+    assert len(samples) == 40  # one row per drawn sample, rejected ones included
     assert set(samples["screen_status"]) <= {"passed", "rejected", "failed"}
     assert (samples["screen_status"] != "passed").all() or samples["screen_reason"].notna().all()
     assert samples.loc[samples["screen_status"] == "rejected", "screen_reason"].str.len().min() > 0
@@ -37,6 +37,24 @@ def test_tiny_config_builds_the_dataset(tmp_path):
         assert h5["parameters"].shape == (n, 7)
         assert len(h5.attrs["config_hash"]) == 16 and h5.attrs["seed"] == 7
     assert (out / "figures" / "figure1.png").stat().st_size > 10_000
+    # learning: metrics for every parameter on the test split, figures, models that `predict` reads
+    metrics = json.loads((out / "metrics.json").read_text())["parameters"]
+    assert set(metrics) == {"N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K"}
+    for m in metrics.values():
+        assert m["n_test"] >= 1 and 0 <= m["mae"] <= 1 and {"pearson_r", "skill", "bob_spearman", "coverage_68", "coverage_90"} <= set(m)
+    for name in ("figure3", "figure5bc", "learning_curve", "retention", "figure4", "closed_loop_vs_bob"):
+        assert (out / "figures" / f"{name}.png").stat().st_size > 5_000, name
+    closed = json.loads((out / "closed_loop.json").read_text())
+    assert 1 <= closed["n_resimulated"] <= 2 and 0 <= closed["observation_rms_mean"] < 2
+    with h5py.File(out / "dataset.h5", "r") as h5:
+        sample = int(h5["sample_id"][0])
+    predicted = subprocess.run([sys.executable, "-m", "forcdecode.cli", "predict", str(out / "dataset.h5"), "--sample-id",
+                                str(sample), "--Ms-kA-m", "800", "--models", str(out / "models"), "--json"],
+                               cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert predicted.returncode == 0, predicted.stderr
+    result = json.loads(predicted.stdout)
+    assert result["Ms"] == 8e5 and 0 <= result["D"]["value"] <= 5e-3
+    assert result["K_u"]["interval_90"][0] <= result["K_u"]["value"] <= result["K_u"]["interval_90"][1]
     # a finished run has nothing left to do
     again = snakemake("--config", f"results_dir={out}", "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr

@@ -6,6 +6,8 @@ from snakemake.utils import validate
 # Stops before any job runs, naming the offending key; fills in the schema's defaults.
 validate(config, "../schemas/config.schema.yaml", set_default=True)
 
+# sections that only the learning and loop stages read (kept out of the dataset's config.json)
+STAGE_SECTIONS = ("learning", "loop")
 RESULTS = config["results_dir"].rstrip("/")
 FORCDECODE = f"{sys.executable} -m forcdecode.cli"
 N_SCREEN_CHUNKS = (config["n_samples"] + config["chunk_size"] - 1) // config["chunk_size"]

@@ -1,9 +1,10 @@
 rule resolve_config:
-    """The schema-validated configuration (defaults filled in), input of every stage."""
+    """The schema-validated dataset configuration (defaults filled in), input of every stage. The
+    learning and loop sections go to their own file, so changing them never re-simulates the dataset."""
     output:
         f"{RESULTS}/config.json",
     params:
-        cfg=json.dumps(config, sort_keys=True),
+        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS}, sort_keys=True),
     log:
         f"{RESULTS}/logs/resolve_config.log",
     run:
@@ -24,3 +25,19 @@ rule draw:
         f"{RESULTS}/logs/draw.log",
     shell:
         "{FORCDECODE} dataset draw --config {input.config} --out {output} 2> {log}"
+
+
+rule resolve_learning:
+    """The learning and loop sections of the configuration (with the seed), input of the learning stages."""
+    output:
+        f"{RESULTS}/learning.json",
+    params:
+        cfg=json.dumps({"seed": config["seed"], **{k: config[k] for k in STAGE_SECTIONS}}, sort_keys=True),
+    log:
+        f"{RESULTS}/logs/resolve_learning.log",
+    run:
+        from forcdecode.dataset.io import write_json
+
+        write_json(output[0], json.loads(params.cfg))
+        with open(log[0], "w") as handle:
+            handle.write(f"wrote {output[0]}\n")

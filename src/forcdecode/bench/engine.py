@@ -127,35 +127,3 @@ def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, se
     return {"grid": f"{grid}x{grid}x1", "n_fields": n_fields, "samples": rows,
             "time_ratio_llg_over_quasistatic": float(np.mean([r["llg_s"] / r["quasistatic_s"] for r in rows])),
             "mean_abs_dmz": float(np.mean([r["mean_abs_dmz"] for r in rows]))}
-
-
-def effects_confusion(seeds=range(5), sizes=None, n_fields: int = 48, noise: float = 0.003) -> dict:
-    """Confusion table of the measured-side effect selection on synthetic families (a Preisach-like
-    family with coercivity 0.3 T) with one undeclared effect at several sizes, plus controls."""
-    from ..loop.effects import _shift_field, select_effect
-
-    sizes = sizes or {"background": [0.002, 0.02, 0.05, 0.1], "field_offset": [0.001, 0.005, 0.01, 0.02],
-                      "additive_drift": [0.002, 0.01, 0.02, 0.05], "multiplicative_drift": [0.002, 0.01, 0.02, 0.05],
-                      "scale": [0.998, 0.95, 0.9, 0.8], "none": [0.0]}
-    fields = np.linspace(-1, 1, n_fields)
-    sim = np.full((n_fields, n_fields), np.nan)
-    for i, hr in enumerate(fields):
-        down = 0.5 * (1 - np.tanh((hr + 0.3) / 0.12))
-        sim[i, i:] = down * np.tanh((fields[i:] - 0.3) / 0.12) + (1 - down) - 0.02 * (1 - fields[i:])
-    order = np.linspace(0, 1, n_fields)[::-1]
-    table, rows = {}, []
-    for effect, values in sizes.items():
-        for size in values:
-            for seed in seeds:
-                m = {"none": sim, "scale": size * sim, "background": sim + size * fields[None, :],
-                     "field_offset": _shift_field(sim, fields, size) if effect == "field_offset" else sim,
-                     "additive_drift": sim + size * order[:, None],
-                     "multiplicative_drift": sim * (1 + size * order[:, None])}[effect]
-                m = m + noise * np.random.default_rng(seed).normal(size=m.shape)
-                result = select_effect(m, sim, fields, order, seed=seed)
-                table.setdefault(effect, {}).setdefault(result["chosen"], 0)
-                table[effect][result["chosen"]] += 1
-                rows.append({"effect": effect, "size": size, "seed": seed, "chosen": result["chosen"],
-                             "rms_before": result["heldout_rms_before"], "rms_after": result["heldout_rms_after"]})
-    correct = sum(r["effect"] == r["chosen"] for r in rows)
-    return {"confusion": table, "accuracy": correct / len(rows), "n_cases": len(rows), "cases": rows}

@@ -34,8 +34,28 @@ def pinning_cells(N_pin: int, mesh: Mesh, cfg: dict) -> int:
     return int(N_pin)
 
 
+def _missing(value) -> bool:
+    return value is None or (isinstance(value, float) and np.isnan(value))
+
+
+def _layer_K_u_factor(value):
+    """Per-layer K_u factors from params: a sequence of floats or a comma-separated string
+    ("1.0,0.2", parquet-friendly); None/NaN/absent: none."""
+    if _missing(value):
+        return None
+    if isinstance(value, str):
+        return tuple(float(v) for v in value.split(","))
+    return tuple(float(v) for v in value)
+
+
 def build_film(cfg: dict, params: dict, sample_id: int, pinning: str | None = None):
+    """The sample's film, initial state and disorder. Optional ``params`` keys (absent or NaN: off):
+    ``K_2`` (J/m³), ``B_bias_T`` (T, along z), ``layer_K_u_factor`` (per-layer K_u multipliers,
+    sequence or "f0,f1"), ``spacer_after_layer`` (int) and ``interlayer_coupling_J_m2`` (J/m²,
+    coupling across that spacer)."""
     mesh = mesh_from_config(cfg)
+    spacer = params.get("spacer_after_layer")
+    interlayer_J = params.get("interlayer_coupling_J_m2")
     rng = sample_rng(cfg["seed"], sample_id, 1)
     return disordered_film(
         mesh, Ms=params["Ms"], A_ex=params["A_ex"], K_u=params["K_u"], D=params["D"],
@@ -43,6 +63,9 @@ def build_film(cfg: dict, params: dict, sample_id: int, pinning: str | None = No
         n_pin=pinning_cells(params["N_pin"], mesh, cfg), rng=rng, n_grains=cfg["n_grains"],
         pinning=pinning or cfg["pinning"]["treatment"], kernel_cache_dir=cfg.get("kernel_cache_dir"),
         K_2=float(params.get("K_2", 0.0)), B_bias_T=(0.0, 0.0, float(params.get("B_bias_T", 0.0))),
+        layer_K_u_factor=_layer_K_u_factor(params.get("layer_K_u_factor")),
+        spacer_after_layer=None if _missing(spacer) else int(spacer),
+        interlayer_coupling_J_m2=0.0 if _missing(interlayer_J) else float(interlayer_J),
     )
 
 

@@ -9,21 +9,28 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import time
+
 import numpy as np
 import torch
 
 from .encoding import encode, readout
-from .models import PaperCNN, SmallCNN, image_tensor
+from .models import build_network, image_tensor
 
 
 def split_indices(n: int, seed: int, fractions=(0.7, 0.15, 0.15)):
-    """Reproducible (train, validation, test) index arrays; the paper's 80/20 is fractions=(0.8, 0.2, 0)."""
+    """Reproducible disjoint index arrays, one per fraction (e.g. train, validation, test; the
+    paper's 80/20 is fractions=(0.8, 0.2, 0)); the last part takes the rounding remainder."""
     if not np.isclose(sum(fractions), 1.0):
         raise ValueError("split fractions must sum to 1")
     order = np.random.default_rng(seed).permutation(n)
-    n_train = int(round(fractions[0] * n))
-    n_val = int(round(fractions[1] * n))
-    return order[:n_train], order[n_train:n_train + n_val], order[n_train + n_val:]
+    parts, start = [], 0
+    for fraction in fractions[:-1]:
+        size = int(round(fraction * n))
+        parts.append(order[start:start + size])
+        start += size
+    parts.append(order[start:])
+    return tuple(parts)
 
 
 @dataclass
@@ -48,22 +55,39 @@ class Alice:
         """Normalized parameter u ∈ [0, 1] per image."""
         return readout(self.outputs(images, ms_norm), method)
 
+    def mc_dropout(self, images, ms_norm, n_passes: int = 30, seed: int = 0, method: str = "parabola"):
+        """Monte-Carlo dropout: ``n_passes`` readouts with dropout left on; (mean, std) per image."""
+        torch.manual_seed(seed)
+        self.net.train()
+        x = image_tensor(images)
+        ms = torch.as_tensor(np.asarray(ms_norm), dtype=torch.float32)
+        with torch.no_grad():
+            draws = np.stack([readout(self.net(x, ms).numpy(), method) for _ in range(n_passes)])
+        self.net.eval()
+        return draws.mean(axis=0), draws.std(axis=0, ddof=1)
+
 
 def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = "small", width: int = 256,
               epochs: int = 50, batch_size: int = 64, lr: float = 0.01, patience: int = 10, seed: int = 0,
-              log=None) -> Alice:
-    """Adadelta (lr 0.01, ρ 0.9, no weight decay), MSE on the 11 raw outputs against the encoding."""
+              dropout: float = 0.5, log=None) -> Alice:
+    """Adadelta (ρ 0.9, no weight decay; the paper's lr is 0.01), MSE on the 11 raw outputs against
+    the encoding; keeps the weights of the epoch with the lowest validation loss."""
+    if len(train_idx) == 0 or len(val_idx) == 0:
+        raise ValueError(f"training needs non-empty train and validation sets (got {len(train_idx)} and {len(val_idx)})")
     torch.manual_seed(seed)
-    net = PaperCNN() if model == "paper" else SmallCNN(width=width)
+    net = build_network(model, width=width, image_size=int(np.shape(images)[-1]), dropout=dropout)
     optimizer = torch.optim.Adadelta(net.parameters(), lr=lr, rho=0.9, weight_decay=0.0)
     x_all = image_tensor(images)
     ms_all = torch.as_tensor(np.asarray(ms_norm), dtype=torch.float32)
     t_all = torch.as_tensor(encode(target_norm), dtype=torch.float32)
+    with torch.no_grad():  # start from the mean encoded target: the steps go to what varies
+        net.dense2.bias.copy_(t_all[torch.as_tensor(np.asarray(train_idx))].mean(dim=0))
     generator = torch.Generator().manual_seed(seed)
     train_idx = torch.as_tensor(np.asarray(train_idx))
     val_idx = torch.as_tensor(np.asarray(val_idx))
     history = {"train_loss": [], "val_loss": []}
     best, best_state, best_epoch, waited = np.inf, None, -1, 0
+    started, samples_seen = time.perf_counter(), 0
     for epoch in range(epochs):
         net.train()
         permutation = train_idx[torch.randperm(len(train_idx), generator=generator)]
@@ -75,6 +99,7 @@ def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = 
             loss.backward()
             optimizer.step()
             total += loss.item() * len(batch)
+            samples_seen += len(batch)
         net.eval()
         with torch.no_grad():
             val = float(torch.nn.functional.mse_loss(net(x_all[val_idx], ms_all[val_idx]), t_all[val_idx]))
@@ -89,5 +114,8 @@ def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = 
             waited += 1
             if waited >= patience:
                 break
+    history["train_seconds"] = time.perf_counter() - started
+    history["samples_seen"] = samples_seen
     net.load_state_dict(best_state)
+    net.eval()
     return Alice(net, history, best_epoch)

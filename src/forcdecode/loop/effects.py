@@ -1,20 +1,28 @@
-"""Measured-side effects the micromagnetic model lacks, their signatures on the raw curves, and
-selection by held-out whole curves.
+"""Measured-side effects the micromagnetic model lacks, alone and in small combinations, and their
+selection on held-out whole curves.
 
-Each effect maps the re-simulated grid family m_sim(H_r, H) (NaN below the diagonal) to a model of
-the measurement with a few parameters:
+Each effect maps the re-simulated grid family m_sim(H_r, H) (NaN below the diagonal, m normalized
+to the film's saturation moment) to a model of the measurement. Components (μ0H in tesla):
 
-- ``scale``:       m = a·m_sim                      (volume / M_s error)
-- ``background``:  m = a·m_sim + χ·μ0H              (para/diamagnetic substrate, χ per tesla)
-- ``field_offset``: m = m_sim(H_r − δ, H − δ)        (remanent field of the magnet, δ in tesla)
-- ``additive_drift``: m = a·m_sim + d·τ              (τ ∈ [0, 1]: measurement order of the curve)
-- ``multiplicative_drift``: m = a·m_sim·(1 + d·τ)
+- ``scale``:           a·m_sim                      (volume / M_s error; a dimensionless)
+- ``background``:      a·m_sim + χ·μ0H              (para/diamagnetic substrate, χ per tesla)
+- ``field_offset``:    m_sim(H_r − δ, H − δ)        (reported field off by δ (T): the sample feels
+                       μ0H − δ; on the grid, whole rows in H_r, see ``_offset_family``)
+- ``additive_drift``:  a·m_sim + d·τ                (τ ∈ [0, 1]: measurement clock)
+- ``multiplicative_drift``: a·m_sim·(1 + d·τ)
 
-Selection: fit every candidate on all curves but every k-th, score it on the held-out curves (RMS),
-and accept it only if it beats the base model (``none``, m = m_sim) on those curves by more than
-its own noise: the 5 % lower bound of a paired bootstrap over held-out curves of the per-curve
-mean-square improvement must exceed 5 % of the base error. Among accepted candidates that are
-equivalent to the best (within 5 % in held-out MSE) the simplest wins; else ``none``.
+A combination composes them as m = a·S_δ[m_sim]·(1 + d_m·τ) + χ·μ0(H − δ) + d_a·τ with the absent
+parameters at their neutral values; its name joins the components with "+" (``scale`` is dropped
+where another component already carries a scale: background+additive_drift, field_offset+scale).
+
+Selection: fit every candidate on all curves but every k-th, score it on the held-out curves (mean
+square misfit per curve; optionally cross-fitted, every curve held out once). Stepwise in the number
+of fitted parameters, starting from the base model (``none``, m = m_sim): at each level the
+candidate with the lowest held-out error replaces the current choice only if it beats it by more
+than its own noise: held-out mean-square error lower by more than ``equivalence`` (5 %) and the 5 %
+bound of a paired bootstrap over held-out curves of the relative reduction of that error above
+``min_relative_gain`` (5 %). A combination must therefore earn the parameters it adds over the
+best simpler candidate; a single effect stays named as the single effect.
 """
 
 from __future__ import annotations
@@ -22,77 +30,167 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import RegularGridInterpolator
 from scipy.optimize import least_squares
 
+COMPONENTS = ("background", "field_offset", "additive_drift", "multiplicative_drift", "scale")
+"""Measured-side components, in the order they are named in a combination."""
 
-def _shift_field(sim, fields, delta):
-    """m_sim evaluated at (H_r − δ, H − δ) (bilinear on the grid; NaN outside or below diagonal)."""
-    filled = np.where(np.isfinite(sim), sim, np.nan)
-    # fill below the diagonal by the reversal-point value so interpolation near the diagonal works
-    for i in range(filled.shape[0]):
-        filled[i, :i] = filled[i, i]
-    interp = RegularGridInterpolator((fields, fields), filled, bounds_error=False, fill_value=np.nan)
-    HR, H = np.meshgrid(fields, fields, indexing="ij")
-    out = interp(np.stack([HR - delta, H - delta], axis=-1))
+_CARRY_SCALE = {"scale", "background", "additive_drift", "multiplicative_drift"}
+_PARAMETER_ORDER = ("scale", "offset_T", "chi_per_T", "additive_drift", "multiplicative_drift")
+_INITIAL = {"scale": 1.0, "offset_T": 0.0, "chi_per_T": 0.0, "additive_drift": 0.0, "multiplicative_drift": 0.0}
+
+COMBINATIONS = ("background+field_offset", "background+additive_drift", "background+multiplicative_drift",
+                "field_offset+scale", "field_offset+additive_drift", "field_offset+multiplicative_drift")
+"""Combinations offered by default: pairs a real measurement plausibly has together (the two drifts
+together are left out: on one clock they are nearly collinear)."""
+
+
+def _offset_family(sim, fields, delta):
+    """The family an instrument whose reported fields are off by δ (T) records, as rasterized.
+
+    The sample feels μ0H − δ when μ0H is reported. Along a curve the shift is continuous (linear
+    interpolation in H, as ``forc.raster.resample_curves`` does); a curve is placed on the grid row
+    nearest to its reported reversal field, so in H_r the shift is whole rows, round(δ/ΔH): an
+    offset below half a row moves no curve to another row (exact when the curves were reversed at
+    the grid fields; where the instrument's reported reversal fields sit on the grid instead, a
+    sub-row part δ·∂m/∂H_r stays in the residual). NaN where the shifted point lies outside the
+    simulated window."""
+    n = len(fields)
+    step = fields[1] - fields[0]
+    rows = int(np.rint(delta / step))
+    out = np.full(sim.shape, np.nan)
+    for i in range(n):
+        k = i - rows  # the simulated curve whose reversal field is the true one of row i
+        if not 0 <= k < n:
+            continue
+        curve = sim[k].copy()
+        curve[:k] = curve[k]  # below the reversal point the curve holds m(H_r, H_r)
+        h = fields[i:] - delta
+        inside = (h >= fields[0] - 1e-12) & (h <= fields[-1] + 1e-12)
+        out[i, i:] = np.where(inside, np.interp(h, fields, curve), np.nan)
     return np.where(np.isfinite(sim), out, np.nan)
+
+
+def _clock(order):
+    """Measurement clock τ broadcast to the family: per curve (n,) or per point (n, n)."""
+    order = np.asarray(order, dtype=float)
+    return order[:, None] if order.ndim == 1 else order
+
+
+def measurement_clock(n: int) -> np.ndarray:
+    """Normalized time τ ∈ [0, 1] at which each point of an n × n grid family is measured in the
+    MicroMag order: curves from the highest reversal field down, each preceded by one calibration
+    point and swept from H_r up (time ∝ points measured). NaN below the diagonal."""
+    clock = np.full((n, n), np.nan)
+    t = 0
+    for i in range(n - 1, -1, -1):
+        t += 1  # the calibration point before the curve
+        clock[i, i:] = t + np.arange(n - i)
+        t += n - i
+    return (clock - 1) / (t - 1)
+
+
+def effect_name(components) -> str:
+    """Canonical name of a set of components ("none" for the empty set)."""
+    components = set(components)
+    unknown = components - set(COMPONENTS)
+    if unknown:
+        raise ValueError(f"unknown measured-side components {sorted(unknown)}; known: {COMPONENTS}")
+    if len(components & _CARRY_SCALE) > 1:
+        components.discard("scale")
+    return "+".join(c for c in COMPONENTS if c in components) or "none"
 
 
 @dataclass(frozen=True)
 class Effect:
+    """A measured-side model with its fitted parameters (names in ``parameters``, SI/tesla)."""
+
     name: str
-    parameters: tuple[str, ...]
-    initial: tuple[float, ...]
+    components: tuple[str, ...]
+
+    @property
+    def parameters(self) -> tuple[str, ...]:
+        present = set()
+        if set(self.components) & _CARRY_SCALE:
+            present.add("scale")
+        if "field_offset" in self.components:
+            present.add("offset_T")
+        if "background" in self.components:
+            present.add("chi_per_T")
+        for drift in ("additive_drift", "multiplicative_drift"):
+            if drift in self.components:
+                present.add(drift)
+        return tuple(p for p in _PARAMETER_ORDER if p in present)
+
+    @property
+    def initial(self) -> tuple[float, ...]:
+        return tuple(_INITIAL[p] for p in self.parameters)
 
     def model(self, sim, fields, order, theta):
-        H = fields[None, :]
-        tau = order[:, None]
-        if self.name == "none":
-            return sim
-        if self.name == "scale":
-            return theta[0] * sim
-        if self.name == "background":
-            return theta[0] * sim + theta[1] * H
-        if self.name == "field_offset":
-            return _shift_field(sim, fields, theta[0])
-        if self.name == "additive_drift":
-            return theta[0] * sim + theta[1] * tau
-        if self.name == "multiplicative_drift":
-            return theta[0] * sim * (1 + theta[1] * tau)
-        raise ValueError(self.name)
+        """The measurement predicted from ``sim`` with parameters ``theta`` (order of ``parameters``)."""
+        values = {**_INITIAL, **dict(zip(self.parameters, theta))}
+        delta = values["offset_T"]
+        film = _offset_family(sim, fields, delta) if "field_offset" in self.components else sim
+        tau = _clock(order)
+        if "multiplicative_drift" in self.components:
+            film = film * (1 + values["multiplicative_drift"] * tau)
+        out = values["scale"] * film
+        if "background" in self.components:
+            out = out + values["chi_per_T"] * (fields[None, :] - delta)
+        if "additive_drift" in self.components:
+            out = out + values["additive_drift"] * tau
+        return out
 
 
-EFFECTS = {
-    "none": Effect("none", (), ()),
-    "scale": Effect("scale", ("scale",), (1.0,)),
-    "background": Effect("background", ("scale", "chi_per_T"), (1.0, 0.0)),
-    "field_offset": Effect("field_offset", ("offset_T",), (0.0,)),
-    "additive_drift": Effect("additive_drift", ("scale", "drift"), (1.0, 0.0)),
-    "multiplicative_drift": Effect("multiplicative_drift", ("scale", "drift"), (1.0, 0.0)),
-}
+def _effect(components) -> Effect:
+    return Effect(effect_name(components), tuple(c for c in COMPONENTS if c in set(components)))
+
+
+EFFECTS = {"none": Effect("none", ())}
+EFFECTS.update({c: _effect([c]) for c in ("scale", "background", "field_offset", "additive_drift",
+                                          "multiplicative_drift")})
+EFFECTS.update({name: _effect(name.split("+")) for name in COMBINATIONS})
+SINGLE_EFFECTS = ("scale", "background", "field_offset", "additive_drift", "multiplicative_drift")
 
 
 def fit_effect(effect: Effect, measured, sim, fields, order, rows):
-    """Least-squares fit of ``effect`` on the curves ``rows``; returns (theta, standard errors)."""
+    """Least-squares fit of ``effect`` on the curves ``rows``; returns (theta, standard errors).
+
+    The standard error is the larger of the ordinary one (independent residuals) and the one robust
+    to correlated residuals along a curve (sandwich estimator with curves as clusters)."""
     if not effect.parameters:
         return np.array([]), np.array([])
     mask = np.zeros(measured.shape, dtype=bool)
     mask[rows] = True
     mask &= np.isfinite(measured) & np.isfinite(sim)
+    curve_of_point = np.nonzero(mask)[0]
 
     def residual(theta):
         model = effect.model(sim, fields, order, theta)
         r = np.where(mask & np.isfinite(model), model - measured, 0.0)
         return r[mask]
 
-    result = least_squares(residual, np.array(effect.initial, dtype=float), x_scale="jac")
+    starts = [np.array(effect.initial, dtype=float)]
+    if "offset_T" in effect.parameters:
+        # the shifted family is piecewise bilinear in δ: start on both sides of a grid node too
+        step = float(np.median(np.diff(fields)))
+        k = effect.parameters.index("offset_T")
+        for d in (-0.25 * step, 0.25 * step):
+            start = starts[0].copy()
+            start[k] = d
+            starts.append(start)
+    result = min((least_squares(residual, s, x_scale="jac") for s in starts), key=lambda r: r.cost)
     dof = max(1, mask.sum() - len(effect.parameters))
     sigma2 = 2 * result.cost / dof
+    J, r = result.jac, result.fun
     try:
-        covariance = np.linalg.inv(result.jac.T @ result.jac) * sigma2
-        errors = np.sqrt(np.clip(np.diag(covariance), 0, None))
+        bread = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
-        errors = np.full(len(effect.parameters), np.nan)
+        return result.x, np.full(len(effect.parameters), np.nan)
+    per_curve_score = np.zeros((curve_of_point.max() + 1, J.shape[1]))
+    np.add.at(per_curve_score, curve_of_point, J * r[:, None])
+    clustered = bread @ (per_curve_score.T @ per_curve_score) @ bread
+    errors = np.sqrt(np.clip(np.maximum(np.diag(bread) * sigma2, np.diag(clustered)), 0, None))
     return result.x, errors
 
 
@@ -107,13 +205,20 @@ def _per_curve_mse(measured, model, rows):
 
 
 def _bootstrap_gain(base_mse, mse, rng, n_boot):
-    """Paired gain base − candidate over the curves both can score; (mean, 5 %, 95 %)."""
+    """Paired bootstrap over the curves both can score (resampled as whole curves). Returns
+    (mean gain base − candidate, [5 %, 95 %] of the mean gain, [5 %, 95 %] of the relative gain
+    1 − Σ mse / Σ base_mse). The relative bound is the one to test: it stays meaningful when one
+    curve carries most of the base error and is missing from a resample."""
     both = np.isfinite(base_mse) & np.isfinite(mse)
-    gain = (base_mse - mse)[both]
-    if gain.size == 0:
-        return float("nan"), float("-inf"), float("-inf")
-    boots = gain[rng.integers(0, gain.size, size=(n_boot, gain.size))].mean(axis=1)
-    return float(gain.mean()), float(np.quantile(boots, 0.05)), float(np.quantile(boots, 0.95))
+    base, candidate = base_mse[both], mse[both]
+    if base.size == 0:
+        return float("nan"), [float("-inf")] * 2, [float("-inf")] * 2
+    pick = rng.integers(0, base.size, size=(n_boot, base.size))
+    base_sum, candidate_sum = base[pick].sum(axis=1), candidate[pick].sum(axis=1)
+    gain = (base_sum - candidate_sum) / base.size
+    relative = np.where(base_sum > 0, 1 - candidate_sum / np.where(base_sum > 0, base_sum, 1.0), 0.0)
+    return (float((base - candidate).mean()), [float(np.quantile(gain, 0.05)), float(np.quantile(gain, 0.95))],
+            [float(np.quantile(relative, 0.05)), float(np.quantile(relative, 0.95))])
 
 
 def _heldout_split(measured, every_k):
@@ -124,45 +229,101 @@ def _heldout_split(measured, every_k):
     return [i for i in usable if i not in held], held
 
 
-def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
-                  candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05) -> dict:
-    """Fit candidates on training curves, compare on held-out curves (every ``every_k``-th), choose.
+def heldout_folds(measured, every_k: int, cross_fit: bool):
+    """(train, held) splits of the usable curves: the single split of ``_heldout_split``, or with
+    ``cross_fit`` all ``every_k`` of them (fold r holds out usable curves r, r + k, ...), so that
+    every curve is held out once."""
+    train, held = _heldout_split(measured, every_k)
+    if not cross_fit:
+        return [(train, held)]
+    usable = sorted(train + held)
+    return [([i for i in usable if i not in usable[r::every_k]], usable[r::every_k]) for r in range(every_k)
+            if usable[r::every_k]]
 
-    A candidate is accepted when the 5 % bound of its bootstrapped held-out gain exceeds
-    ``min_relative_gain`` of the base model's held-out mean-square error (noise and triviality
-    guard); among accepted candidates within ``equivalence`` of the best held-out MSE, the one with
-    the fewest parameters wins (nested models: scale ⊂ background, drift)."""
+
+def heldout_mse(measured, fit, folds):
+    """Per-curve held-out mean-square misfit of a candidate over ``folds``: ``fit(train_rows)``
+    returns the model family fitted on those rows. Aligned with the concatenated held-out rows."""
+    return np.concatenate([_per_curve_mse(measured, fit(train), held) for train, held in folds])
+
+
+def _beats(challenger_mse, current_mse, rng, n_boot, min_relative_gain, equivalence) -> bool:
+    """The challenger's held-out error is lower than the current one's by more than ``equivalence``
+    and the 5 % bound of the paired bootstrap of the relative reduction of the held-out
+    mean-square error exceeds ``min_relative_gain``."""
+    current = float(np.nanmean(current_mse))
+    if not float(np.nanmean(challenger_mse)) * (1 + equivalence) < current:
+        return False
+    _, _, relative = _bootstrap_gain(current_mse, challenger_mse, rng, n_boot)
+    return relative[0] > min_relative_gain
+
+
+def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2000,
+                     min_relative_gain: float = 0.05, equivalence: float = 0.05):
+    """The selection rule shared by every candidate kind (see the module docstring).
+
+    ``heldout_mse[name]``: per-held-out-curve mean-square misfit (aligned arrays; ``"none"`` is the
+    base model). Stepwise from ``none``: at each number of fitted parameters, in increasing order,
+    the candidate with the lowest held-out error replaces the current choice if it ``_beats`` it.
+    Returns (chosen name, {name: {"heldout_rms", "gain_mse", "gain_ci90", "relative_gain_ci90",
+    "accepted"}}): the mean per-curve gain over ``none`` in mean-square error, its paired-bootstrap
+    90 % interval, that of the relative gain, and whether the candidate alone would beat ``none``."""
+    base_mse = heldout_mse["none"]
+    base = float(np.nanmean(base_mse))
+    scores = {}
+    for name, mse in heldout_mse.items():
+        if name == "none":
+            gain, ci, relative = 0.0, [0.0, 0.0], [0.0, 0.0]
+        else:
+            gain, ci, relative = _bootstrap_gain(base_mse, mse, rng, n_boot)
+        scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse))), "gain_mse": gain, "gain_ci90": ci,
+                        "relative_gain_ci90": relative,
+                        "accepted": name != "none" and float(np.nanmean(mse)) * (1 + equivalence) < base
+                        and relative[0] > min_relative_gain}
+    mean_mse = {k: float(np.nanmean(v)) for k, v in heldout_mse.items()}
+    chosen = "none"
+    for level in sorted({n_parameters[k] for k in heldout_mse} - {0}):
+        challenger = min((k for k in heldout_mse if n_parameters[k] == level), key=mean_mse.get)
+        if _beats(heldout_mse[challenger], heldout_mse[chosen], rng, n_boot, min_relative_gain, equivalence):
+            chosen = challenger
+    return chosen, scores
+
+
+def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
+                  candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05,
+                  cross_fit: bool = False) -> dict:
+    """Fit measured-side candidates (singles and ``COMBINATIONS``; ``candidates`` restricts them) on
+    training curves, compare them on held-out curves (every ``every_k``-th; with ``cross_fit`` each
+    of the ``every_k`` such splits in turn, so every curve is held out once), choose (module rule).
+
+    ``order``: measurement clock τ ∈ [0, 1] per curve (n,) or per point (n, n); default per curve
+    0 → 1 in ascending H_r. Parameters and uncertainties are those of the fit on the training curves
+    (all usable curves with ``cross_fit``). Returns {"chosen", "candidates": {name: {"parameters",
+    "uncertainties", "n_parameters", "heldout_rms", "gain_mse", "gain_ci90", "accepted"}},
+    "heldout_curves", "heldout_rms_before", "heldout_rms_after"}."""
     measured = np.asarray(measured, dtype=float)
     sim = np.asarray(sim, dtype=float)
+    fields = np.asarray(fields, dtype=float)
     order = np.linspace(0.0, 1.0, measured.shape[0]) if order is None else np.asarray(order, dtype=float)
-    train, held = _heldout_split(measured, every_k)
-    rng = np.random.default_rng(seed)
-    base_model = EFFECTS["none"].model(sim, fields, order, ())
-    base_mse = _per_curve_mse(measured, base_model, held)
-    results = {}
-    for name in candidates or EFFECTS:
+    folds = heldout_folds(measured, every_k, cross_fit)
+    all_train = sorted(folds[0][0] + folds[0][1]) if cross_fit else folds[0][0]
+    names = ["none"] + [k for k in (candidates or EFFECTS) if k != "none"]
+    fits, mse = {}, {}
+    for name in names:
         effect = EFFECTS[name]
-        theta, errors = fit_effect(effect, measured, sim, fields, order, train)
-        model = effect.model(sim, fields, order, theta)
-        mse = _per_curve_mse(measured, model, held)
-        gain, low, high = _bootstrap_gain(base_mse, mse, rng, n_boot)
-        results[name] = {
-            "parameters": dict(zip(effect.parameters, map(float, theta))),
-            "uncertainties": dict(zip(effect.parameters, map(float, errors))),
-            "heldout_rms": float(np.sqrt(np.nanmean(mse))),
-            "gain_mse": gain,
-            "gain_ci90": [low, high],
-        }
-    base = float(np.nanmean(base_mse))
-    accepted = [k for k, v in results.items()
-                if k != "none" and v["gain_ci90"][0] > max(0.0, min_relative_gain * base)]
-    chosen = "none"
-    if accepted:
-        best = min(results[k]["heldout_rms"] for k in accepted) ** 2
-        # parsimony: the fewest parameters among candidates within ``equivalence`` of the best
-        equivalent = [k for k in accepted if results[k]["heldout_rms"] ** 2 <= best * (1 + equivalence)]
-        chosen = min(equivalent, key=lambda k: (len(EFFECTS[k].parameters), results[k]["heldout_rms"]))
-    return {"chosen": chosen, "candidates": results, "heldout_curves": held,
+
+        def fit(train, effect=effect):
+            return effect.model(sim, fields, order, fit_effect(effect, measured, sim, fields, order, train)[0])
+
+        mse[name] = heldout_mse(measured, fit, folds)
+        theta, errors = fit_effect(effect, measured, sim, fields, order, all_train)
+        fits[name] = {"parameters": dict(zip(effect.parameters, map(float, theta))),
+                      "uncertainties": dict(zip(effect.parameters, map(float, errors))),
+                      "n_parameters": len(effect.parameters)}
+    chosen, scores = choose_candidate(mse, {k: v["n_parameters"] for k, v in fits.items()},
+                                      np.random.default_rng(seed), n_boot, min_relative_gain, equivalence)
+    results = {k: {**fits[k], **scores[k]} for k in names}
+    return {"chosen": chosen, "candidates": results, "heldout_curves": [i for _, held in folds for i in held],
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}
 
 
@@ -171,22 +332,18 @@ def select_physics_effect(measured, base_family, candidate_families: dict, every
     """Physics-side candidates: for each effect, re-simulated families over a grid of its size
     (``candidate_families[name] = {value: family}``). The size is chosen on the training curves, the
     effect judged on the held-out curves against ``base_family`` (paired bootstrap, as above)."""
-    train, held = _heldout_split(np.asarray(measured, float), every_k)
-    rng = np.random.default_rng(seed)
-    base_mse = _per_curve_mse(measured, base_family, held)
-    results = {"none": {"value": None, "heldout_rms": float(np.sqrt(np.nanmean(base_mse))), "gain_ci90": [0.0, 0.0]}}
+    from .physics_effects import fit_grid_effect
+
+    measured = np.asarray(measured, float)
+    train, held = _heldout_split(measured, every_k)
+    mse = {"none": _per_curve_mse(measured, base_family, held)}
+    fitted = {"none": {"value": None}}
     for name, families in candidate_families.items():
-        train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
-        best_value = min(train_error, key=train_error.get)
-        values = sorted(families)
-        k = values.index(best_value)
-        step = (values[min(k + 1, len(values) - 1)] - values[max(k - 1, 0)]) / 2 if len(values) > 1 else 0.0
-        mse = _per_curve_mse(measured, families[best_value], held)
-        gain, low, high = _bootstrap_gain(base_mse, mse, rng, n_boot)
-        results[name] = {"value": float(best_value), "uncertainty": float(abs(step)),
-                         "heldout_rms": float(np.sqrt(np.nanmean(mse))), "gain_mse": gain, "gain_ci90": [low, high]}
-    base = float(np.nanmean(base_mse))
-    accepted = [k for k, v in results.items() if k != "none" and v["gain_ci90"][0] > min_relative_gain * base]
-    chosen = min(accepted, key=lambda k: results[k]["heldout_rms"]) if accepted else "none"
+        value, step = fit_grid_effect(measured, families, train)
+        mse[name] = _per_curve_mse(measured, families[value], held)
+        fitted[name] = {"value": float(value), "uncertainty": float(step)}
+    chosen, scores = choose_candidate(mse, {k: int(k != "none") for k in mse},
+                                      np.random.default_rng(seed), n_boot, min_relative_gain)
+    results = {k: {**fitted[k], **scores[k]} for k in mse}
     return {"chosen": chosen, "candidates": results, "heldout_curves": held,
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}

@@ -1,9 +1,9 @@
 """Zero-temperature micromagnetic engine for periodic perpendicular films (numba).
 
-One module per energy term (``exchange``, ``anisotropy``, ``dmi``, ``demag``, ``zeeman``), the
-combined effective field (``effective_field``), the quasi-static minimizer (``minimize``), the
-adaptive RK45 LLG integrator (``llg``), the seed paper's disorder (``disorder``) and the user-facing
-``Film``.
+One module per energy term (``exchange``, ``anisotropy``, ``dmi``, ``demag``, ``zeeman``; optional
+``interlayer`` coupling across a spacer), the combined effective field (``effective_field``), the
+quasi-static minimizer (``minimize``), the adaptive RK45 LLG integrator (``llg``), the seed paper's
+disorder (``disorder``) and the user-facing ``Film``.
 """
 
 from .constants import GAMMA_LL, MU0

@@ -55,9 +55,27 @@ class Disorder:
     pinning_index: tuple  # flat indices (k, j, i) arrays
 
 
+def layer_factors(layer_K_u_factor, nz: int) -> np.ndarray | None:
+    """Validated per-layer K_u multipliers (nz,), or None for none."""
+    if layer_K_u_factor is None:
+        return None
+    factors = np.asarray(layer_K_u_factor, dtype=np.float64).reshape(-1)
+    if factors.shape != (nz,):
+        raise ValueError(f"layer_K_u_factor needs one factor per layer (nz = {nz}), got {factors.shape[0]}")
+    if not np.all(np.isfinite(factors) & (factors >= 0)):
+        raise ValueError(f"layer_K_u_factor must be finite and non-negative, got {factors.tolist()}")
+    return factors
+
+
 def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float, n_pin: int,
-                  rng: np.random.Generator, n_grains: int = 255) -> Disorder:
-    """Draw grains and pinning sites. ``sigma_K`` is a fraction (0.2 = 20 %), angles in radians."""
+                  rng: np.random.Generator, n_grains: int = 255, layer_K_u_factor=None) -> Disorder:
+    """Draw grains and pinning sites. ``sigma_K`` is a fraction (0.2 = 20 %), angles in radians.
+
+    ``layer_K_u_factor`` (one factor per layer, default none) multiplies the grains' K_u layer by
+    layer (a second, softer or harder phase); pinning cells keep ``PINNING_K_U``. The random draws
+    do not depend on it.
+    """
+    factors = layer_factors(layer_K_u_factor, mesh.nz)
     if not 0 <= n_pin <= mesh.n_cells:
         raise ValueError(f"n_pin = {n_pin} is outside 0..{mesh.n_cells}")
     labels = periodic_voronoi_labels(mesh, n_grains, rng)
@@ -67,6 +85,8 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
     grain_K = np.clip(K_u * (1.0 + delta), 0.0, None)
     grain_axis = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
     K = np.broadcast_to(grain_K[labels], mesh.shape).copy()
+    if factors is not None:
+        K *= factors[:, None, None]
     axis = np.broadcast_to(grain_axis[:, labels][:, None], mesh.vector_shape).copy()
     flat = rng.choice(mesh.n_cells, size=n_pin, replace=False)
     index = np.unravel_index(flat, mesh.shape)
@@ -82,15 +102,20 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
 def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
                     sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
                     pinning: str = "full", terms=TERMS, kernel_cache_dir=None, K_2: float = 0.0,
-                    B_bias_T=(0.0, 0.0, 0.0)):
+                    B_bias_T=(0.0, 0.0, 0.0), layer_K_u_factor=None, interlayer_coupling_J_m2: float = 0.0,
+                    spacer_after_layer: int | None = None):
     """Build the seed paper's film and its initial magnetization.
+
+    Optional: ``layer_K_u_factor`` (per-layer K_u multipliers, see ``draw_disorder``), and a spacer
+    after layer ``spacer_after_layer`` with interlayer coupling ``interlayer_coupling_J_m2`` (J/m²,
+    see ``Film``).
 
     Returns (film, m0, disorder): m0 is +z everywhere except the pinning cells, which hold their
     random orientation (snapped to the nearest pole ±z for ``pinning="frozen"``).
     """
     if pinning not in ("slaved", "frozen", "full"):
         raise ValueError(f"pinning must be 'slaved', 'frozen' or 'full', got {pinning!r}")
-    disorder = draw_disorder(mesh, K_u, sigma_K, sigma_theta_rad, n_pin, rng, n_grains)
+    disorder = draw_disorder(mesh, K_u, sigma_K, sigma_theta_rad, n_pin, rng, n_grains, layer_K_u_factor)
     m0 = np.zeros(mesh.vector_shape)
     m0[2] = 1.0
     pin = disorder.pinning_initial
@@ -102,5 +127,6 @@ def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, si
     film = Film(mesh, Ms, A_ex, disorder.K_u, disorder.easy_axis, D,
                 frozen=disorder.pinning_mask if pinning == "frozen" else None,
                 slaved=disorder.pinning_mask if pinning == "slaved" else None, terms=tuple(terms),
-                kernel_cache_dir=kernel_cache_dir, K_2=K_2, B_bias_T=B_bias_T)
+                kernel_cache_dir=kernel_cache_dir, K_2=K_2, B_bias_T=B_bias_T,
+                interlayer_coupling_J_m2=interlayer_coupling_J_m2, spacer_after_layer=spacer_after_layer)
     return film, m0, disorder

@@ -15,6 +15,7 @@ from .anisotropy import add_anisotropy_field
 from .demag import add_demag_field
 from .dmi import add_dmi_field
 from .exchange import add_exchange_field
+from .interlayer import add_interlayer_field
 from .zeeman import add_zeeman_field
 
 FieldModel = namedtuple(
@@ -24,6 +25,8 @@ FieldModel = namedtuple(
         "B_bias",  # (3,) tesla: exchange-bias-like unidirectional field (zero by default)
         "K_u", "easy_axis", "frozen",  # (nz,ny,nx), (3,nz,ny,nx), (nz,ny,nx) bool (fixed or slaved cells)
         "slaved_cells",  # (n, 3) int64 (k, j, i) of cells held at their local equilibrium
+        "spacer_after_layer",  # int: layer k whose direct exchange to k + 1 is cut (−1: no spacer)
+        "interlayer_J",  # J/m²: bilinear coupling −J m_k·m_{k+1} per area across the spacer
         "kxx", "kyy", "kzz", "kxy", "kxz_imag", "kyz_imag",  # demag kernel
         "use_exchange", "use_anisotropy", "use_dmi", "use_demag", "use_zeeman",  # bools
     ],
@@ -35,7 +38,9 @@ def compute_effective_field(m, model, B_ext, out):
     """Overwrite ``out`` with the total effective flux density (T) of ``m`` in applied field ``B_ext``."""
     out[...] = 0.0
     if model.use_exchange:
-        add_exchange_field(m, model.Ms, model.A_ex, model.dx, model.dy, model.dz, out)
+        add_exchange_field(m, model.Ms, model.A_ex, model.dx, model.dy, model.dz, out, model.spacer_after_layer)
+        if model.spacer_after_layer >= 0:
+            add_interlayer_field(m, model.Ms, model.interlayer_J, model.dz, model.spacer_after_layer, out)
     if model.use_anisotropy:
         add_anisotropy_field(m, model.Ms, model.K_u, model.easy_axis, out, model.K_2)
     if model.use_dmi:
@@ -114,6 +119,7 @@ def relax_slaved_cells(m, field, model):
     c_x = 2.0 * model.A_ex / (model.Ms * model.dx * model.dx) if model.use_exchange else 0.0
     c_y = 2.0 * model.A_ex / (model.Ms * model.dy * model.dy) if model.use_exchange else 0.0
     c_z = 2.0 * model.A_ex / (model.Ms * model.dz * model.dz) if model.use_exchange else 0.0
+    spacer = model.spacer_after_layer
     max_sq = 0.0
     for n in range(cells.shape[0]):
         k, j, i = cells[n, 0], cells[n, 1], cells[n, 2]
@@ -127,7 +133,8 @@ def relax_slaved_cells(m, field, model):
         ux, uy, uz = model.easy_axis[0, k, j, i], model.easy_axis[1, k, j, i], model.easy_axis[2, k, j, i]
         b_k = 2.0 * model.K_u[k, j, i] / model.Ms if model.use_anisotropy else 0.0
         proj = ux * mx + uy * my + uz * mz
-        c_self = 2.0 * c_x + 2.0 * c_y + c_z * ((1.0 if k + 1 < nz else 0.0) + (1.0 if k > 0 else 0.0))
+        z_links = (1.0 if k + 1 < nz and k != spacer else 0.0) + (1.0 if k > 0 and k - 1 != spacer else 0.0)
+        c_self = 2.0 * c_x + 2.0 * c_y + c_z * z_links
         nbx = bx - b_k * proj * ux + c_self * mx
         nby = by - b_k * proj * uy + c_self * my
         nbz = bz - b_k * proj * uz + c_self * mz

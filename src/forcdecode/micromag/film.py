@@ -56,6 +56,11 @@ class Film:
     array (3, nz, ny, nx) (normalized here). ``frozen`` marks cells that are held fixed; ``slaved``
     marks cells kept at their local equilibrium in the field of their neighbours (pinning sites,
     see ``forcdecode.micromag.disorder`` and ``effective_field.relax_slaved_cells``). ``terms`` is a subset of ``TERMS``.
+
+    ``spacer_after_layer = k`` (0 ≤ k < nz − 1) puts a non-magnetic spacer between layers k and
+    k + 1: their direct exchange is cut and replaced by the interlayer coupling
+    E = −J ∫ m_k·m_{k+1} dA with J = ``interlayer_coupling_J_m2`` (J/m², > 0 ferromagnetic; 0:
+    decoupled layers). It belongs to the "exchange" term (see ``interlayer``). Default: no spacer.
     """
 
     mesh: Mesh
@@ -71,6 +76,8 @@ class Film:
     kernel_cache_dir: str | Path | None = None
     K_2: float = 0.0
     B_bias_T: tuple = (0.0, 0.0, 0.0)
+    interlayer_coupling_J_m2: float = 0.0
+    spacer_after_layer: int | None = None
     model: FieldModel = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -82,6 +89,18 @@ class Film:
         unknown = set(self.terms) - set(TERMS)
         if unknown:
             raise ValueError(f"unknown energy terms {sorted(unknown)}; known: {TERMS}")
+        J = float(self.interlayer_coupling_J_m2)
+        if not np.isfinite(J):
+            raise ValueError(f"interlayer_coupling_J_m2 must be finite (J/m²), got {self.interlayer_coupling_J_m2!r}")
+        if self.spacer_after_layer is None:
+            if J != 0.0:
+                raise ValueError("interlayer_coupling_J_m2 needs spacer_after_layer (the layer below the spacer)")
+            spacer = -1
+        else:
+            spacer = int(self.spacer_after_layer)
+            if not 0 <= spacer < mesh.nz - 1:
+                raise ValueError(f"spacer_after_layer must be in 0..nz-2 = {mesh.nz - 2} "
+                                 f"(nz = {mesh.nz}), got {self.spacer_after_layer!r}")
         K_u = _as_cell_array(self.K_u, mesh.shape, "K_u")
         axis = np.asarray(self.easy_axis, dtype=np.float64)
         if axis.shape == (3,):
@@ -109,7 +128,7 @@ class Film:
         self.model = FieldModel(
             float(self.Ms), float(self.A_ex), float(self.D), mesh.dx, mesh.dy, mesh.dz, float(self.K_2),
             np.asarray(self.B_bias_T, dtype=np.float64).reshape(3),
-            K_u, axis, immobile, slaved_cells, *kernel,
+            K_u, axis, immobile, slaved_cells, spacer, J, *kernel,
             "exchange" in self.terms, "anisotropy" in self.terms, "dmi" in self.terms,
             "demag" in self.terms, "zeeman" in self.terms,
         )
@@ -164,7 +183,9 @@ class Film:
         """A copy with another set of terms (shares arrays and the cached demag kernel)."""
         return Film(self.mesh, self.Ms, self.A_ex, self.K_u, self.easy_axis, self.D, self.frozen,
                     self.slaved, tuple(terms), self.n_alias, self.kernel_cache_dir, self.K_2,
-                    self.B_bias_T if "zeeman" in terms else (0.0, 0.0, 0.0))
+                    self.B_bias_T if "zeeman" in terms else (0.0, 0.0, 0.0),
+                    interlayer_coupling_J_m2=self.interlayer_coupling_J_m2,
+                    spacer_after_layer=self.spacer_after_layer)
 
     def max_torque(self, m, B_ext_T=0.0) -> float:
         """max_i |m_i × B_eff,i| (T) over non-frozen cells."""

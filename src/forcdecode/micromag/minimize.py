@@ -103,11 +103,13 @@ def _torque_and_bb_products(m4, field4, frozen3, precondition, step4, torque_old
 def diagonal_preconditioner(model):
     """p_i = S/(S + 2K_i/M_s): shorter steps for cells whose own anisotropy makes them stiff (the
     50 MJ/m³ pinning sites, 2K/M_s ~ 100 T). S (T) is the stiffness every cell shares: the exchange
-    self-term 2A/M_s (2/dx² + 2/dy² + 2/dz²) plus 1 T."""
+    self-term 2A/M_s (2/dx² + 2/dy² + 2/dz²), |J|/(M_s dz) with an interlayer spacer, plus 1 T."""
     K = model.K_u.reshape(-1)
     shared = 1.0
     if model.use_exchange:
         shared += 2.0 * model.A_ex / model.Ms * (2.0 / model.dx**2 + 2.0 / model.dy**2 + 2.0 / model.dz**2)
+        if model.spacer_after_layer >= 0:
+            shared += abs(model.interlayer_J) / (model.Ms * model.dz)
     p = np.empty(K.shape[0])
     for n in range(K.shape[0]):
         own = 2.0 * K[n] / model.Ms if model.use_anisotropy else 0.0

@@ -1,0 +1,68 @@
+"""The merged dataset as the networks see it: uint8 FORC images, normalized M_s, normalized targets.
+
+Normalization uses the bounds of the configuration that drew the dataset (stored in dataset.h5),
+on a log scale where the draw is log (K_u): never data maxima.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+
+from ..dataset.params import DEFAULT_BOUNDS, LOG_SCALE, denormalize, normalize
+
+TARGETS = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
+"""Parameters with their own network (M_s is an input)."""
+
+UNITS = {"Ms": "A/m", "A_ex": "J/m", "K_u": "J/m^3", "D": "J/m^2", "N_pin": "count (256x256x2 grid)",
+         "sigma_theta_deg": "deg", "sigma_K": "fraction"}
+
+PAPER_FIGURES = {"N_pin": {"mae": 0.11, "pearson_r": 0.84}, "A_ex": {"mae": 0.07, "pearson_r": 0.92},
+                 "K_u": {"mae": 0.04, "pearson_r": 0.97}, "D": {"mae": 0.07, "pearson_r": 0.90}}
+"""The seed paper's validation-set figures (normalized MAE and Pearson r)."""
+
+
+@dataclass
+class LearningData:
+    images: np.ndarray          # (n, side, side) uint8
+    ms_norm: np.ndarray         # (n,) M_s normalized by its bounds
+    values: dict                # name -> (n,) SI values
+    sample_id: np.ndarray
+    bounds: dict
+    config_hash: str
+    fields_T: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.images.shape[0])
+
+    def target(self, name: str) -> np.ndarray:
+        """Normalized target u ∈ [0, 1] of one parameter."""
+        return np.clip(normalize(name, self.values[name], self.bounds), 0.0, 1.0)
+
+
+def load_dataset(path) -> LearningData:
+    """Read dataset.h5 (written by ``forcdecode dataset merge``)."""
+    try:
+        h5 = h5py.File(path, "r")
+    except OSError as error:
+        raise SystemExit(f"error: cannot open dataset {path}: {error}") from None
+    with h5:
+        columns = list(h5["parameters"].attrs["columns"])
+        parameters = h5["parameters"][:]
+        cfg = json.loads(h5.attrs["config_json"])
+        data = LearningData(images=h5["images"][:], ms_norm=np.zeros(0), values={c: parameters[:, k] for k, c in enumerate(columns)},
+                            sample_id=h5["sample_id"][:], bounds={**DEFAULT_BOUNDS, **cfg.get("bounds", {})},
+                            config_hash=str(h5.attrs["config_hash"]), fields_T=h5["fields_T"][:])
+    data.ms_norm = normalize("Ms", data.values["Ms"], data.bounds)
+    return data
+
+
+def normalize_ms(Ms_A_per_m, bounds) -> np.ndarray:
+    return normalize("Ms", Ms_A_per_m, bounds)
+
+
+__all__ = ["TARGETS", "UNITS", "PAPER_FIGURES", "LearningData", "load_dataset", "normalize", "denormalize",
+           "LOG_SCALE", "normalize_ms"]

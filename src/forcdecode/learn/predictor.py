@@ -1,0 +1,112 @@
+"""Trained Alice–Bob pairs loaded from their model files: a FORC image and M_s in, each parameter with
+its predicted error and conformal intervals out (SI units and normalized)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..dataset.params import denormalize, normalize
+from .encoding import readout
+from .models import build_network, image_tensor
+from .uncertainty import ConformalIntervals, quantile_to_error
+
+
+@dataclass
+class ParameterModel:
+    name: str
+    alice: torch.nn.Module
+    bob: torch.nn.Module
+    payload: dict
+    conformal: ConformalIntervals
+
+    @classmethod
+    def load(cls, path) -> "ParameterModel":
+        path = Path(path)
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        except (OSError, RuntimeError, EOFError) as error:
+            raise SystemExit(f"error: cannot load model {path}: {error}") from None
+        if payload.get("format") != "forcdecode-alice-bob/1":
+            raise SystemExit(f"error: {path} is not a forcdecode model file (format {payload.get('format')!r})")
+        arch = payload["architecture"]
+        nets = []
+        for key in ("alice_state", "bob_state"):
+            net = build_network(arch["model"], width=arch["width"], image_size=arch["image_size"])
+            net.load_state_dict(payload[key])
+            nets.append(net.eval())
+        c = payload["conformal"]
+        conformal = ConformalIntervals(tuple(c["levels"]), {float(k): v for k, v in c["quantiles"].items()}, c["sigma_floor"])
+        return cls(payload["parameter"], nets[0], nets[1], payload, conformal)
+
+    @property
+    def bounds(self) -> dict:
+        return self.payload["bounds"]
+
+    @property
+    def image_size(self) -> int:
+        return int(self.payload["architecture"]["image_size"])
+
+    def predict(self, images_uint8, Ms_A_per_m) -> dict:
+        """Arrays (one entry per image) of the normalized prediction, Bob's error, intervals and SI values."""
+        images = np.asarray(images_uint8)
+        if images.ndim == 2:
+            images = images[None]
+        if images.shape[-2:] != (self.image_size, self.image_size):
+            raise ValueError(f"{self.name} model expects {self.image_size}×{self.image_size} images, got {images.shape[-2:]}")
+        ms = np.broadcast_to(np.asarray(Ms_A_per_m, dtype=float), (images.shape[0],))
+        ms_norm = torch.as_tensor(normalize("Ms", ms, self.bounds), dtype=torch.float32)
+        x = image_tensor(images)
+        with torch.no_grad():
+            u = readout(self.alice(x, ms_norm).numpy(), self.payload["readout"])
+            q = readout(self.bob(x, ms_norm).numpy(), self.payload["readout"])
+        error = quantile_to_error(q, self.payload["validation_errors"])
+        out = {"normalized": u, "bob_quantile": q, "bob_error": error, "value": denormalize(self.name, u, self.bounds)}
+        for level in self.conformal.levels:
+            low, high = self.conformal.interval(u, error, level)
+            tag = int(round(level * 100))
+            out[f"normalized_{tag}"] = (low, high)
+            out[f"value_{tag}"] = (denormalize(self.name, low, self.bounds), denormalize(self.name, high, self.bounds))
+        return out
+
+
+def load_models(directory, names=None) -> dict:
+    """All ``<parameter>.pt`` model files of a directory (or those of ``names``)."""
+    directory = Path(directory)
+    paths = sorted(directory.glob("*.pt")) if names is None else [directory / f"{n}.pt" for n in names]
+    missing = [str(p) for p in paths if not p.exists()]
+    if missing or not paths:
+        raise SystemExit(f"error: no trained model in {directory} ({', '.join(missing) or 'no *.pt file'}); "
+                         "train them with the workflow (snakemake) first")
+    models = {}
+    for path in paths:
+        model = ParameterModel.load(path)
+        models[model.name] = model
+    return models
+
+
+def predict_parameters(models: dict, image_uint8, Ms_A_per_m: float) -> dict:
+    """One image → {parameter: {value, normalized, error_normalized, interval_68, interval_90, ...}} (SI)."""
+    result = {"Ms": float(Ms_A_per_m)}
+    for name, model in models.items():
+        p = model.predict(image_uint8, Ms_A_per_m)
+        entry = {"value": float(p["value"][0]), "normalized": float(p["normalized"][0]),
+                 "bob_error_normalized": float(p["bob_error"][0]), "bob_quantile": float(p["bob_quantile"][0])}
+        for level in model.conformal.levels:
+            tag = int(round(level * 100))
+            entry[f"interval_{tag}"] = [float(p[f"value_{tag}"][0][0]), float(p[f"value_{tag}"][1][0])]
+        result[name] = entry
+    return result
+
+
+def hamiltonian(prediction: dict, defaults: dict | None = None) -> dict:
+    """Predicted parameters as the simulator's parameter dict (N_pin rounded to a count)."""
+    params = dict(defaults or {})
+    for name, entry in prediction.items():
+        params[name] = entry if name == "Ms" else entry["value"]
+    if "N_pin" in params:
+        params["N_pin"] = int(round(params["N_pin"]))
+    return params

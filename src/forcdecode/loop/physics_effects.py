@@ -1,0 +1,225 @@
+"""Physics-side effects the Hamiltonian lacks, found by re-simulation, and the whole residual analysis.
+
+Physics-side candidates (m normalized to the film's saturation moment, fields μ0H in tesla):
+
+- gridded effects, e.g. ``K_2`` (second-order anisotropy −K_2 (u·m)⁴, J/m³) and ``bias_field``
+  (uniform field B_bias along z, T): the family re-simulated over a small grid of the effect's size;
+  the size is chosen on the training curves (one parameter).
+- ``second_phase``: m = (1 − f)·m_film + f·m_soft, where m_soft is the family of a second,
+  non-interacting phase with the same parameters but a lower uniaxial anisotropy K_u,soft,
+  re-simulated over a grid of K_u,soft; for each, the moment fraction f ∈ [0, 1] is fitted by linear
+  least squares on the training curves, and K_u,soft is chosen by the training error (two parameters).
+
+``analyse_residual`` puts these and the measured-side candidates (``effects.py``: singles and
+combinations) through one held-out selection rule (``effects.choose_candidate``).
+
+Note: a uniform bias field on the film and an offset δ of the field the instrument reports are one
+observable for a film swept continuously (it feels μ0H + B_bias, resp. μ0H − δ). Simulated, they
+differ only through the discrete protocol: the bias re-simulation visits other fields (avalanches
+move between grid fields), the reported offset interpolates the same states. The report names the
+chosen one and lists the other under ``same_observable_as``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .effects import (EFFECTS, _per_curve_mse, choose_candidate, fit_effect, heldout_folds, heldout_mse,
+                      measurement_clock)
+
+PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T"}
+"""Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
+
+SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
+"""Candidates no FORC measurement can tell apart."""
+
+
+def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.15, 0.3, 0.45),
+                               bias_fields_T=(-0.04, -0.02, 0.02, 0.04), soft_K_u_ratios=(0.05, 0.1, 0.2, 0.3),
+                               n_profiles: int = 1, first_profile: int = 0) -> dict:
+    """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``): K_2 = r·K_u for
+    r in ``K_2_ratios``, B_bias in ``bias_fields_T``, and soft phases with K_u,soft = r·K_u for r in
+    ``soft_K_u_ratios``. Cost: one ``resimulate`` (``n_profiles`` families) per grid value (12 by
+    default). The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
+    film, K_2 = 0.25 K_u lies between grid families 0.2 and 0.3 K_u that each miss curves badly,
+    and is left unnamed).
+
+    Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
+    "soft_phase_families": {K_u_soft: family}}, ready for ``analyse_residual(..., **this)``."""
+    from .resimulate import resimulate
+
+    def run(extra):
+        return resimulate(cfg, {**params, **extra}, n_profiles=n_profiles, first_profile=first_profile)
+
+    K_u = float(params["K_u"])
+    physics = {}
+    if K_2_ratios:
+        physics["K_2"] = {r * K_u: run({"K_2": r * K_u}) for r in K_2_ratios}
+    if bias_fields_T:
+        physics["bias_field"] = {float(b): run({"B_bias_T": float(b)}) for b in bias_fields_T}
+    soft = {r * K_u: run({"K_u": r * K_u}) for r in soft_K_u_ratios}
+    return {"physics_families": physics, "soft_phase_families": soft}
+
+
+def _grid_resolution(values, best) -> float:
+    """Half the local spacing of the grid at ``best``: the resolution of a gridded size."""
+    values = sorted(values)
+    if len(values) < 2:
+        return 0.0
+    k = values.index(best)
+    lo, hi = max(k - 1, 0), min(k + 1, len(values) - 1)
+    return abs(values[hi] - values[lo]) / (hi - lo) / 2
+
+
+def fit_grid_effect(measured, families: dict, train):
+    """The grid value whose family fits the training curves best; (value, half grid spacing)."""
+    train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
+    best = min(train_error, key=train_error.get)
+    return best, _grid_resolution(list(families), best)
+
+
+def fit_second_phase(measured, film_family, soft_families: dict, train) -> dict:
+    """m = (1 − f)·m_film + f·m_soft fitted on the ``train`` curves for every K_u,soft in
+    ``soft_families``; the best by training error. Returns {"K_u_soft_J_per_m3", "fraction",
+    "uncertainties", "model"}; the error of f is the larger of the ordinary and the curve-clustered
+    one, that of K_u,soft half the grid spacing."""
+    measured = np.asarray(measured, float)
+    film_family = np.asarray(film_family, float)
+    rows = np.zeros(measured.shape, dtype=bool)
+    rows[train] = True
+    best = None
+    for K_soft, soft in soft_families.items():
+        x = np.asarray(soft, float) - film_family
+        r = measured - film_family
+        ok = rows & np.isfinite(x) & np.isfinite(r)
+        sxx = float((x[ok] ** 2).sum())
+        f = float(np.clip((x[ok] * r[ok]).sum() / sxx, 0.0, 1.0)) if sxx > 0 else 0.0
+        e = r - f * x
+        mse = float((e[ok] ** 2).mean())
+        if best is None or mse < best[0]:
+            curve = np.nonzero(ok)[0]
+            per_curve = np.bincount(curve, weights=(x * e)[ok], minlength=measured.shape[0])
+            clustered = np.sqrt((per_curve**2).sum()) / sxx if sxx > 0 else np.nan
+            ordinary = np.sqrt(mse / sxx) if sxx > 0 else np.nan
+            best = (mse, K_soft, f, max(clustered, ordinary), film_family + f * x)
+    _, K_soft, f, f_error, model = best
+    return {"K_u_soft_J_per_m3": float(K_soft), "fraction": f,
+            "uncertainties": {"K_u_soft_J_per_m3": float(_grid_resolution(list(soft_families), K_soft)),
+                              "fraction": float(f_error)},
+            "model": model}
+
+
+def _reduction_ci(before, after, rng, n_boot):
+    """1 − RMS_after/RMS_before over held-out curves, and its paired-bootstrap 90 % interval."""
+    both = np.isfinite(before) & np.isfinite(after)
+    before, after = before[both], after[both]
+    if before.size == 0 or before.sum() == 0:
+        return float("nan"), [float("nan"), float("nan")]
+    pick = rng.integers(0, before.size, size=(n_boot, before.size))
+    boots = 1 - np.sqrt(after[pick].sum(axis=1) / np.maximum(before[pick].sum(axis=1), 1e-300))
+    return float(1 - np.sqrt(after.sum() / before.sum())), [float(np.quantile(boots, 0.05)),
+                                                               float(np.quantile(boots, 0.95))]
+
+
+def _rms_per_curve(residual):
+    counts = np.isfinite(residual).sum(axis=1)
+    sums = np.nansum(residual**2, axis=1)
+    return [float(np.sqrt(s / c)) if c else None for s, c in zip(sums, counts)]
+
+
+def analyse_residual(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
+                     measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
+                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05) -> dict:
+    """Trace the residual measured − re-simulated to the effect the model lacks.
+
+    Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
+    m normalized to the film's saturation moment):
+
+    analyse_residual(measured, base_family, fields, order=None, *, physics_families=None,
+                     soft_phase_families=None, measured_candidates=None, every_k=4, cross_fit=True,
+                     n_boot=2000, seed=0, min_relative_gain=0.05, equivalence=0.05) -> dict
+
+    - ``base_family``: the re-simulation of the predicted Hamiltonian (``resimulate``).
+    - ``order``: measurement clock τ ∈ [0, 1], per curve (n,) or per point (n, n); default
+      ``measurement_clock(n)`` (MicroMag order: highest H_r first, time ∝ points measured).
+    - ``physics_families``: {name: {size: family}}, e.g. {"K_2": {K_2 (J/m³): family},
+      "bias_field": {B (T): family}}; ``soft_phase_families``: {K_u,soft (J/m³): family of the soft
+      phase}. ``physics_candidate_families(cfg, params)`` builds both (``**`` it in).
+    - ``measured_candidates``: names in ``effects.EFFECTS`` (default all: singles and combinations).
+    - every ``every_k``-th curve is held out, the rest fit every candidate; with ``cross_fit`` this
+      is done for each of the ``every_k`` offsets in turn, so every curve is held out once (an
+      effect confined to a few curves, e.g. a bias field moving one avalanche, then still has
+      enough held-out evidence). Reported sizes are fitted on all curves.
+
+    Returns a dict (JSON-ready except ``arrays``):
+    ``chosen`` (name, "none" if nothing earns its place), ``kind`` ("measured", "physics", "none"),
+    ``parameters`` and ``uncertainties`` of the chosen effect (1σ; gridded sizes: half the grid
+    spacing), ``same_observable_as`` (candidates no measurement can tell from the chosen one),
+    ``candidates`` {name: {"kind", "n_parameters", "parameters", "uncertainties", "heldout_rms",
+    "gain_mse", "gain_ci90", "accepted"}}, ``residual_rms_before`` / ``residual_rms_after`` (all
+    points, the chosen model fitted on all curves) and ``per_curve_rms_before`` /
+    ``per_curve_rms_after``, ``heldout_curves``, ``heldout_rms_before``, ``heldout_rms_after``,
+    ``heldout_reduction`` = 1 − after/before and ``heldout_reduction_ci90`` (paired bootstrap over
+    held-out curves, 5 %–95 %), and ``arrays`` {"model", "residual_before", "residual_after"}
+    (numpy n × n).
+    """
+    measured = np.asarray(measured, dtype=float)
+    base_family = np.asarray(base_family, dtype=float)
+    fields = np.asarray(fields, dtype=float)
+    n = measured.shape[0]
+    order = measurement_clock(n) if order is None else np.asarray(order, dtype=float)
+    folds = heldout_folds(measured, every_k, cross_fit)
+    everything = sorted(i for fold in folds[:1] for part in fold for i in part)
+
+    # each candidate: kind, number of fitted parameters, fit(rows) -> (model, parameters, uncertainties)
+    candidates = {}
+    for name in ["none"] + [k for k in (measured_candidates or EFFECTS) if k != "none"]:
+        def fit(rows, effect=EFFECTS[name]):
+            theta, errors = fit_effect(effect, measured, base_family, fields, order, rows)
+            return (effect.model(base_family, fields, order, theta), dict(zip(effect.parameters, map(float, theta))),
+                    dict(zip(effect.parameters, map(float, errors))))
+        candidates[name] = ("measured" if name != "none" else "none", len(EFFECTS[name].parameters), fit)
+    for name, families in (physics_families or {}).items():
+        def fit(rows, families=families, parameter=PHYSICS_PARAMETERS.get(name, "value")):
+            value, resolution = fit_grid_effect(measured, families, rows)
+            return np.asarray(families[value], float), {parameter: float(value)}, {parameter: float(resolution)}
+        candidates[name] = ("physics", 1, fit)
+    if soft_phase_families:
+        def fit(rows):
+            result = fit_second_phase(measured, base_family, soft_phase_families, rows)
+            model, uncertainties = result.pop("model"), result.pop("uncertainties")
+            return model, result, uncertainties
+        candidates["second_phase"] = ("physics", 2, fit)
+
+    mse, records, models = {}, {}, {}
+    for name, (kind, n_parameters, fit) in candidates.items():
+        mse[name] = heldout_mse(measured, lambda rows, fit=fit: fit(rows)[0], folds)
+        models[name], parameters, uncertainties = fit(everything)
+        records[name] = {"kind": kind, "n_parameters": n_parameters, "parameters": parameters,
+                         "uncertainties": uncertainties}
+    for name, families in (physics_families or {}).items():
+        records[name]["at_grid_edge"] = bool(next(iter(records[name]["parameters"].values()))
+                                             in (min(families), max(families)))
+    if soft_phase_families:
+        records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
+                                                       in (min(soft_phase_families), max(soft_phase_families)))
+
+    rng = np.random.default_rng(seed)
+    chosen, scores = choose_candidate(mse, {k: v["n_parameters"] for k, v in records.items()}, rng,
+                                      n_boot, min_relative_gain, equivalence)
+    candidates = {k: {**records[k], **scores[k]} for k in records}
+    reduction, reduction_ci = _reduction_ci(mse["none"], mse[chosen], rng, n_boot)
+    residual_before = measured - base_family
+    residual_after = measured - models[chosen]
+    same = [k for group in SAME_OBSERVABLE if chosen in group for k in sorted(group - {chosen}) if k in candidates]
+    return {
+        "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
+        "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
+        "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),
+        "residual_rms_after": float(np.sqrt(np.nanmean(residual_after**2))),
+        "per_curve_rms_before": _rms_per_curve(residual_before), "per_curve_rms_after": _rms_per_curve(residual_after),
+        "heldout_curves": [i for _, held in folds for i in held], "heldout_rms_before": candidates["none"]["heldout_rms"],
+        "heldout_rms_after": candidates[chosen]["heldout_rms"], "heldout_reduction": reduction,
+        "heldout_reduction_ci90": reduction_ci,
+        "arrays": {"model": models[chosen], "residual_before": residual_before, "residual_after": residual_after},
+    }

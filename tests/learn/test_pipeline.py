@@ -1,0 +1,116 @@
+"""Alice + Bob end to end on a synthetic dataset whose difficulty is visible in the image.
+
+The target sets the row up to which the image is bright (as in test_train.py). A quarter of the
+images are "featureless": their bar sits at a random row unrelated to the target, and a grey corner
+marks them. Alice cannot do better than a guess there; Bob, which sees the same image, must rank
+those errors higher — while the conformal intervals keep their coverage and the saved model
+predicts exactly what the pipeline recorded. 32×32 images keep the test fast."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from forcdecode.dataset.params import DEFAULT_BOUNDS, denormalize
+from forcdecode.learn.data import LearningData
+from forcdecode.learn.pipeline import train_parameter
+from forcdecode.learn.predictor import ParameterModel, hamiltonian, load_models, predict_parameters
+from forcdecode.learn.report import evaluate
+
+
+def synthetic_dataset(n=200, seed=0, side=32) -> LearningData:
+    rng = np.random.default_rng(seed)
+    u = rng.random(n)
+    hard = rng.random(n) < 0.25
+    shown = np.where(hard, rng.random(n), u)  # featureless: the bar carries no information on u
+    images = np.zeros((n, side, side), dtype=float)
+    for k in range(n):
+        images[k, : int(np.rint(shown[k] * (side - 1))) + 1, :] = 255
+    images = np.clip(images + 10 * rng.standard_normal(images.shape), 0, 255)
+    images[hard, -6:, -6:] = 128  # a visible marker of the featureless quarter
+    ms = rng.uniform(*DEFAULT_BOUNDS["Ms"], n)
+    values = {"Ms": ms, "D": denormalize("D", u)}
+    data = LearningData(images=images.astype(np.uint8), ms_norm=(ms - 2e5) / 1.2e6, values=values,
+                        sample_id=np.arange(n) * 3, bounds=dict(DEFAULT_BOUNDS), config_hash="synthetic", fields_T=np.linspace(-1, 1, side))
+    data.hard = hard
+    return data
+
+
+SETTINGS = {"width": 32, "epochs": 60, "patience": 10, "batch_size": 8, "lr": 1.0, "folds": 3, "mc_passes": 8,
+            "learning_curve": [0.5, 1.0]}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("learn")
+    data = synthetic_dataset()
+    metrics = train_parameter(data, "D", SETTINGS, seed=3, model_path=out / "D.pt",
+                              predictions_path=out / "D_predictions.parquet", log=lambda *_: None)
+    (out / "D_metrics.json").write_text(json.dumps(metrics))
+    return data, metrics, out
+
+
+def test_alice_learns_and_reports_on_the_test_split_only(trained):
+    data, metrics, out = trained
+    frame = pd.read_parquet(out / "D_predictions.parquet")
+    test = frame[frame["split"] == "test"]
+    assert metrics["n_test"] == len(test) == 30 and metrics["reported_on"] == "test"
+    assert set(frame["split"]) == {"train", "validation", "calibration", "test"}
+    assert metrics["mae"] == pytest.approx(np.abs(test["prediction"] - test["target"]).mean())
+    assert metrics["skill"] > 0.4 and metrics["pearson_r"] > 0.7, metrics  # a quarter is unpredictable
+    # out-of-fold errors exist for every training sample only
+    train = frame[frame["split"] == "train"]
+    assert train["oof_error"].notna().all() and frame.loc[frame["split"] != "train", "oof_error"].isna().all()
+    assert metrics["bob"]["oof_mae"] == pytest.approx(train["oof_error"].mean())
+    assert [c["n_train"] for c in metrics["learning_curve"]] == [55, 110]
+
+
+def test_bob_ranks_the_hard_inputs(trained):
+    data, metrics, out = trained
+    frame = pd.read_parquet(out / "D_predictions.parquet")
+    evaluation = frame["split"] != "train"
+    hard = data.hard[evaluation.to_numpy()]
+    bob = frame.loc[evaluation, "bob_error"].to_numpy()
+    assert np.median(bob[hard]) > 1.1 * np.median(bob[~hard])
+    assert metrics["bob"]["bob_spearman"] > 0.15
+    assert metrics["bob"]["retention"]["area_bob"] < metrics["bob"]["retention"]["area_random"]
+
+
+def test_conformal_intervals_cover(trained):
+    _, metrics, _ = trained
+    bob = metrics["bob"]
+    assert bob["coverage_90"] >= 0.75 and bob["coverage_68"] >= 0.45  # 30 test samples: binomial noise
+    assert bob["width_90"] > bob["width_68"] > 0
+
+
+def test_saved_model_predicts_what_the_pipeline_recorded(trained):
+    data, _, out = trained
+    frame = pd.read_parquet(out / "D_predictions.parquet")
+    model = ParameterModel.load(out / "D.pt")
+    result = model.predict(data.images[:5], data.values["Ms"][:5])
+    np.testing.assert_allclose(result["normalized"], frame["prediction"][:5], atol=1e-6)
+    np.testing.assert_allclose(result["bob_error"], frame["bob_error"][:5], atol=1e-6)
+    assert np.all(result["normalized_90"][0] <= result["normalized"]) and np.all(result["normalized"] <= result["normalized_90"][1])
+    models = load_models(out)
+    prediction = predict_parameters(models, data.images[0], data.values["Ms"][0])
+    assert prediction["D"]["value"] == pytest.approx(denormalize("D", frame["prediction"][0]), rel=1e-5)
+    assert hamiltonian(prediction)["Ms"] == data.values["Ms"][0]
+
+
+def test_evaluate_writes_metrics_and_figures(trained, tmp_path):
+    _, _, out = trained
+    metrics = evaluate([out / "D_metrics.json"], [out / "D_predictions.parquet"], tmp_path / "metrics.json", tmp_path / "fig")
+    stored = json.loads((tmp_path / "metrics.json").read_text())["parameters"]["D"]
+    for key in ("mae", "pearson_r", "skill", "n_test", "bob_spearman", "coverage_68", "coverage_90"):
+        assert np.isfinite(stored[key]), key
+    assert stored["paper"] == {"mae": 0.07, "pearson_r": 0.90}
+    for name in ("figure3", "figure5bc", "learning_curve", "retention"):
+        assert (tmp_path / "fig" / f"{name}.png").stat().st_size > 10_000
+    assert "| D |" in (tmp_path / "metrics.md").read_text() and metrics["parameters"]["D"]["n_test"] == 30
+
+
+def test_too_small_a_dataset_is_a_clear_error(tmp_path):
+    data = synthetic_dataset(6)
+    with pytest.raises(SystemExit, match="6 FORC families"):
+        train_parameter(data, "D", SETTINGS, 0, tmp_path / "m.pt", tmp_path / "p.parquet", log=lambda *_: None)
