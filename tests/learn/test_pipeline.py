@@ -1,7 +1,7 @@
 """Alice + Bob end to end on a synthetic dataset whose difficulty is visible in the image.
 
 The target sets the row up to which the image is bright (as in test_train.py). A quarter of the
-images are "featureless": their bar sits at a random row unrelated to the target, and a grey corner
+images are "featureless": their bar sits at a random row unrelated to the target, and a grey band
 marks them. Alice cannot do better than a guess there; Bob, which sees the same image, must rank
 those errors higher — while the conformal intervals keep their coverage and the saved model
 predicts exactly what the pipeline recorded. 32×32 images keep the test fast."""
@@ -28,7 +28,7 @@ def synthetic_dataset(n=200, seed=0, side=32) -> LearningData:
     for k in range(n):
         images[k, : int(np.rint(shown[k] * (side - 1))) + 1, :] = 255
     images = np.clip(images + 10 * rng.standard_normal(images.shape), 0, 255)
-    images[hard, -6:, -6:] = 128  # a visible marker of the featureless quarter
+    images[hard, :, -8:] = 128  # a visible marker of the featureless quarter: a grey band
     ms = rng.uniform(*DEFAULT_BOUNDS["Ms"], n)
     values = {"Ms": ms, "D": denormalize("D", u)}
     data = LearningData(images=images.astype(np.uint8), ms_norm=(ms - 2e5) / 1.2e6, values=values,
