@@ -55,6 +55,28 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     result = json.loads(predicted.stdout)
     assert result["Ms"] == 8e5 and 0 <= result["D"]["value"] <= 5e-3
     assert result["K_u"]["interval_90"][0] <= result["K_u"]["value"] <= result["K_u"]["interval_90"][1]
+    # the closed loop on a "measured" file: prediction with the trained models and an M_s sweep
+    import numpy as np
+
+    from forcdecode.loop.instrument import simulated_instrument_curves
+    from forcdecode.measured.writers import write_micromag_0015
+
+    with h5py.File(out / "dataset.h5", "r") as h5:
+        family, fields = h5["curves_mz"][0].astype(float), h5["fields_T"][:]
+    family = np.where(np.tril(np.ones_like(family), -1).astype(bool), np.nan, family)
+    reversal, curves = simulated_instrument_curves(family, fields, 1e-8, background_chi_per_T=0.1, noise=0.002,
+                                                   rng=np.random.default_rng(0))
+    measured = write_micromag_0015(tmp_path / "film.frc", reversal, curves)
+    loop = subprocess.run([sys.executable, "-m", "forcdecode.cli", "loop", str(measured), "--out", str(tmp_path / "loop"),
+                           "--models", str(out / "models"), "--config", "config/test.yaml", "--Ms-sweep-kA-m", "500", "1100", "2",
+                           "--sweep-profiles", "1", "--profiles", "1", "--every-k", "3", "--no-physics"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert loop.returncode == 0, loop.stderr[-2000:]
+    report = json.loads((tmp_path / "loop" / "report.json").read_text())
+    assert report["Ms_source"] == "swept" and [r["Ms"] for r in report["Ms_sweep"]] == [5e5, 1.1e6]
+    assert report["Ms_chosen_A_per_m"] in (5e5, 1.1e6) and set(report["prediction"]) >= {"K_u", "D", "N_pin", "A_ex"}
+    assert report["observation_rms"] >= 0 and len(report["per_curve_rms"]) == 16
+    assert "background" in report["effect"]
     # a finished run has nothing left to do
     again = snakemake("--config", f"results_dir={out}", "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
