@@ -79,3 +79,13 @@ def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_ma
     grid_family = resample_curves(reversal_fields_T, normalized, B_max_T, n)
     image = quantize(fill_below_reversal(grid_family))  # resample_curves leaves no gap above the diagonal
     return image, grid_family, ("; ".join(reasons) if reasons else None)
+
+
+def measurement_on_grid(data, B_max_T: float = 1.0, n: int = 64):
+    """A read measurement (``forcdecode.measured`` data: curves with ``reversal_field_T``, ``field_T``,
+    ``moment_Am2``) on the training grid, normalized by its saturation moment (the median of the
+    curves' values at their largest field). Returns (image, grid family, domain note, saturation moment A·m²)."""
+    moment_saturation = float(np.median([c.moment_Am2[np.argmax(c.field_T)] for c in data.curves]))
+    image, family, note = measured_image([c.reversal_field_T for c in data.curves],
+                                         [(c.field_T, c.moment_Am2) for c in data.curves], moment_saturation, B_max_T, n)
+    return image, family, note, moment_saturation

@@ -103,16 +103,14 @@ def image_from_input(path: str, size: int, sample_id=None, B_max_T: float = 1.0,
             if sample_id not in ids:
                 raise SystemExit(f"error: sample {sample_id} is not in {path}")
             return h5["images"][ids.index(sample_id)], None
-    from ..forc.raster import measured_image
+    from ..forc.raster import measurement_on_grid
     from ..measured import ForcFormatError, read_forc
 
     try:
         data = read_forc(p)
     except ForcFormatError as error:
         raise SystemExit(f"error: {error}") from None
-    saturation = float(np.median([c.moment_Am2[np.argmax(c.field_T)] for c in data.curves]))
-    image, _, note = measured_image(data.reversal_fields_T, [(c.field_T, c.moment_Am2) for c in data.curves],
-                                    saturation, B_max_T, size)
+    image, _, note, _ = measurement_on_grid(data, B_max_T, size)
     if note is not None and not force:
         raise SystemExit(f"error: {path} is out of the training domain: {note} (use --force to predict anyway)")
     return image, note

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from ..dataset.params import DEFAULT_BOUNDS, LOG_SCALE, denormalize, normalize
+from ..dataset.params import DEFAULT_BOUNDS, normalize
 
 TARGETS = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
 """Parameters with their own network (M_s is an input)."""
@@ -58,11 +58,3 @@ def load_dataset(path) -> LearningData:
                             config_hash=str(h5.attrs["config_hash"]), fields_T=h5["fields_T"][:])
     data.ms_norm = normalize("Ms", data.values["Ms"], data.bounds)
     return data
-
-
-def normalize_ms(Ms_A_per_m, bounds) -> np.ndarray:
-    return normalize("Ms", Ms_A_per_m, bounds)
-
-
-__all__ = ["TARGETS", "UNITS", "PAPER_FIGURES", "LearningData", "load_dataset", "normalize", "denormalize",
-           "LOG_SCALE", "normalize_ms"]

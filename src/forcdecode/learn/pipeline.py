@@ -20,7 +20,6 @@ that validation set (flagged in the metrics), which also calibrates.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -28,7 +27,9 @@ import torch
 from scipy.stats import pearsonr
 
 from ..dataset import io
-from .data import LOG_SCALE, PAPER_FIGURES, LearningData
+from ..dataset.params import LOG_SCALE
+from .data import PAPER_FIGURES, TARGETS, LearningData
+from .encoding import readout
 from .train import fit_alice, split_indices
 from .uncertainty import (ConformalIntervals, coverage_and_width, error_quantile, gaussian_interval,
                           quantile_to_error, retention_curve, spearman)
@@ -78,7 +79,7 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
     splits = make_splits(n, seed, settings)
     train, val, cal, test = (splits[k] for k in ("train", "validation", "calibration", "test"))
     u = data.target(name)
-    net_seed = seed + 17 * (1 + list(DEFAULT_SETTINGS["parameters"]).index(name)) if name in DEFAULT_SETTINGS["parameters"] else seed
+    net_seed = seed + 17 * (1 + TARGETS.index(name)) if name in TARGETS else seed
     timings = {}
 
     log(f"{name}: Alice on {len(train)} training / {len(val)} validation samples")
@@ -86,8 +87,8 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
     alice = _fit(data, u, train, val, settings, net_seed)
     timings["alice_s"] = time.perf_counter() - started
     throughput = alice.history["samples_seen"] / max(alice.history["train_seconds"], 1e-9)
-    prediction = alice.predict(data.images, data.ms_norm, settings["readout"])
-    prediction_softmax = alice.predict(data.images, data.ms_norm, "softmax")
+    outputs = alice.outputs(data.images, data.ms_norm)
+    prediction, prediction_softmax = readout(outputs, settings["readout"]), readout(outputs, "softmax")
     abs_error = np.abs(prediction - u)
 
     # out-of-fold errors over the training split (K-fold cross-fitting)
@@ -217,9 +218,3 @@ def _plain(obj):
     if isinstance(obj, (np.integer, int, bool)) and not isinstance(obj, bool):
         return int(obj)
     return obj
-
-
-def ensure_dir(path) -> Path:
-    path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    return path

@@ -67,7 +67,8 @@ def _json_ready(obj):
 
 def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_progress):
     """Predict the Hamiltonian at each M_s, re-simulate it, keep the M_s whose family is closest to
-    the measured one (observation-space RMS). Returns (best, sweep rows)."""
+    the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
+    re-simulated ``family`` and ``n_profiles``."""
     from ..learn.predictor import hamiltonian, predict_parameters
     from .resimulate import observation_error, resimulate
 
@@ -77,7 +78,8 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
         params = hamiltonian(prediction)
         resim = resimulate(cfg, params, n_profiles=n_profiles)
         rms = observation_error(family, resim)["rms"]
-        rows.append({"Ms": float(ms), "prediction": prediction, "params": params, "observation_rms": rms})
+        rows.append({"Ms": float(ms), "prediction": prediction, "params": params, "observation_rms": rms,
+                     "family": resim, "n_profiles": n_profiles})
         log(f"M_s {ms / 1e3:.0f} kA/m ({k + 1}/{len(ms_values)}): observation RMS {rms:.4f}")
     best = min(rows, key=lambda r: r["observation_rms"])
     return best, rows
@@ -85,7 +87,7 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
 
 def run(args) -> int:
     from ..dataset.io import write_json
-    from ..forc.raster import measured_image
+    from ..forc.raster import measurement_on_grid
     from ..measured import ForcFormatError, read_forc
 
     out = Path(args.out)
@@ -97,11 +99,7 @@ def run(args) -> int:
         return 2
     cfg = load_config(args.config)
     B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
-    tops = [c.moment_Am2[np.argmax(c.field_T)] for c in data.curves]
-    moment_saturation = float(np.median(tops))
-    image, family, domain_note = measured_image([c.reversal_field_T for c in data.curves],
-                                                [(c.field_T, c.moment_Am2) for c in data.curves],
-                                                moment_saturation, B_max, n)
+    image, family, domain_note, moment_saturation = measurement_on_grid(data, B_max, n)
     report = {"file": str(args.file), "format": data.format, "n_curves": len(data.curves),
               "drift_percent": data.drift_percent, "moment_saturation_Am2": moment_saturation,
               "in_domain": domain_note is None, "out_of_domain_reason": domain_note}
@@ -116,6 +114,7 @@ def run(args) -> int:
     from .resimulate import observation_error, resimulate
 
     fields = np.linspace(-B_max, B_max, n)
+    resim = None  # the final re-simulation, unless the prediction step already made it
     if args.params:
         params = json.loads(Path(args.params).read_text())
         report.update(parameters=params, Ms_source="given (--params)")
@@ -134,8 +133,11 @@ def run(args) -> int:
         report.update(parameters=params, prediction=best["prediction"], Ms_chosen_A_per_m=best["Ms"],
                       Ms_source="given" if len(ms_values) == 1 else "swept",
                       Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
-    resim = resimulate(cfg, params, n_profiles=args.profiles,
-                       progress=lambda p, total: _progress(f"re-simulation {p}/{total}"))
+        if best["n_profiles"] == args.profiles:
+            resim = best["family"]
+    if resim is None:
+        resim = resimulate(cfg, params, n_profiles=args.profiles,
+                           progress=lambda p, total: _progress(f"re-simulation {p}/{total}"))
     error = observation_error(family, resim)
     candidates = {} if args.no_physics else physics_candidate_families(cfg, params)
     analysis = analyse_residual(family, resim, fields, every_k=args.every_k, **candidates)

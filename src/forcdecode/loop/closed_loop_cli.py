@@ -44,7 +44,7 @@ def run(args) -> int:
     with h5py.File(args.dataset, "r") as h5:
         ids = list(h5["sample_id"][:])
         curves = {int(s): h5["curves_mz"][ids.index(s)].astype(float) for s in table["sample_id"]}
-    # parameters without a network keep the sample's own value only where they are inputs (M_s)
+    # disorder widths for a run whose learning config trains no network for them (mid-range of the draw)
     defaults = {"sigma_theta_deg": 5.0, "sigma_K": 0.1}
     started = time.perf_counter()
     result, families = closed_loop(cfg, table, curves, defaults, loop_cfg.get("max_test_samples", 40), cfg["seed"],
