@@ -1,20 +1,10 @@
-"""Alice on a synthetic task whose answer is in the image: a bright bar at a row set by the target."""
+"""Alice on a synthetic task whose answer is in the image (synthetic_images.bar_images)."""
 
 import numpy as np
 import pytest
 
 from forcdecode.learn.train import fit_alice, split_indices
-
-
-def synthetic(n=400, seed=0):
-    rng = np.random.default_rng(seed)
-    u = rng.random(n)
-    images = np.zeros((n, 64, 64), dtype=np.uint8)
-    rows = np.rint(u * 63).astype(int)
-    for k, r in enumerate(rows):
-        images[k, :r + 1, :] = 255  # image filled up to the row: brightness encodes the target
-    images = np.clip(images + rng.integers(0, 20, size=images.shape), 0, 255).astype(np.uint8)
-    return images, rng.random(n), u
+from synthetic_images import bar_images
 
 
 def test_splits_are_reproducible_and_disjoint():
@@ -28,7 +18,7 @@ def test_splits_are_reproducible_and_disjoint():
 
 @pytest.fixture(scope="module")
 def trained():
-    images, ms, u = synthetic()
+    images, ms, u = bar_images()
     train, val, test = split_indices(len(u), 0)
     alice = fit_alice(images, ms, u, train, val, width=32, epochs=12, batch_size=32, lr=1.0, patience=4, seed=0)
     return alice, images, ms, u, test
@@ -47,7 +37,7 @@ def test_best_epoch_is_the_lowest_validation_loss(trained):
 
 
 def test_training_is_deterministic():
-    images, ms, u = synthetic(120, 1)
+    images, ms, u = bar_images(120, 1)
     train, val, _ = split_indices(len(u), 1)
     a = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
     b = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)

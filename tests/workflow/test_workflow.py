@@ -55,6 +55,16 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     result = json.loads(predicted.stdout)
     assert result["Ms"] == 8e5 and 0 <= result["D"]["value"] <= 5e-3
     assert result["K_u"]["interval_90"][0] <= result["K_u"]["value"] <= result["K_u"]["interval_90"][1]
+    # the head ablation rebuilds the workflow's split from learning.json
+    bench = subprocess.run([sys.executable, "-m", "forcdecode.cli", "bench", "learn", "--dataset", str(out / "dataset.h5"),
+                            "--parameters", "K_u", "--epochs", "2", "--threads", "1", "--out", str(tmp_path / "heads.json")],
+                           cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert bench.returncode == 0, bench.stderr[-2000:]
+    heads = json.loads((tmp_path / "heads.json").read_text())
+    assert [row["network"] for row in heads["rows"]] == ["small", "paper"]
+    assert all(row["n_test"] == metrics["K_u"]["n_test"] and row["n_train"] == metrics["K_u"]["n_train"]
+               for row in heads["rows"])
+    assert heads["ratios"]["K_u"]["weights_ratio"] > 10
     # the closed loop on a "measured" file: prediction with the trained models and an M_s sweep
     import numpy as np
 

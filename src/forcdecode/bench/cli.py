@@ -1,4 +1,5 @@
-"""``forcdecode bench engine [--json]``: prints engine figures; the last line is one JSON object."""
+"""``forcdecode bench engine|protocols|effects|learn [--json]``: prints figures; with --json the last
+line is one JSON object."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ import json
 import os
 import platform
 import sys
+from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=["engine", "protocols", "effects"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
@@ -20,15 +22,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+    learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
+    learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
+    learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
+                       "default: learning.json beside the dataset)")
+    learn.add_argument("--parameters", nargs="+", default=["K_u", "D"], help="targets to train")
+    learn.add_argument("--heads", nargs="+", default=["small", "paper"], choices=["small", "paper"])
+    learn.add_argument("--epochs", type=int, default=40, help="epoch budget (both heads)")
+    learn.add_argument("--patience", type=int, default=10, help="early-stopping patience (both heads)")
+    learn.add_argument("--threads", type=int, default=2, help="torch threads")
+    learn.add_argument("--out", help="also write the rows and ratios to this JSON file (atomically)")
 
 
 def run(args) -> int:
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from . import engine
 
     def say(text):
         print(text, flush=True)
+
+    if args.target == "learn":
+        return _bench_learn(args, say)
+    from . import engine
 
     if args.target == "effects":
         from .effects import abbreviate, effects_confusion
@@ -99,4 +114,53 @@ def run(args) -> int:
         f"({family['relaxations']} relaxations, {family['iterations']} minimizer iterations)")
     if args.json:
         print(json.dumps(report))
+    return 0
+
+
+def _bench_learn(args, say) -> int:
+    import torch
+
+    from ..dataset.io import read_config, write_json
+    from ..learn.ablation import compare_heads, head_ratios
+    from ..learn.data import TARGETS, load_dataset
+    from ..learn.pipeline import DEFAULT_SETTINGS, make_splits
+
+    unknown = sorted(set(args.parameters) - set(TARGETS))
+    if unknown:
+        raise SystemExit(f"error: unknown parameter(s) {unknown}; choose from {list(TARGETS)}")
+    config_path = Path(args.learning_config or Path(args.dataset).with_name("learning.json"))
+    if not config_path.exists():
+        raise SystemExit(f"error: {config_path} not found: the ablation rebuilds the workflow's split from its "
+                         f"learning.json (pass --learning-config)")
+    cfg = read_config(config_path)
+    settings = {**DEFAULT_SETTINGS, **cfg.get("learning", {})}
+    torch.set_num_threads(args.threads)
+    data = load_dataset(args.dataset)
+    splits = make_splits(len(data), cfg["seed"], settings)
+    say(f"{args.dataset}: {len(data)} families; split train {len(splits['train'])} / validation "
+        f"{len(splits['validation'])} / test {len(splits['test'])}; Adadelta lr {settings['lr']}, batch "
+        f"{settings['batch_size']}, {args.epochs} epochs (patience {args.patience}); {args.threads} torch threads")
+    rows = compare_heads(data.images, data.ms_norm, {name: data.target(name) for name in args.parameters}, splits,
+                         heads=args.heads, epochs=args.epochs, patience=args.patience,
+                         batch_size=settings["batch_size"], lr=settings["lr"], width=settings["width"], log=say)
+    ratios = head_ratios(rows)
+    say("")
+    say("parameter  network  weights     test MAE  r      skill  best/run epochs  samples/s  wall s")
+    for row in rows:
+        say(f"{row['parameter']:<10} {row['network']:<8} {row['weights'] / 1e6:7.2f} M  {row['mae']:8.3f}  "
+            f"{row['pearson_r']:5.2f}  {row['skill']:5.2f}  {row['best_epoch'] + 1:>4}/{row['epochs_run']:<4}        "
+            f"{row['samples_per_s']:9.1f}  {row['wall_s']:6.0f}")
+    for name, ratio in ratios.items():
+        say(f"{name}: paper/small wall time {ratio['wall_ratio']:.1f}x, throughput {ratio['throughput_ratio']:.3f}x, "
+            f"weights {ratio['weights_ratio']:.0f}x, MAE difference {ratio['mae_difference']:+.3f}")
+    result = {"dataset": str(args.dataset), "n_families": len(data), "threads": args.threads,
+              "settings": {"epochs": args.epochs, "patience": args.patience, "lr": settings["lr"],
+                           "batch_size": settings["batch_size"], "width": settings["width"],
+                           "optimizer": "Adadelta rho 0.9", "split_seed": cfg["seed"]},
+              "rows": rows, "ratios": ratios}
+    if args.out:
+        write_json(args.out, result)
+        say(f"wrote {args.out}")
+    if args.json:
+        print(json.dumps(result))
     return 0

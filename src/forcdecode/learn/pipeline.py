@@ -60,7 +60,7 @@ def _fit(data, target, train, val, settings, seed, log=None):
                      patience=settings["patience"], seed=seed, log=log)
 
 
-def _scores(truth, prediction, baseline_value) -> dict:
+def scores(truth, prediction, baseline_value) -> dict:
     truth, prediction = np.asarray(truth, float), np.asarray(prediction, float)
     mae = float(np.mean(np.abs(prediction - truth)))
     baseline = float(np.mean(np.abs(baseline_value - truth)))
@@ -144,7 +144,7 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
     metrics = {"parameter": name, "n_train": int(len(train)), "n_validation": int(len(val)),
                "n_calibration": int(len(cal)), "n_test": int(len(test)),
                "reported_on": "validation (paper protocol)" if settings["protocol"] == "paper" else "test",
-               "log_scale": name in LOG_SCALE, **_scores(u[test], prediction[test], baseline_value),
+               "log_scale": name in LOG_SCALE, **scores(u[test], prediction[test], baseline_value),
                "mae_softmax_readout": float(np.abs(prediction_softmax[test] - u[test]).mean()),
                "paper": PAPER_FIGURES.get(name), "best_epoch": int(alice.best_epoch),
                "epochs_run": len(alice.history["val_loss"]), "train_samples_per_s": float(throughput),
