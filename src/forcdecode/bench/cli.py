@@ -30,6 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     learn.add_argument("--heads", nargs="+", default=["small", "paper"], choices=["small", "paper"])
     learn.add_argument("--epochs", type=int, default=40, help="epoch budget (both heads)")
     learn.add_argument("--patience", type=int, default=10, help="early-stopping patience (both heads)")
+    learn.add_argument("--seed", type=int, default=1, help="weight/shuffle seed (both heads; the split is the workflow's)")
     learn.add_argument("--threads", type=int, default=2, help="torch threads")
     learn.add_argument("--out", help="also write the rows and ratios to this JSON file (atomically)")
 
@@ -142,7 +143,8 @@ def _bench_learn(args, say) -> int:
         f"{settings['batch_size']}, {args.epochs} epochs (patience {args.patience}); {args.threads} torch threads")
     rows = compare_heads(data.images, data.ms_norm, {name: data.target(name) for name in args.parameters}, splits,
                          heads=args.heads, epochs=args.epochs, patience=args.patience,
-                         batch_size=settings["batch_size"], lr=settings["lr"], width=settings["width"], log=say)
+                         batch_size=settings["batch_size"], lr=settings["lr"], width=settings["width"], seed=args.seed,
+                         log=say)
     ratios = head_ratios(rows)
     say("")
     say("parameter  network  weights     test MAE  r      skill  best/run epochs  samples/s  wall s")
@@ -156,7 +158,7 @@ def _bench_learn(args, say) -> int:
     result = {"dataset": str(args.dataset), "n_families": len(data), "threads": args.threads,
               "settings": {"epochs": args.epochs, "patience": args.patience, "lr": settings["lr"],
                            "batch_size": settings["batch_size"], "width": settings["width"],
-                           "optimizer": "Adadelta rho 0.9", "split_seed": cfg["seed"]},
+                           "optimizer": "Adadelta rho 0.9", "split_seed": cfg["seed"], "seed": args.seed},
               "rows": rows, "ratios": ratios}
     if args.out:
         write_json(args.out, result)
