@@ -3,14 +3,9 @@
 import numpy as np
 
 from forcdecode.learn.ablation import compare_heads, head_ratios
+from forcdecode.learn.models import build_network
 from forcdecode.learn.train import split_indices
 from synthetic_images import bar_images
-
-
-def paper_weights(side):
-    """The paper network's weight count for an image side (conv 1→8→16, 625 M_s nodes, 4,096, 11)."""
-    features = 16 * (side - 4) ** 2 + 625
-    return (8 * 9 + 8) + (16 * 8 * 9 + 16) + (features * 4096 + 4096) + (4096 * 11 + 11)
 
 
 def test_both_heads_learn_the_bar_and_the_ratios_follow():
@@ -20,9 +15,11 @@ def test_both_heads_learn_the_bar_and_the_ratios_follow():
                          epochs=6, patience=6, batch_size=16, lr=1.0, width=32, seed=0)
     assert [(row["parameter"], row["network"]) for row in rows] == [("bar", "small"), ("bar", "paper")]
     small, paper = rows
-    assert paper["weights"] == paper_weights(16)  # 12.0 M at 16 px (238.5 M at 64)
-    assert paper_weights(64) == 238_540_011
+    assert paper["weights"] > 12_000_000  # 12.0 M at 16 px
     for row in rows:
+        # the rows report the networks trained (architecture counts: tests/learn/test_models.py)
+        built = build_network(row["network"], width=32, image_size=16)
+        assert row["weights"] == sum(p.numel() for p in built.parameters())
         assert row["n_test"] == len(test) and row["epochs_run"] == 6
         assert row["skill"] > 0.4, row  # the median baseline's MAE more than 40 % cut
     ratios = head_ratios(rows)["bar"]
