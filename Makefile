@@ -1,12 +1,14 @@
 # forcdecode: two commands for a fresh machine
 #   make run    install into .venv, then run the main job (Snakemake, config/config.yaml)
-#   make test   install into .venv (with the test extras), then run the tests
+#   make test   install into .venv (with the test extras), then run the tests (not the slow ones)
+#   make test-all   the tests marked slow too;  make lint   snakemake --lint and snakefmt --check
+#   make report     results/report.zip: the run's figures and tables with captions (after make run)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 CORES  ?= 2
 
-.PHONY: install install-test run test test-all bench clean
+.PHONY: install install-test run test test-all lint report bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +33,13 @@ test: install-test
 
 test-all: install-test
 	$(BIN)/python -m pytest -m ""
+
+lint: install-test
+	$(BIN)/snakemake --lint --configfile config/config.yaml
+	$(BIN)/snakefmt --check .
+
+report: install
+	$(BIN)/snakemake --configfile config/config.yaml --report results/report.zip
 
 bench: install-test
 	$(BIN)/forcdecode bench engine --json

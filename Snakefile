@@ -1,10 +1,19 @@
 # forcdecode main job: config -> parameter draw -> screening -> FORC families -> dataset -> Alice/Bob
-# per parameter -> metrics and figures.
+# per parameter -> metrics, figures and the closed loop. `snakemake --report results/report.zip`
+# afterwards packs every figure and table with its caption into a browsable record of the run.
 # Rules live in workflow/rules/, one file per stage; they call the package's CLI (no physics here).
 import os
 
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
 # the laptop default, found next to this Snakefile (so --directory elsewhere works too)
 configfile: os.path.join(workflow.basedir, "config", "config.yaml")
+
+
+report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"
@@ -14,15 +23,18 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/merge.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/learn.smk"
+include: "workflow/rules/report.smk"
 
 
-localrules: all
+localrules:
+    all,
 
 
 rule all:
+    default_target: True
     input:
         rules.merge.output,
         rules.figure1.output,
         rules.evaluate.output,
         rules.closed_loop.output,
-    default_target: True
+        rules.report_tables.output,

@@ -2,7 +2,8 @@
 
 Each command lives in the sub-package it belongs to and exposes ``add_arguments(parser)`` and
 ``run(args)``; this module only wires them together, importing lazily so that ``forcdecode --help``
-stays fast.
+stays fast. Exit codes live here: 0 success, 2 a library error (``ForcdecodeError``, printed as
+``error: <message>``) or a usage error, 130 interrupted.
 """
 
 from __future__ import annotations
@@ -46,8 +47,13 @@ def main(argv: list[str] | None = None) -> int:
                                                  description=COMMANDS[argv[0]][1])
         module.add_arguments(command_parser)
         args = command_parser.parse_args(argv[1:])
+        from .core.errors import ForcdecodeError
+
         try:
             return int(module.run(args) or 0)
+        except ForcdecodeError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return 130

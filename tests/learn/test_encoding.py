@@ -44,3 +44,18 @@ def test_noise_robustness_of_both_readouts():
 def test_wrong_width_is_an_error():
     with pytest.raises(ValueError, match="11"):
         readout(np.zeros((2, 10)))
+
+
+def test_peak_height_carries_the_variance():
+    """MSE-optimal outputs are E[t_k] = 20 − (k − μ)²/2 − v/2: the readout recovers μ and v."""
+    from forcdecode.learn.encoding import readout_with_variance
+
+    rng = np.random.default_rng(0)
+    for mu, sd in ((0.53, 0.08), (0.3, 0.03), (0.7, 0.12)):
+        u = np.clip(rng.normal(mu, sd, 400_000), 0, 1)
+        expected_outputs = encode(u).mean(axis=0)
+        mean, variance = readout_with_variance(expected_outputs[None])
+        assert mean[0] == pytest.approx(u.mean(), abs=2e-3)
+        assert variance[0] == pytest.approx(u.var(), rel=0.03)
+    _, exact = readout_with_variance(encode(np.array([0.42])))
+    assert exact[0] == pytest.approx(0.0, abs=1e-12)

@@ -3,23 +3,21 @@
 import numpy as np
 import pytest
 
-from forcdecode.learn.train import fit_alice, split_indices
+from forcdecode.learn.splits import assign_splits
+from forcdecode.learn.train import fit_alice
 from synthetic_images import bar_images
 
 
-def test_splits_are_reproducible_and_disjoint():
-    a = split_indices(100, 3)
-    b = split_indices(100, 3)
-    assert all(np.array_equal(x, y) for x, y in zip(a, b))
-    assert len(set(np.concatenate(a))) == 100 and [len(x) for x in a] == [70, 15, 15]
-    with pytest.raises(ValueError):
-        split_indices(10, 0, (0.5, 0.2, 0.2))
+def _three_way(n, seed):
+    """train / validation / test indices of the hash split (no calibration part)."""
+    splits = assign_splits(np.arange(n), seed, (0.7, 0.15, 0.0, 0.15))
+    return splits["train"], splits["validation"], splits["test"]
 
 
 @pytest.fixture(scope="module")
 def trained():
     images, ms, u = bar_images()
-    train, val, test = split_indices(len(u), 0)
+    train, val, test = _three_way(len(u), 0)
     alice = fit_alice(images, ms, u, train, val, width=32, epochs=12, batch_size=32, lr=1.0, patience=4, seed=0)
     return alice, images, ms, u, test
 
@@ -38,7 +36,7 @@ def test_best_epoch_is_the_lowest_validation_loss(trained):
 
 def test_training_is_deterministic():
     images, ms, u = bar_images(120, 1)
-    train, val, _ = split_indices(len(u), 1)
+    train, val, _ = _three_way(len(u), 1)
     a = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
     b = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
     np.testing.assert_array_equal(a.outputs(images[:10], ms[:10]), b.outputs(images[:10], ms[:10]))

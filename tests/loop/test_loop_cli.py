@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from forcdecode.cli import main
-from forcdecode.dataset.simulate import mesh_from_config
+from forcdecode.micromag.build import mesh_from_config
 from forcdecode.loop import resimulate
 from forcdecode.measured.writers import write_micromag_0015
 

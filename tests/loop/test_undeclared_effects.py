@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from forcdecode.dataset.simulate import mesh_from_config
+from forcdecode.micromag.build import mesh_from_config
 from forcdecode.forc.raster import measured_image
 from forcdecode.loop import resimulate
 from forcdecode.loop.instrument import simulated_instrument_curves

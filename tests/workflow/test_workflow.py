@@ -4,6 +4,7 @@ import json
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import h5py
@@ -14,15 +15,25 @@ ROOT = Path(__file__).resolve().parents[2]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 
-def snakemake(*args, timeout=600):
+def snakemake(workdir, *args, timeout=600):
+    """Snakemake on the tiny configuration with `workdir` as working directory (its .snakemake/ there)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.run([*SNAKEMAKE, "--cores", "2", "--configfile", "config/test.yaml", *args],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+    return subprocess.run([*SNAKEMAKE, "--snakefile", str(ROOT / "Snakefile"), "--directory", str(workdir),
+                           "--cores", "2", "--configfile", str(ROOT / "config" / "test.yaml"), *args],
+                          cwd=workdir, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+# rules that compute (everything but the two config writers and `all`): each leaves a benchmark
+BENCHMARKED = {"draw", "screen", "select", "simulate_family", "merge", "figure1", "train_parameter", "evaluate",
+               "closed_loop", "report_tables"}
+REPORTED = {"figure1.png", "figure3.png", "figure5bc.png", "learning_curve.png", "retention.png",
+            "uncertainty_baselines.png", "figure4.png", "closed_loop_vs_bob.png", "closed_loop_floor_null.png",
+            "metrics.html", "samples.html", "closed_loop.html"}
 
 
 def test_tiny_config_builds_the_dataset(tmp_path):
     out = tmp_path / "results"
-    run = snakemake("--config", f"results_dir={out}")
+    run = snakemake(tmp_path)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     samples = pd.read_parquet(out / "samples.parquet")
     assert len(samples) == 40  # one row per drawn sample, rejected ones included
@@ -87,16 +98,32 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert report["Ms_chosen_A_per_m"] in (5e5, 1.1e6) and set(report["prediction"]) >= {"K_u", "D", "N_pin", "A_ex"}
     assert report["observation_rms"] >= 0 and len(report["per_curve_rms"]) == 16
     assert "background" in report["effect"]
+    # runtime per job: one benchmark table per job of every computing rule
+    assert {p.name for p in (out / "benchmarks").iterdir()} == BENCHMARKED
+    assert len(list((out / "benchmarks" / "screen").glob("chunk_*.tsv"))) == 5  # 40 samples, 8 per chunk
+    bench_table = pd.read_csv(out / "benchmarks" / "train_parameter" / "D.tsv", sep="\t")
+    assert len(bench_table) == 1 and bench_table["s"].iloc[0] > 0
+    # the report: every figure and table of the run, with its caption, in one browsable archive
+    report_run = snakemake(tmp_path, "--report", str(out / "report.zip"), timeout=300)
+    assert report_run.returncode == 0, report_run.stderr[-3000:]
+    with zipfile.ZipFile(out / "report.zip") as archive:
+        names = archive.namelist()
+        assert {Path(n).name for n in names if "/data/raw/" in n} == REPORTED
+        page = archive.read(next(n for n in names if n.endswith("report.html"))).decode()
+    assert "drew 40 parameter sets" in page and "Figure 5b-c of the paper" in page  # description, captions
+    assert "screen_status" in (out / "tables" / "samples.html").read_text()
+    assert "<td>K_u</td>" in (out / "tables" / "metrics.html").read_text()
     # a finished run has nothing left to do
-    again = snakemake("--config", f"results_dir={out}", "-n")
+    again = snakemake(tmp_path, "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
 
 
 def test_bad_config_stops_before_any_job_naming_the_key(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text((ROOT / "config" / "test.yaml").read_text() + "\nmesh: {nx: 16, ny: 16, nz: 1, dx_nm: -2.0}\n")
-    run = subprocess.run([*SNAKEMAKE, "--cores", "1", "--configfile", str(bad), "--config",
-                          f"results_dir={tmp_path / 'r'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    run = subprocess.run([*SNAKEMAKE, "--snakefile", str(ROOT / "Snakefile"), "--directory", str(tmp_path), "--cores",
+                          "1", "--configfile", str(bad), "--config", f"results_dir={tmp_path / 'r'}"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
     assert run.returncode != 0
     text = run.stdout + run.stderr
     assert "dx_nm" in text and "exclusiveMinimum" in text or "-2.0" in text

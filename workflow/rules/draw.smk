@@ -3,16 +3,13 @@ rule resolve_config:
     learning and loop sections go to their own file, so changing them never re-simulates the dataset."""
     output:
         f"{RESULTS}/config.json",
-    params:
-        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS}, sort_keys=True),
     log:
         f"{RESULTS}/logs/resolve_config.log",
+    params:
+        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS}, sort_keys=True),
     run:
-        from forcdecode.dataset.io import write_json
-
         write_json(output[0], json.loads(params.cfg))
-        with open(log[0], "w") as handle:
-            handle.write(f"wrote {output[0]}\n")
+        Path(log[0]).write_text(f"wrote {output[0]}\n")
 
 
 rule draw:
@@ -23,21 +20,27 @@ rule draw:
         f"{RESULTS}/params.parquet",
     log:
         f"{RESULTS}/logs/draw.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/draw/draw.tsv"
+    conda:
+        CONDA_ENV
+    params:
+        cli=FORCDECODE,
     shell:
-        "{FORCDECODE} dataset draw --config {input.config} --out {output} 2> {log}"
+        "{params.cli} dataset draw --config {input.config} --out {output} 2> {log}"
 
 
 rule resolve_learning:
     """The learning and loop sections of the configuration (with the seed), input of the learning stages."""
     output:
         f"{RESULTS}/learning.json",
-    params:
-        cfg=json.dumps({"seed": config["seed"], **{k: config[k] for k in STAGE_SECTIONS}}, sort_keys=True),
     log:
         f"{RESULTS}/logs/resolve_learning.log",
+    params:
+        cfg=json.dumps(
+            {"seed": config["seed"], **{k: config[k] for k in STAGE_SECTIONS}},
+            sort_keys=True,
+        ),
     run:
-        from forcdecode.dataset.io import write_json
-
         write_json(output[0], json.loads(params.cfg))
-        with open(log[0], "w") as handle:
-            handle.write(f"wrote {output[0]}\n")
+        Path(log[0]).write_text(f"wrote {output[0]}\n")

@@ -3,8 +3,19 @@ rule figure1:
     input:
         rules.merge.output.h5,
     output:
-        f"{RESULTS}/figures/figure1.png",
+        report(
+            f"{RESULTS}/figures/figure1.png",
+            caption="../report/figure1.rst",
+            category="1. Dataset",
+            labels={"name": "Figure 1: a FORC family and its image", "kind": "figure"},
+        ),
     log:
         f"{RESULTS}/logs/figure1.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/figure1/figure1.tsv"
+    conda:
+        CONDA_ENV
+    params:
+        cli=FORCDECODE,
     shell:
-        "{FORCDECODE} dataset figure1 --dataset {input} --out {output} 2> {log}"
+        "{params.cli} dataset figure1 --dataset {input} --out {output} 2> {log}"

@@ -1,6 +1,3 @@
-LEARN_PARAMETERS = config["learning"]["parameters"]
-
-
 rule train_parameter:
     """Alice and Bob for one parameter: splits, K-fold cross-fitting, conformal intervals, MC dropout."""
     input:
@@ -12,14 +9,18 @@ rule train_parameter:
         metrics=f"{RESULTS}/learn/{{parameter}}_metrics.json",
     log:
         f"{RESULTS}/logs/learn/{{parameter}}.log",
-    wildcard_constraints:
-        parameter="|".join(LEARN_PARAMETERS),
+    benchmark:
+        f"{RESULTS}/benchmarks/train_parameter/{{parameter}}.tsv"
+    conda:
+        CONDA_ENV
     threads: config["learning"]["threads"]
     resources:
         mem_mb=4000 if config["learning"]["model"] == "small" else 16000,
         runtime=240,
+    params:
+        cli=FORCDECODE_1T,
     shell:
-        "{ENV} {FORCDECODE} learn train --config {input.config} --dataset {input.dataset} --parameter {wildcards.parameter} "
+        "{params.cli} learn train --config {input.config} --dataset {input.dataset} --parameter {wildcards.parameter} "
         "--model {output.model} --predictions {output.predictions} --metrics {output.metrics} --threads {threads} 2> {log}"
 
 
@@ -27,19 +28,56 @@ rule evaluate:
     """metrics.json (test split) and the learning figures: Figure 3, Figure 5b-c, learning and retention curves."""
     input:
         metrics=expand(f"{RESULTS}/learn/{{parameter}}_metrics.json", parameter=LEARN_PARAMETERS),
-        predictions=expand(f"{RESULTS}/learn/{{parameter}}_predictions.parquet", parameter=LEARN_PARAMETERS),
+        predictions=expand(
+            f"{RESULTS}/learn/{{parameter}}_predictions.parquet",
+            parameter=LEARN_PARAMETERS,
+        ),
     output:
         metrics=f"{RESULTS}/metrics.json",
         table=f"{RESULTS}/metrics.md",
-        figure3=f"{RESULTS}/figures/figure3.png",
-        figure5bc=f"{RESULTS}/figures/figure5bc.png",
-        learning_curve=f"{RESULTS}/figures/learning_curve.png",
-        retention=f"{RESULTS}/figures/retention.png",
+        figure3=report(
+            f"{RESULTS}/figures/figure3.png",
+            caption="../report/figure3.rst",
+            category="2. Learning",
+            labels={"name": "Figure 3: predicted against true", "kind": "figure"},
+        ),
+        figure5bc=report(
+            f"{RESULTS}/figures/figure5bc.png",
+            caption="../report/figure5bc.rst",
+            category="2. Learning",
+            labels={"name": "Figure 5b-c: Bob's predicted error", "kind": "figure"},
+        ),
+        learning_curve=report(
+            f"{RESULTS}/figures/learning_curve.png",
+            caption="../report/learning_curve.rst",
+            category="2. Learning",
+            labels={"name": "Learning curve", "kind": "figure"},
+        ),
+        learning_curve_json=f"{RESULTS}/learning_curve.json",
+        retention=report(
+            f"{RESULTS}/figures/retention.png",
+            caption="../report/retention.rst",
+            category="2. Learning",
+            labels={"name": "Error-retention curves", "kind": "figure"},
+        ),
+        uncertainty=report(
+            f"{RESULTS}/figures/uncertainty_baselines.png",
+            caption="../report/uncertainty_baselines.rst",
+            category="2. Learning",
+            labels={"name": "Uncertainty against its baselines", "kind": "figure"},
+        ),
     log:
         f"{RESULTS}/logs/evaluate.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/evaluate/evaluate.tsv"
+    conda:
+        CONDA_ENV
+    params:
+        cli=FORCDECODE,
+        figures=lambda wildcards, output: os.path.dirname(output.figure3),
     shell:
-        "{FORCDECODE} learn evaluate --metrics {input.metrics} --predictions {input.predictions} "
-        "--out {output.metrics} --figures {RESULTS}/figures > {log} 2>&1"
+        "{params.cli} learn evaluate --metrics {input.metrics} --predictions {input.predictions} "
+        "--out {output.metrics} --learning-curve {output.learning_curve_json} --figures {params.figures} > {log} 2>&1"
 
 
 rule closed_loop:
@@ -49,17 +87,44 @@ rule closed_loop:
         config=rules.resolve_config.output,
         learning=rules.resolve_learning.output,
         dataset=rules.merge.output.h5,
-        predictions=expand(f"{RESULTS}/learn/{{parameter}}_predictions.parquet", parameter=LEARN_PARAMETERS),
+        predictions=expand(
+            f"{RESULTS}/learn/{{parameter}}_predictions.parquet",
+            parameter=LEARN_PARAMETERS,
+        ),
     output:
         summary=f"{RESULTS}/closed_loop.json",
         table=f"{RESULTS}/closed_loop.parquet",
-        figure4=f"{RESULTS}/figures/figure4.png",
-        correlation=f"{RESULTS}/figures/closed_loop_vs_bob.png",
+        figure4=report(
+            f"{RESULTS}/figures/figure4.png",
+            caption="../report/figure4.rst",
+            category="3. Closed loop",
+            labels={"name": "Figure 4: re-simulated families", "kind": "figure"},
+        ),
+        correlation=report(
+            f"{RESULTS}/figures/closed_loop_vs_bob.png",
+            caption="../report/closed_loop_vs_bob.rst",
+            category="3. Closed loop",
+            labels={"name": "Observation error against Bob", "kind": "figure"},
+        ),
+        floor_null=report(
+            f"{RESULTS}/figures/closed_loop_floor_null.png",
+            caption="../report/closed_loop_floor_null.rst",
+            category="3. Closed loop",
+            labels={"name": "Observation error: floor and null", "kind": "figure"},
+        ),
     log:
         f"{RESULTS}/logs/closed_loop.log",
-    threads: 1
+    benchmark:
+        f"{RESULTS}/benchmarks/closed_loop/closed_loop.tsv"
+    conda:
+        CONDA_ENV
+    threads: 2
     resources:
         runtime=240,
+    params:
+        cli=FORCDECODE_1T,
+        figures=lambda wildcards, output: os.path.dirname(output.figure4),
     shell:
-        "{ENV} {FORCDECODE} closed-loop --config {input.config} --learning {input.learning} --dataset {input.dataset} "
-        "--predictions {input.predictions} --out {output.summary} --table {output.table} --figures {RESULTS}/figures 2> {log}"
+        "{params.cli} closed-loop --config {input.config} --learning {input.learning} --dataset {input.dataset} "
+        "--predictions {input.predictions} --out {output.summary} --table {output.table} --figures {params.figures} "
+        "--workers {threads} 2> {log}"

@@ -10,6 +10,12 @@ rule merge:
         parquet=f"{RESULTS}/samples.parquet",
     log:
         f"{RESULTS}/logs/merge.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/merge/merge.tsv"
+    conda:
+        CONDA_ENV
+    params:
+        cli=FORCDECODE,
     shell:
-        "{FORCDECODE} dataset merge --config {input.config} --params {input.params} "
+        "{params.cli} dataset merge --config {input.config} --params {input.params} "
         "--screens {input.screens} --families {input.families} --h5 {output.h5} --parquet {output.parquet} 2> {log}"

@@ -7,13 +7,20 @@ rule screen:
         f"{RESULTS}/screen/chunk_{{chunk}}.parquet",
     log:
         f"{RESULTS}/logs/screen/chunk_{{chunk}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/screen/chunk_{{chunk}}.tsv"
+    conda:
+        CONDA_ENV
     threads: 1
     resources:
         mem_mb=2000,
         runtime=120,
+    params:
+        cli=FORCDECODE_1T,
+        chunk=lambda wildcards: int(wildcards.chunk),
     shell:
-        "{ENV} {FORCDECODE} dataset screen --config {input.config} --params {input.params} "
-        "--chunk $((10#{wildcards.chunk})) --out {output} 2> {log}"
+        "{params.cli} dataset screen --config {input.config} --params {input.params} "
+        "--chunk {params.chunk} --out {output} 2> {log}"
 
 
 checkpoint select:
@@ -25,5 +32,11 @@ checkpoint select:
         f"{RESULTS}/screen/selection.json",
     log:
         f"{RESULTS}/logs/select.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/select/select.tsv"
+    conda:
+        CONDA_ENV
+    params:
+        cli=FORCDECODE,
     shell:
-        "{FORCDECODE} dataset select --config {input.config} --screens {input.screens} --out {output} 2> {log}"
+        "{params.cli} dataset select --config {input.config} --screens {input.screens} --out {output} 2> {log}"

@@ -66,10 +66,16 @@ def _truth(base, size, cfg, resimulate):
     return base, size
 
 
+def n_cases(n_seeds: int, sizes=None) -> int:
+    """The number of cases ``effects_confusion`` runs with ``n_seeds`` seeds (the control 4 × as many)."""
+    return sum(len(values) * n_seeds * (4 if effect == "none" else 1) for effect, values in (sizes or SIZES).items())
+
+
 def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress=None) -> dict:
     """Run every (effect, size, seed) case (the control ``none`` with 4 × as many seeds); returns {"confusion": {true: {chosen: count}},
     "accuracy", "n_cases", "by_size": [...], "cases": [...], "setup_s", "analysis_s"}."""
-    from ..dataset.simulate import mesh_from_config
+    from ..core.streams import stream_rng
+    from ..micromag.build import mesh_from_config
     from ..forc.raster import measured_image
     from ..loop.instrument import simulated_instrument_curves
     from ..loop.physics_effects import analyse_residual, physics_candidate_families
@@ -95,7 +101,8 @@ def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress
                 # the control gets four times the seeds: a false-alarm rate needs more cases
                 for seed in (range(4 * len(seeds)) if effect == "none" else seeds):
                     reversal, curves = simulated_instrument_curves(truth, fields, moment, noise=noise,
-                                                                   rng=np.random.default_rng(seed), **instrument)
+                                                                   rng=stream_rng(seed, "instrument_noise", "bench"),
+                                                                   **instrument)
                     data = read_forc(write_micromag_0015(Path(tmp) / "case.frc", reversal, curves))
                     _, measured, _ = measured_image([c.reversal_field_T for c in data.curves],
                                                     [(c.field_T, c.moment_Am2) for c in data.curves], moment, 1.0, n)
@@ -119,3 +126,23 @@ def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress
     correct = sum(r["effect"] == r["chosen"] for r in rows)
     return {"confusion": table, "accuracy": correct / len(rows), "n_cases": len(rows), "by_size": by_size,
             "cases": rows, "setup_s": setup_s, "analysis_s": time.perf_counter() - start - setup_s}
+
+
+def summary_lines(result: dict) -> list[str]:
+    """The confusion table (true effect × chosen effect) and the per-size table, as printed lines."""
+    lines = [f"residual analysis on undeclared effects (simulated film, MicroMag files): {result['accuracy']:.0%} "
+             f"named correctly over {result['n_cases']} cases (setup {result['setup_s']:.0f} s, "
+             f"analysis {result['analysis_s']:.0f} s)"]
+    truths = list(result["confusion"])
+    chosen = truths + sorted({c for row in result["confusion"].values() for c in row} - set(truths))
+    lines.append("true \\ chosen".ljust(16) + "".join(abbreviate(n)[:9].rjust(10) for n in chosen))
+    for true in truths:
+        lines.append(abbreviate(true)[:15].ljust(16)
+                     + "".join(str(result["confusion"][true].get(n, 0) or ".").rjust(10) for n in chosen))
+    lines += ["", "effect".ljust(16) + "size".ljust(52) + "correct  median held-out cut  chosen"]
+    for row in result["by_size"]:
+        size = ", ".join(f"{k.replace('background_', '')}={v:g}" for k, v in row["size"].items()) or "-"
+        lines.append(abbreviate(row["effect"])[:15].ljust(16) + size[:51].ljust(52)
+                     + f"{row['correct']}/{row['n']}".ljust(9) + f"{row['median_reduction']:.0%}".rjust(18) + "  "
+                     + ", ".join(map(abbreviate, row["chosen"])))
+    return lines

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from ..core.streams import stream_rng
 from ..forc.protocol import quasistatic_family
 from ..micromag import Mesh, disordered_film
 
@@ -24,11 +25,12 @@ CELL = (2e-9, 2e-9, 4e-9)
 def _film(grid, pinning="full", seed=0, n_grains=255):
     nx, ny, nz = GRIDS[grid]
     mesh = Mesh(nx, ny, nz, *CELL)
-    return disordered_film(mesh, rng=np.random.default_rng(seed), pinning=pinning, n_grains=n_grains, **SAMPLE)
+    return disordered_film(mesh, rng=stream_rng(seed, "bench_film", "engine", grid), pinning=pinning,
+                           n_grains=n_grains, **SAMPLE)
 
 
 def _tilted_state(mesh, seed=1):
-    rng = np.random.default_rng(seed)
+    rng = stream_rng(seed, "bench_film", "tilted_state")
     m = np.zeros(mesh.vector_shape)
     m[2] = 1.0
     m[:2] = 0.3 * rng.normal(size=(2,) + mesh.shape)
@@ -108,11 +110,11 @@ def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, se
         kwargs = dict(Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
                       sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=int(round(p["N_pin"] * mesh.n_cells / 131072)),
                       n_grains=max(4, 255 * mesh.n_cells // 131072))
-        film, m0, _ = disordered_film(mesh, rng=np.random.default_rng([seed, sample_id]), pinning="full", **kwargs)
+        film, m0, _ = disordered_film(mesh, rng=stream_rng(seed, "disorder", sample_id - 1), pinning="full", **kwargs)
         start = time.perf_counter()
         quasi = quasistatic_family(film, m0, n_fields=n_fields)
         t_quasi = time.perf_counter() - start
-        film, m0, _ = disordered_film(mesh, rng=np.random.default_rng([seed, sample_id]), pinning="slaved", **kwargs)
+        film, m0, _ = disordered_film(mesh, rng=stream_rng(seed, "disorder", sample_id - 1), pinning="slaved", **kwargs)
         start = time.perf_counter()
         llg = adaptive_family(film, m0, n_fields=n_fields)
         t_llg = time.perf_counter() - start
@@ -127,3 +129,53 @@ def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, se
     return {"grid": f"{grid}x{grid}x1", "n_fields": n_fields, "samples": rows,
             "time_ratio_llg_over_quasistatic": float(np.mean([r["llg_s"] / r["quasistatic_s"] for r in rows])),
             "mean_abs_dmz": float(np.mean([r["mean_abs_dmz"] for r in rows]))}
+
+
+def protocol_row_line(row: dict) -> str:
+    return (f"sample {row['sample_id']}: quasi-static {row['quasistatic_s']:.2f} s, LLG {row['llg_s']:.1f} s, "
+            f"mean |dm_z| {row['mean_abs_dmz']:.3f}, max {row['max_abs_dmz']:.3f}")
+
+
+def protocols_summary(result: dict) -> str:
+    return (f"LLG/quasi-static time ratio {result['time_ratio_llg_over_quasistatic']:.0f}x, "
+            f"mean |dm_z| between the protocols' families {result['mean_abs_dmz']:.3f}")
+
+
+def benchmark_engine(grids=("64", "256"), seconds: float = 2.0, magnumnp: bool = True, cache_dir=None,
+                     compile: bool = True, say=print, progress=None) -> dict:
+    """Field-evaluation and LLG-step throughput on each grid (ours, and magnum.np's where installed),
+    then the wall time of one laptop FORC family; figures printed through ``say`` as they come."""
+    import os
+    import platform
+
+    report = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "threads": 1}
+    for grid in grids:
+        ours = time_ours(grid, seconds)
+        report[f"ours_{grid}"] = ours
+        say(f"[{grid}] forcdecode: {ours['cells_per_s']:.3e} cell-evaluations/s, "
+            f"{ours['field_eval_s'] * 1e3:.3f} ms per field, {ours['llg_step_s'] * 1e3:.3f} ms per RK45 step")
+        if magnumnp:
+            try:
+                import torch
+
+                torch.set_num_threads(1)
+                peer = time_magnumnp(grid, cache_dir, compile=compile)
+            except ImportError as error:
+                say(f"[{grid}] magnum.np not available ({error}); install with pip install -e .[reference]")
+                peer = None
+            if peer is not None:
+                report[f"magnumnp_{grid}"] = peer
+                report[f"speedup_vs_magnumnp_{grid}"] = peer["field_eval_s"] / ours["field_eval_s"]
+                report[f"llg_step_speedup_vs_magnumnp_{grid}"] = peer["llg_step_s"] / ours["llg_step_s"]
+                say(f"[{grid}] magnum.np:  {peer['cells_per_s']:.3e} cell-evaluations/s, "
+                    f"{peer['field_eval_s'] * 1e3:.3f} ms per field, {peer['llg_step_s'] * 1e3:.3f} ms per step "
+                    f"(setup {peer['setup_s']:.1f} s) -> field speedup "
+                    f"{report[f'speedup_vs_magnumnp_{grid}']:.1f}x, step speedup "
+                    f"{report[f'llg_step_speedup_vs_magnumnp_{grid}']:.1f}x")
+        report.setdefault(f"speedup_vs_magnumnp_{grid}", None)
+    family = time_laptop_family(progress=progress)
+    report["laptop_family"] = family
+    report["laptop_family_s"] = family["family_s"]
+    say(f"[family] 64 reversal fields on 64x64x1, one core: {family['family_s']:.1f} s "
+        f"({family['relaxations']} relaxations, {family['iterations']} minimizer iterations)")
+    return report

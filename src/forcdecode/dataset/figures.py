@@ -5,7 +5,8 @@ from __future__ import annotations
 import h5py
 import numpy as np
 
-from . import io
+from ..core import io
+from ..core.errors import DatasetError
 
 
 def figure1(dataset_path: str, out_path: str, index: int | None = None) -> None:
@@ -16,7 +17,7 @@ def figure1(dataset_path: str, out_path: str, index: int | None = None) -> None:
 
     with h5py.File(dataset_path, "r") as h5:
         if h5["images"].shape[0] == 0:
-            raise SystemExit(f"error: {dataset_path} holds no FORC family to plot")
+            raise DatasetError(f"{dataset_path} holds no FORC family to plot")
         if index is None:  # the richest minor loops: FORCs farthest from both major-loop branches
             curves_all = h5["curves_mz"][:].astype(float)
             ascending = curves_all[:, :1, :]

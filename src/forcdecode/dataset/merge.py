@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from .. import __version__
-from . import io
-from .params import PARAMETERS
+from ..core import io
+from ..core.parameters import NAMES as PARAMETERS
 
 
 def config_hash(cfg: dict) -> str:

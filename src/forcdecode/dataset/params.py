@@ -4,40 +4,35 @@ M_s ~ U(200, 1400) kA/m; ln K_u triangular on [ln 1e3, ln 1.5e6] J/m³ with its 
 D ~ U(0, 5) mJ/m²; N_pin ~ U{0..255}; σ_θ ~ U(0, 10°); σ_K ~ U(0, 20 %). A_ex by constrained
 sampling: a target exchange length l_ex ~ N(10 nm, 1 nm) gives A_ex = l_ex² μ0 M_s²/2; if that falls
 outside 1–35 pJ/m, A_ex is drawn uniformly there instead, redrawn until l_ex = √(2A/(μ0 M_s²)) > 5 nm.
+Names, units, default bounds and scales come from the parameter table (``core.parameters``); the
+draw uses the ``parameters`` random stream of the sample.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..core.parameters import DEFAULT_BOUNDS, LOG_SCALE, NAMES, denormalize, normalize
+from ..core.streams import stream_rng
 from ..micromag.constants import MU0
 
-PARAMETERS = ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")
-"""Column names (SI: A/m, J/m, J/m³, J/m², count, degrees, fraction)."""
+PARAMETERS = NAMES
+"""Column names of the dataset files, M_s first (units: ``core.parameters.UNITS``)."""
 
-DEFAULT_BOUNDS = {
-    "Ms": [2e5, 1.4e6],
-    "A_ex": [1e-12, 35e-12],
-    "K_u": [1e3, 1.5e6],
-    "D": [0.0, 5e-3],
-    "N_pin": [0, 255],
-    "sigma_theta_deg": [0.0, 10.0],
-    "sigma_K": [0.0, 0.2],
-}
-LOG_SCALE = {"K_u"}
-"""Parameters drawn (and normalized) on a log scale."""
+_STREAM_NAMES = {0: "parameters", 1: "disorder"}
 
 
-def sample_rng(seed: int, sample_id: int, stream: int = 0) -> np.random.Generator:
-    """The generator for one purpose (``stream``) of one sample: every draw derives from these."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(sample_id), int(stream)]))
+def sample_rng(seed: int, sample_id: int, stream: int | str = 0) -> np.random.Generator:
+    """The generator of one sample for one purpose: ``stream`` 0 / "parameters" (the draw) or
+    1 / "disorder" (grains and pinning); ``core.streams`` holds the derivation."""
+    return stream_rng(seed, _STREAM_NAMES.get(stream, stream), sample_id)
 
 
 def draw_parameters(seed: int, sample_id: int, bounds=None, exchange_length_nm=(10.0, 1.0),
                     min_exchange_length_nm: float = 5.0) -> dict:
     """One sample's Hamiltonian parameters (SI)."""
     b = {**DEFAULT_BOUNDS, **(bounds or {})}
-    rng = sample_rng(seed, sample_id, 0)
+    rng = stream_rng(seed, "parameters", sample_id)
     Ms = rng.uniform(*b["Ms"])
     log_lo, log_hi = np.log(b["K_u"][0]), np.log(b["K_u"][1])
     K_u = float(np.exp(rng.triangular(log_lo, log_hi, log_hi)))
@@ -59,18 +54,5 @@ def draw_parameters(seed: int, sample_id: int, bounds=None, exchange_length_nm=(
             "sigma_theta_deg": float(sigma_theta), "sigma_K": float(sigma_K)}
 
 
-def normalize(name: str, value, bounds=None):
-    """Map a parameter to [0, 1] by the configured bounds (log scale for K_u), never by data."""
-    lo, hi = {**DEFAULT_BOUNDS, **(bounds or {})}[name]
-    value = np.asarray(value, dtype=float)
-    if name in LOG_SCALE:
-        return (np.log(value) - np.log(lo)) / (np.log(hi) - np.log(lo))
-    return (value - lo) / (hi - lo)
-
-
-def denormalize(name: str, unit_value, bounds=None):
-    lo, hi = {**DEFAULT_BOUNDS, **(bounds or {})}[name]
-    unit_value = np.asarray(unit_value, dtype=float)
-    if name in LOG_SCALE:
-        return np.exp(np.log(lo) + unit_value * (np.log(hi) - np.log(lo)))
-    return lo + unit_value * (hi - lo)
+__all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "normalize",
+           "denormalize"]

@@ -12,13 +12,11 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from ..dataset.params import DEFAULT_BOUNDS, normalize
+from ..core.errors import InputFileError
+from ..core.parameters import DEFAULT_BOUNDS, TARGETS, UNITS, normalize
 
-TARGETS = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
-"""Parameters with their own network (M_s is an input)."""
-
-UNITS = {"Ms": "A/m", "A_ex": "J/m", "K_u": "J/m^3", "D": "J/m^2", "N_pin": "count (256x256x2 grid)",
-         "sigma_theta_deg": "deg", "sigma_K": "fraction"}
+__all__ = ["TARGETS", "UNITS", "PAPER_FIGURES", "LearningData", "load_dataset"]
+# TARGETS (parameters with their own network; M_s is an input) and UNITS: core.parameters
 
 PAPER_FIGURES = {"N_pin": {"mae": 0.11, "pearson_r": 0.84}, "A_ex": {"mae": 0.07, "pearson_r": 0.92},
                  "K_u": {"mae": 0.04, "pearson_r": 0.97}, "D": {"mae": 0.07, "pearson_r": 0.90}}
@@ -44,11 +42,11 @@ class LearningData:
 
 
 def load_dataset(path) -> LearningData:
-    """Read dataset.h5 (written by ``forcdecode dataset merge``)."""
+    """Read dataset.h5 (written by ``forcdecode dataset merge``); InputFileError if it cannot be opened."""
     try:
         h5 = h5py.File(path, "r")
     except OSError as error:
-        raise SystemExit(f"error: cannot open dataset {path}: {error}") from None
+        raise InputFileError(f"cannot open dataset {path}: {error}") from None
     with h5:
         columns = list(h5["parameters"].attrs["columns"])
         parameters = h5["parameters"][:]

@@ -33,12 +33,27 @@ def _softmax_mean(outputs):
 
 def readout(outputs, method: str = "parabola") -> np.ndarray:
     """Network outputs (..., 11) → u ∈ [0, 1]."""
+    return readout_with_variance(outputs, method)[0]
+
+
+def readout_with_variance(outputs, method: str = "parabola") -> tuple[np.ndarray, np.ndarray]:
+    """Network outputs (..., 11) → (u ∈ [0, 1], v̂ the variance of u the outputs carry).
+
+    The targets are quadratic in y = 10u, so the MSE-optimal output is 20 − (k − μ)²/2 − v/2 with
+    μ = E[y|x], v = Var(y|x): the height of the fitted parabola's vertex gives v̂ = 2(20 − peak)
+    (clipped at 0), returned in units of u² (v/100). NaN where the fit is flat or convex (no vertex);
+    the softmax readout returns the softmax variance of k/10 instead."""
     outputs = np.asarray(outputs, dtype=float)
     if outputs.shape[-1] != N_NODES:
         raise ValueError(f"expected {N_NODES} output nodes, got {outputs.shape[-1]}")
     flat = outputs.reshape(-1, N_NODES)
+    shape = outputs.shape[:-1]
     if method == "softmax":
-        return np.clip(_softmax_mean(flat) / 10.0, 0.0, 1.0).reshape(outputs.shape[:-1])
+        w = np.exp(flat - flat.max(axis=-1, keepdims=True))
+        w /= w.sum(axis=-1, keepdims=True)
+        mean = (w * NODES).sum(axis=-1)
+        var = (w * (NODES - mean[:, None]) ** 2).sum(axis=-1)
+        return np.clip(mean / 10.0, 0.0, 1.0).reshape(shape), (var / 100.0).reshape(shape)
     if method != "parabola":
         raise ValueError(f"unknown readout {method!r}")
     centre = np.clip(np.argmax(flat, axis=1), 2, 8)
@@ -56,4 +71,7 @@ def readout(outputs, method: str = "parabola") -> np.ndarray:
     weights = np.exp(z)
     fallback = (weights * x).sum(axis=1) / weights.sum(axis=1)
     y = centre + np.where(concave, vertex, fallback)
-    return np.clip(y / 10.0, 0.0, 1.0).reshape(outputs.shape[:-1])
+    c = (window_t.sum(axis=1) - a * (x**2).sum()) / x.size  # intercept of the fitted parabola
+    peak = a * vertex**2 + b * vertex + c
+    variance = np.where(concave, np.maximum(2.0 * (20.0 - peak), 0.0) / 100.0, np.nan)
+    return np.clip(y / 10.0, 0.0, 1.0).reshape(shape), variance.reshape(shape)

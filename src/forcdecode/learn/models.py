@@ -2,8 +2,10 @@
 
 Input: a 64×64 FORC image (uint8, scaled to [0, 1]) and the normalized M_s. ``PaperCNN``: conv
 1→8 (3×3, 64→62), conv 8→16 (3×3, →60), flatten 57,600, concatenated with 625 nodes each carrying
-the normalized M_s (58,225), dense → 4,096 → 11; ReLU; dropout 0.5 on every layer but the first
-convolution. ``SmallCNN``: the same convolutions, a 4×4 average pool (16·15·15 = 3,600 features)
+the normalized M_s (58,225), dense → 4,096 → 11; ReLU. Dropout (p = 0.5) sits where the paper and its
+authors' public code put it: after the second convolution and after the first dense layer; none on
+the first convolution, and the M_s nodes are never dropped (the conv features are dropped once,
+before they are joined with M_s). ``SmallCNN``: the same convolutions, a 4×4 average pool (16·15·15 = 3,600 features)
 before the dense block, dense → ``width`` → 11. Both accept other image sides (the CI configuration
 uses 16×16 images); the paper's counts hold for 64.
 """
@@ -35,7 +37,6 @@ class _Base(nn.Module):
         self.pool = nn.AvgPool2d(4) if pooled else nn.Identity()
         features = conv_features(image_size, pooled)
         self.drop_conv = nn.Dropout(dropout)
-        self.drop_in = nn.Dropout(dropout)
         self.dense1 = nn.Linear(features + MS_NODES, width)
         self.drop_hidden = nn.Dropout(dropout)
         self.dense2 = nn.Linear(width, 11)
@@ -51,7 +52,7 @@ class _Base(nn.Module):
         x = self.drop_conv(torch.relu(self.conv2(x)))
         x = self.pool(x).flatten(1)
         ms = ms_norm.reshape(-1, 1).expand(-1, MS_NODES)
-        x = self.drop_in(torch.cat([x, ms], dim=1))
+        x = torch.cat([x, ms], dim=1)
         x = self.drop_hidden(torch.relu(self.dense1(x)))
         return self.dense2(x)
 

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..dataset.params import denormalize, normalize
+from ..core.errors import InputFileError, ModelFileError, OutOfDomainError
+from ..core.parameters import denormalize, normalize
 from .encoding import readout
 from .models import build_network, image_tensor
 from .uncertainty import ConformalIntervals, quantile_to_error
@@ -29,9 +30,10 @@ class ParameterModel:
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except (OSError, RuntimeError, EOFError) as error:
-            raise SystemExit(f"error: cannot load model {path}: {error}") from None
-        if payload.get("format") != "forcdecode-alice-bob/1":
-            raise SystemExit(f"error: {path} is not a forcdecode model file (format {payload.get('format')!r})")
+            raise ModelFileError(f"cannot load model {path}: {error}") from None
+        if not isinstance(payload, dict) or payload.get("format") != "forcdecode-alice-bob/1":
+            found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+            raise ModelFileError(f"{path} is not a forcdecode model file (format {found!r})")
         arch = payload["architecture"]
         nets = []
         for key in ("alice_state", "bob_state"):
@@ -79,7 +81,7 @@ def load_models(directory, names=None) -> dict:
     paths = sorted(directory.glob("*.pt")) if names is None else [directory / f"{n}.pt" for n in names]
     missing = [str(p) for p in paths if not p.exists()]
     if missing or not paths:
-        raise SystemExit(f"error: no trained model in {directory} ({', '.join(missing) or 'no *.pt file'}); "
+        raise ModelFileError(f"no trained model in {directory} ({', '.join(missing) or 'no *.pt file'}); "
                          "train them with the workflow (snakemake) first")
     models = {}
     for path in paths:
@@ -110,3 +112,59 @@ def hamiltonian(prediction: dict, defaults: dict | None = None) -> dict:
     if "N_pin" in params:
         params["N_pin"] = int(round(params["N_pin"]))
     return params
+
+
+def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, force: bool = False):
+    """(uint8 image, out-of-domain note or None) from a .npy image (uint8, or m in [−1, 1]), a sample
+    of a dataset.h5, or a measured FORC file put on the training grid (±``B_max_T``, ``size`` fields).
+    InputFileError for a missing or unusable input; OutOfDomainError for a FORC file outside the
+    training domain unless ``force``."""
+    from ..forc.raster import quantize
+
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(f"{path} does not exist")
+    if p.suffix == ".npy":
+        image = np.load(p)
+        if image.shape != (size, size):
+            raise InputFileError(f"{path}: image has shape {image.shape}, the models expect ({size}, {size})")
+        if image.dtype != np.uint8:
+            if np.nanmin(image) < -1.001 or np.nanmax(image) > 1.001:
+                raise InputFileError(f"{path}: a float image must hold m in [-1, 1] "
+                                     f"(found {np.nanmin(image):.3g}..{np.nanmax(image):.3g})")
+            image = quantize(image)
+        return image, None
+    if p.suffix in (".h5", ".hdf5"):
+        import h5py
+
+        if sample_id is None:
+            raise InputFileError(f"{path}: a dataset input needs a sample id (--sample-id)")
+        with h5py.File(p, "r") as h5:
+            ids = list(h5["sample_id"][:])
+            if sample_id not in ids:
+                raise InputFileError(f"sample {sample_id} is not in {path}")
+            return h5["images"][ids.index(sample_id)], None
+    from ..forc.raster import measurement_on_grid
+    from ..measured import read_forc
+
+    image, _, note, _ = measurement_on_grid(read_forc(p), B_max_T, size)
+    if note is not None and not force:
+        raise OutOfDomainError(f"{path} is out of the training domain: {note} (use --force to predict anyway)")
+    return image, note
+
+
+def prediction_lines(result: dict, source: str, Ms_kA_m: float) -> list[str]:
+    """The prediction as a table: value, 68 % and 90 % intervals, Bob's error and unit per parameter."""
+    from ..core.parameters import UNITS
+
+    lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m given)",
+             f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  unit"]
+    for name, entry in result.items():
+        if not isinstance(entry, dict):
+            continue
+        i68, i90 = entry.get("interval_68", [np.nan] * 2), entry.get("interval_90", [np.nan] * 2)
+        lines.append(f"{name:<16}{entry['value']:>12.4g}  [{i68[0]:>11.4g}, {i68[1]:>11.4g}]  "
+                     f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry['bob_error_normalized']:>18.3f}  {UNITS.get(name, '')}")
+    if result.get("out_of_domain"):
+        lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
+    return lines

@@ -1,6 +1,7 @@
-"""Aggregate the per-parameter results into ``metrics.json`` and draw the learning figures:
-Figure 3 of the seed paper (predicted vs target), Figure 5b–c (Alice's D against Bob's error, counts
-and true mean error per bin), the learning curves and the error–retention curves."""
+"""Aggregate the per-parameter results into ``metrics.json`` and ``learning_curve.json`` and draw the
+learning figures: Figure 3 of the seed paper (predicted vs target), Figure 5b–c (Alice's D against
+Bob's error, counts and true mean error per bin), the learning curves with their power laws, the
+error–retention curves and the uncertainty baselines (Bob, v̂, MC dropout, seed ensemble)."""
 
 from __future__ import annotations
 
@@ -10,25 +11,53 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..dataset import io
+from ..core import io
 
 FIGURE3_PANELS = ("A_ex", "N_pin", "K_u", "D")
 LABELS = {"N_pin": r"$N_\mathrm{pin}$", "A_ex": r"$A_\mathrm{ex}$", "K_u": r"$K_u$", "D": r"$D$",
           "sigma_theta_deg": r"$\sigma_\theta$", "sigma_K": r"$\sigma_K$"}
 
 
+SUMMARY_KEYS = ("mae", "mae_ci90", "pearson_r", "r_ci90", "skill", "skill_vs_prior", "skill_vs_prior_ci90",
+                "skill_vs_ms_only", "skill_vs_ms_only_ci90", "coverage_90_ci90", "coverage_90_binomial_band",
+                "baselines", "seeds", "normalisation", "uncertainty_baselines", "n_test", "baseline_mae",
+                "mae_softmax_readout", "reported_on", "paper", "train_samples_per_s", "wall_s", "n_train",
+                "n_validation", "n_calibration", "best_epoch", "epochs_run")
+
+
 def aggregate(metric_paths, out_path) -> dict:
-    """metrics.json: per parameter ``mae``, ``pearson_r``, ``skill``, ``n_test`` and Bob's figures."""
-    result = {"parameters": {}}
+    """metrics.json: per parameter the accuracy with its baselines and intervals, Bob's figures and the
+    uncertainty baselines; ``image_adds_information``: the skill over the M_s-only baseline has a
+    90 % interval above 0."""
+    result = {"split": "hash of (seed, sample id); test reported only", "parameters": {}}
     for path in metric_paths:
         m = json.loads(Path(path).read_text())
-        entry = {k: m[k] for k in ("mae", "pearson_r", "skill", "n_test", "baseline_mae", "mae_softmax_readout",
-                                   "reported_on", "paper", "train_samples_per_s", "wall_s", "learning_curve",
-                                   "n_train", "n_validation", "n_calibration", "best_epoch", "epochs_run")}
+        entry = {k: m[k] for k in SUMMARY_KEYS if k in m}
         bob = m["bob"]
         entry.update({k: v for k, v in bob.items() if k != "retention"})
         entry["retention_area"] = {k: bob["retention"][k] for k in ("area_bob", "area_oracle", "area_mc_dropout", "area_random")}
+        low = (m.get("skill_vs_ms_only_ci90") or [float("nan")])[0]
+        entry["image_adds_information"] = bool(np.isfinite(low) and low > 0)
         result["parameters"][m["parameter"]] = entry
+    io.write_json(out_path, result)
+    return result
+
+
+def learning_curve_summary(metric_paths, out_path) -> dict:
+    """learning_curve.json: per parameter the sizes, the test MAE per seed, the power-law fit and the
+    training-set size at which it would reach the paper's MAE (with its bootstrap interval)."""
+    result = {"law": "MAE(N) = a N^-b", "parameters": {}}
+    for path in metric_paths:
+        m = json.loads(Path(path).read_text())
+        curve = m["learning_curve"]
+        fit = dict(curve["fit"])
+        target = fit.pop("n_to_target", None)
+        result["parameters"][m["parameter"]] = {
+            "sizes": curve["sizes"], "mae": curve["mae"], "evaluated_on": curve["evaluated_on"], "fit": fit,
+            "n_to_paper_mae": target,
+            "baselines": m.get("baselines"),
+        }
+        result.setdefault("sizes", curve["sizes"])
     io.write_json(out_path, result)
     return result
 
@@ -90,14 +119,60 @@ def figure5bc(frame: pd.DataFrame, out_path, name: str = "D", bins: int = 15, mi
     plt.close(fig)
 
 
-def learning_curves(metrics: dict, out_path) -> None:
+def learning_curves(curves: dict, out_path) -> None:
+    """Test MAE against the training-set size (mean ± spread over seeds), the fitted power law, its
+    extrapolation, the M_s-only baseline (dotted) and the paper's MAE (dashed)."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.8))
-    for name, m in metrics["parameters"].items():
-        curve = m["learning_curve"]
-        ax.plot([c["n_train"] for c in curve], [c["test_mae"] for c in curve], "o-", label=LABELS.get(name, name))
-    ax.set(xlabel="training samples", ylabel="test MAE (normalized)", title="learning curves")
-    ax.legend(fontsize=8)
+    names = list(curves["parameters"])
+    cols = min(3, max(1, len(names)))
+    rows = int(np.ceil(len(names) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.0 * rows), squeeze=False)
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    for ax, name in zip(axes.flat, names):
+        c = curves["parameters"][name]
+        sizes, mae = np.asarray(c["sizes"], float), np.asarray(c["mae"], float)
+        ax.errorbar(sizes, np.nanmean(mae, axis=1), yerr=np.nanstd(mae, axis=1), fmt="o", color="tab:blue",
+                    capsize=2, label="test MAE (seeds)")
+        fit, target = c["fit"], c.get("n_to_paper_mae")
+        if np.isfinite(fit["a"]) and np.isfinite(fit["b"]):
+            right = sizes.max() * 4
+            if target and np.isfinite(target["value"]):
+                right = min(max(right, target["value"] * 1.5), 1e6)
+            grid = np.geomspace(sizes.min(), right, 50)
+            ax.plot(grid, fit["a"] * grid ** (-fit["b"]), color="tab:blue", lw=0.8,
+                    label=f"a N$^{{-b}}$, b = {fit['b']:.2f}")
+        if c.get("baselines"):
+            ax.axhline(c["baselines"]["ms_only"], color="0.4", ls=":", label="M$_s$ only")
+        if target:
+            ax.axhline(target["target_mae"], color="tab:red", ls="--", lw=0.8, label="paper")
+        ax.set(xscale="log", yscale="log", xlabel="training samples N", title=LABELS.get(name, name))
+    axes[0][0].set_ylabel("test MAE (normalized)")
+    axes[0][0].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(out_path, dpi=140)
+    plt.close(fig)
+
+
+def uncertainty_figure(metrics: dict, out_path) -> None:
+    """Per parameter: Spearman ρ (difficulty score vs true error) and the 90 % conformal width of each
+    uncertainty method (Bob, v̂, MC dropout, seed ensemble) on the same test samples."""
+    plt = _plt()
+    names = list(metrics["parameters"])
+    methods = ["bob", "vhat", "mc_dropout", "ensemble"]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
+    x = np.arange(len(names))
+    for k, method in enumerate(methods):
+        rho = [metrics["parameters"][n].get("uncertainty_baselines", {}).get(method, {}).get("spearman", np.nan) for n in names]
+        width = [metrics["parameters"][n].get("uncertainty_baselines", {}).get(method, {}).get("width_90", np.nan) for n in names]
+        a.bar(x + (k - 1.5) * 0.2, rho, 0.2, label=method)
+        b.bar(x + (k - 1.5) * 0.2, width, 0.2, label=method)
+    for ax, title in ((a, "Spearman ρ with the true error (higher is better)"),
+                      (b, "90 % conformal width at equal coverage (lower is better)")):
+        ax.set_xticks(x, [LABELS.get(n, n) for n in names])
+        ax.set_title(title, fontsize=9)
+        ax.axhline(0, color="0.5", lw=0.5)
+    a.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out_path, dpi=140)
     plt.close(fig)
@@ -121,23 +196,42 @@ def retention_figure(metric_paths, out_path) -> None:
     plt.close(fig)
 
 
+def _ci(pair) -> str:
+    return f"[{pair[0]:.3f}, {pair[1]:.3f}]" if pair and np.all(np.isfinite(pair)) else "–"
+
+
 def markdown(metrics: dict) -> str:
-    """A human-readable table of the metrics (next to the paper's figures)."""
-    lines = ["| parameter | n_test | MAE | paper MAE | r | paper r | skill | Bob ρ | MC ρ | cov. 68 % (width) | cov. 90 % (width) | MC cov. 68/90 % |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    """Human-readable tables: accuracy against the baselines and the paper, and the uncertainty methods."""
+    lines = ["| parameter | n_test | MAE [90 % CI] | paper MAE | prior | M_s only | images shuffled | skill vs M_s only [90 % CI] "
+             "| r [90 % CI] | seeds MAE (mean ± sd) | image adds information |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, m in metrics["parameters"].items():
-        paper = m.get("paper") or {}
-        lines.append(f"| {name} | {m['n_test']} | {m['mae']:.3f} | {paper.get('mae', '–')} | {m['pearson_r']:.2f} | "
-                     f"{paper.get('pearson_r', '–')} | {m['skill']:.2f} | {m['bob_spearman']:.2f} | {m['mc_dropout_spearman']:.2f} | "
-                     f"{m['coverage_68']:.2f} ({m['width_68']:.3f}) | {m['coverage_90']:.2f} ({m['width_90']:.3f}) | "
-                     f"{m['mc_coverage_68']:.2f}/{m['mc_coverage_90']:.2f} |")
+        paper, base, seeds = m.get("paper") or {}, m.get("baselines", {}), m.get("seeds", {})
+        lines.append(f"| {name} | {m['n_test']} | {m['mae']:.3f} {_ci(m.get('mae_ci90'))} | {paper.get('mae', '–')} | "
+                     f"{base.get('prior', float('nan')):.3f} | {base.get('ms_only', float('nan')):.3f} | "
+                     f"{base.get('images_shuffled', float('nan')):.3f} | {m.get('skill_vs_ms_only', float('nan')):.2f} "
+                     f"{_ci(m.get('skill_vs_ms_only_ci90'))} | {m['pearson_r']:.2f} {_ci(m.get('r_ci90'))} | "
+                     f"{seeds.get('mean', float('nan')):.3f} ± {seeds.get('std', float('nan')):.3f} | "
+                     f"{'yes' if m.get('image_adds_information') else 'no'} |")
+    lines += ["", "| parameter | method | Spearman ρ | cov. 68 % (width) | cov. 90 % (width) | retention area (oracle / random) |",
+              "|---|---|---|---|---|---|"]
+    for name, m in metrics["parameters"].items():
+        table = m.get("uncertainty_baselines", {})
+        for method in ("bob", "vhat", "mc_dropout", "ensemble"):
+            if method not in table:
+                continue
+            row = table[method]
+            lines.append(f"| {name} | {method} | {row['spearman']:.2f} | {row['coverage_68']:.2f} ({row['width_68']:.3f}) | "
+                         f"{row['coverage_90']:.2f} ({row['width_90']:.3f}) | {row['retention_area']:.3f} "
+                         f"({table['oracle_retention_area']:.3f} / {table['random_retention_area']:.3f}) |")
     return "\n".join(lines) + "\n"
 
 
-def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir) -> dict:
+def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None) -> dict:
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
+    curves = learning_curve_summary(metric_paths, out_learning_curve or Path(out_metrics).with_name("learning_curve.json"))
     predictions = {}
     for path in prediction_paths:
         name = Path(path).stem.replace("_predictions", "")
@@ -145,8 +239,9 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir) -> dict:
     figure3(predictions, figure_dir / "figure3.png")
     name = "D" if "D" in predictions else next(iter(predictions))
     figure5bc(predictions[name], figure_dir / "figure5bc.png", name=name)
-    learning_curves(metrics, figure_dir / "learning_curve.png")
+    learning_curves(curves, figure_dir / "learning_curve.png")
     retention_figure(metric_paths, figure_dir / "retention.png")
+    uncertainty_figure(metrics, figure_dir / "uncertainty_baselines.png")
     with io.atomic_path(Path(out_metrics).with_suffix(".md")) as tmp:
         tmp.write_text("# Alice and Bob on the test split\n\n" + markdown(metrics))
     return metrics

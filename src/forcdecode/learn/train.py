@@ -1,8 +1,8 @@
 """Training one Alice network (one parameter): splits, Adadelta, early stopping on validation.
 
-Splits are made once, reproducibly from a seed: train / validation (early stopping and model choice)
-/ test (reported only). ``fit_alice`` keeps the weights of the epoch with the lowest validation
-loss; the test set is never looked at here.
+``fit_alice`` fits on the training indices and keeps the weights of the epoch with the lowest
+validation loss; the test set is never looked at here (splits: ``splits.py``). Settings left None
+take the schema's learning defaults (``forcdecode.config.defaults("learning")``).
 """
 
 from __future__ import annotations
@@ -14,23 +14,9 @@ import time
 import numpy as np
 import torch
 
+from ..config import defaults
 from .encoding import encode, readout
 from .models import build_network, image_tensor
-
-
-def split_indices(n: int, seed: int, fractions=(0.7, 0.15, 0.15)):
-    """Reproducible disjoint index arrays, one per fraction (e.g. train, validation, test; the
-    paper's 80/20 is fractions=(0.8, 0.2, 0)); the last part takes the rounding remainder."""
-    if not np.isclose(sum(fractions), 1.0):
-        raise ValueError("split fractions must sum to 1")
-    order = np.random.default_rng(seed).permutation(n)
-    parts, start = [], 0
-    for fraction in fractions[:-1]:
-        size = int(round(fraction * n))
-        parts.append(order[start:start + size])
-        start += size
-    parts.append(order[start:])
-    return tuple(parts)
 
 
 @dataclass
@@ -67,11 +53,18 @@ class Alice:
         return draws.mean(axis=0), draws.std(axis=0, ddof=1)
 
 
-def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str = "small", width: int = 256,
-              epochs: int = 50, batch_size: int = 64, lr: float = 0.01, patience: int = 10, seed: int = 0,
-              dropout: float = 0.5, log=None) -> Alice:
+def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str | None = None, width: int | None = None,
+              epochs: int | None = None, batch_size: int | None = None, lr: float | None = None,
+              patience: int | None = None, seed: int = 0, dropout: float = 0.5, log=None) -> Alice:
     """Adadelta (ρ 0.9, no weight decay; the paper's lr is 0.01), MSE on the 11 raw outputs against
     the encoding; keeps the weights of the epoch with the lowest validation loss."""
+    learning = defaults("learning")
+    model = learning["model"] if model is None else model
+    width = learning["width"] if width is None else width
+    epochs = learning["epochs"] if epochs is None else epochs
+    batch_size = learning["batch_size"] if batch_size is None else batch_size
+    lr = learning["lr"] if lr is None else lr
+    patience = learning["patience"] if patience is None else patience
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"training needs non-empty train and validation sets (got {len(train_idx)} and {len(val_idx)})")
     torch.manual_seed(seed)

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..core.streams import stream_rng
+
 COMPONENTS = ("background", "field_offset", "additive_drift", "multiplicative_drift", "scale")
 """Measured-side components, in the order they are named in a combination."""
 
@@ -289,6 +291,23 @@ def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2
     return chosen, scores
 
 
+def _grid_resolution(values, best) -> float:
+    """Half the local spacing of the grid at ``best``: the resolution of a gridded size."""
+    values = sorted(values)
+    if len(values) < 2:
+        return 0.0
+    k = values.index(best)
+    lo, hi = max(k - 1, 0), min(k + 1, len(values) - 1)
+    return abs(values[hi] - values[lo]) / (hi - lo) / 2
+
+
+def fit_grid_effect(measured, families: dict, train):
+    """The grid value whose family fits the training curves best; (value, half grid spacing)."""
+    train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
+    best = min(train_error, key=train_error.get)
+    return best, _grid_resolution(list(families), best)
+
+
 def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
                   candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05,
                   cross_fit: bool = False) -> dict:
@@ -321,7 +340,8 @@ def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: i
                       "uncertainties": dict(zip(effect.parameters, map(float, errors))),
                       "n_parameters": len(effect.parameters)}
     chosen, scores = choose_candidate(mse, {k: v["n_parameters"] for k, v in fits.items()},
-                                      np.random.default_rng(seed), n_boot, min_relative_gain, equivalence)
+                                      stream_rng(seed, "bootstrap", "select_effect"), n_boot, min_relative_gain,
+                                      equivalence)
     results = {k: {**fits[k], **scores[k]} for k in names}
     return {"chosen": chosen, "candidates": results, "heldout_curves": [i for _, held in folds for i in held],
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}
@@ -332,8 +352,6 @@ def select_physics_effect(measured, base_family, candidate_families: dict, every
     """Physics-side candidates: for each effect, re-simulated families over a grid of its size
     (``candidate_families[name] = {value: family}``). The size is chosen on the training curves, the
     effect judged on the held-out curves against ``base_family`` (paired bootstrap, as above)."""
-    from .physics_effects import fit_grid_effect
-
     measured = np.asarray(measured, float)
     train, held = _heldout_split(measured, every_k)
     mse = {"none": _per_curve_mse(measured, base_family, held)}
@@ -343,7 +361,8 @@ def select_physics_effect(measured, base_family, candidate_families: dict, every
         mse[name] = _per_curve_mse(measured, families[value], held)
         fitted[name] = {"value": float(value), "uncertainty": float(step)}
     chosen, scores = choose_candidate(mse, {k: int(k != "none") for k in mse},
-                                      np.random.default_rng(seed), n_boot, min_relative_gain)
+                                      stream_rng(seed, "bootstrap", "select_physics_effect"), n_boot,
+                                      min_relative_gain)
     results = {k: {**fitted[k], **scores[k]} for k in mse}
     return {"chosen": chosen, "candidates": results, "heldout_curves": held,
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.streams import stream_rng
 from .effects import measurement_clock
 
 
@@ -30,7 +31,7 @@ def simulated_instrument_curves(family, fields, moment_Am2: float, *, scale: flo
     the film's saturation moment."""
     family = np.asarray(family, dtype=float)
     fields = np.asarray(fields, dtype=float)
-    rng = np.random.default_rng(0) if rng is None else rng
+    rng = stream_rng(0, "instrument_noise") if rng is None else rng
     tau = measurement_clock(len(fields))
     curves = []
     for i in range(len(fields)):

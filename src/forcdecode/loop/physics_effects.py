@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .effects import (EFFECTS, _per_curve_mse, choose_candidate, fit_effect, heldout_folds, heldout_mse,
-                      measurement_clock)
+from ..core.streams import stream_rng
+from .effects import (EFFECTS, _grid_resolution, _per_curve_mse, choose_candidate, fit_effect, fit_grid_effect,
+                      heldout_folds, heldout_mse, measurement_clock)
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -36,20 +37,27 @@ SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
 
 def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.15, 0.3, 0.45),
                                bias_fields_T=(-0.04, -0.02, 0.02, 0.04), soft_K_u_ratios=(0.05, 0.1, 0.2, 0.3),
-                               n_profiles: int = 1, first_profile: int = 0) -> dict:
+                               n_profiles: int = 1, first_profile: int = 0, progress=None) -> dict:
     """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``): K_2 = r·K_u for
     r in ``K_2_ratios``, B_bias in ``bias_fields_T``, and soft phases with K_u,soft = r·K_u for r in
     ``soft_K_u_ratios``. Cost: one ``resimulate`` (``n_profiles`` families) per grid value (12 by
     default). The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
     film, K_2 = 0.25 K_u lies between grid families 0.2 and 0.3 K_u that each miss curves badly,
-    and is left unnamed).
+    and is left unnamed). ``progress(done, total)``, if given, is called after each family.
 
     Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
     "soft_phase_families": {K_u_soft: family}}, ready for ``analyse_residual(..., **this)``."""
     from .resimulate import resimulate
 
+    total = len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios)
+    done = []
+
     def run(extra):
-        return resimulate(cfg, {**params, **extra}, n_profiles=n_profiles, first_profile=first_profile)
+        family = resimulate(cfg, {**params, **extra}, n_profiles=n_profiles, first_profile=first_profile)
+        done.append(1)
+        if progress is not None:
+            progress(len(done), total)
+        return family
 
     K_u = float(params["K_u"])
     physics = {}
@@ -59,23 +67,6 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
         physics["bias_field"] = {float(b): run({"B_bias_T": float(b)}) for b in bias_fields_T}
     soft = {r * K_u: run({"K_u": r * K_u}) for r in soft_K_u_ratios}
     return {"physics_families": physics, "soft_phase_families": soft}
-
-
-def _grid_resolution(values, best) -> float:
-    """Half the local spacing of the grid at ``best``: the resolution of a gridded size."""
-    values = sorted(values)
-    if len(values) < 2:
-        return 0.0
-    k = values.index(best)
-    lo, hi = max(k - 1, 0), min(k + 1, len(values) - 1)
-    return abs(values[hi] - values[lo]) / (hi - lo) / 2
-
-
-def fit_grid_effect(measured, families: dict, train):
-    """The grid value whose family fits the training curves best; (value, half grid spacing)."""
-    train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
-    best = min(train_error, key=train_error.get)
-    return best, _grid_resolution(list(families), best)
 
 
 def fit_second_phase(measured, film_family, soft_families: dict, train) -> dict:
@@ -138,6 +129,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     analyse_residual(measured, base_family, fields, order=None, *, physics_families=None,
                      soft_phase_families=None, measured_candidates=None, every_k=4, cross_fit=True,
                      n_boot=2000, seed=0, min_relative_gain=0.05, equivalence=0.05) -> dict
+
+    ``seed``: the config seed; the bootstraps draw from its ``bootstrap`` stream (``core.streams``).
 
     - ``base_family``: the re-simulation of the predicted Hamiltonian (``resimulate``).
     - ``order``: measurement clock τ ∈ [0, 1], per curve (n,) or per point (n, n); default
@@ -204,7 +197,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
                                                        in (min(soft_phase_families), max(soft_phase_families)))
 
-    rng = np.random.default_rng(seed)
+    rng = stream_rng(seed, "bootstrap", "analyse_residual")
     chosen, scores = choose_candidate(mse, {k: v["n_parameters"] for k, v in records.items()}, rng,
                                       n_boot, min_relative_gain, equivalence)
     candidates = {k: {**records[k], **scores[k]} for k in records}

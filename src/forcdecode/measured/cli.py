@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
-from .model import ForcFormatError
 from .reader import read_forc
 
 
@@ -23,15 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        measurement = read_forc(args.file, drift_correction=not args.no_drift_correction,
-                                allow_incomplete=args.allow_incomplete)
-    except ForcFormatError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"error: cannot read {args.file}: {error.strerror or error}", file=sys.stderr)
-        return 2
+    # an unreadable or malformed file raises InputFileError: forcdecode.cli prints it, exit code 2
+    measurement = read_forc(args.file, drift_correction=not args.no_drift_correction,
+                            allow_incomplete=args.allow_incomplete)
     summary = measurement.summary()
     if args.json:
         print(json.dumps(summary))

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import InputFileError
 
-class ForcFormatError(ValueError):
+
+class ForcFormatError(InputFileError, ValueError):
     """A file that is not a readable FORC measurement (unknown, garbled or truncated).
 
     The message names the file, the line (1-based, where one applies) and what was expected.

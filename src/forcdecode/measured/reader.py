@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from ..core.errors import InputFileError
 from ._text import read_lines, shorten
 from .drift import correct_drift
 from .lakeshore import looks_like_lakeshore_csv, read_lakeshore_csv
@@ -43,10 +44,14 @@ def read_forc(path: str | Path, drift_correction: bool = True, *,
     ``allow_incomplete`` is set, in which case the curves present are returned with
     ``complete`` False.
 
-    Raises ForcFormatError for an unknown, garbled or truncated file; OSError if it cannot be read.
+    Raises ForcFormatError for an unknown, garbled or truncated file, InputFileError (its base)
+    if the file cannot be read.
     """
     path = Path(path)
-    lines, ends_with_newline = read_lines(path)
+    try:
+        lines, ends_with_newline = read_lines(path)
+    except OSError as error:
+        raise InputFileError(f"cannot read {path}: {error.strerror or error}") from error
     family = detect_format(lines)
     if family == "micromag":
         measurement = read_micromag(path, lines, allow_incomplete=allow_incomplete)

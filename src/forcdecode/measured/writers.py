@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.io import atomic_path
+from ..core.io import atomic_path
 
 
 def _number(x: float) -> str:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import SimulationError
 from .demag import periodic_film_kernel
 from .effective_field import FieldModel, compute_effective_field, torque_and_max, total_energy
 from .llg import run_llg_rk45
@@ -19,10 +20,6 @@ from .mesh import Mesh
 from .minimize import minimize_bb
 
 TERMS = ("exchange", "anisotropy", "dmi", "demag", "zeeman")
-
-
-class SimulationError(RuntimeError):
-    """A simulation diverged (non-finite magnetization) or failed to converge where it had to."""
 
 
 @dataclass

@@ -1,0 +1,108 @@
+"""The configuration: ONE schema, its defaults, and the shipped default configurations.
+
+``defaults()`` is the single source of default values (``defaults("learning")`` the learning
+defaults); ``load_config(path)`` reads a YAML/JSON configuration, fills the schema's defaults and
+validates it, raising :class:`~forcdecode.core.errors.ConfigError` that names the key and the file.
+
+Package data, one copy each: ``schemas/`` is the repository's ``workflow/schemas/`` (where the
+workflow validates its config) and ``defaults/`` its top-level ``config/`` (``config.yaml``,
+``paper.yaml``, ``test.yaml``), reached through relative symlinks in a checkout and copied into
+a wheel by setuptools.
+"""
+
+from __future__ import annotations
+
+import copy
+import functools
+from pathlib import Path
+
+from ..core.errors import ConfigError
+
+_HERE = Path(__file__).resolve().parent
+SCHEMA_PATH = _HERE / "schemas" / "config.schema.yaml"
+"""The configuration schema (JSON Schema 2020-12, YAML)."""
+CONFIGS_DIR = _HERE / "defaults"
+"""The shipped configurations."""
+
+SHIPPED_CONFIGS = ("config", "paper", "test")
+"""Names of the shipped configurations: laptop default, the seed paper's scale, tiny CI."""
+
+
+@functools.lru_cache(maxsize=1)
+def _schema() -> dict:
+    import yaml
+
+    return yaml.safe_load(SCHEMA_PATH.read_text())
+
+
+def schema() -> dict:
+    """The configuration schema as a dict (a copy: callers may change it)."""
+    return copy.deepcopy(_schema())
+
+
+def _fill_defaults(instance: dict, node: dict) -> dict:
+    """Set every absent property that has a ``default`` (recursively into objects), as Snakemake's
+    ``validate(..., set_default=True)`` does."""
+    for key, sub in node.get("properties", {}).items():
+        if "default" in sub and key not in instance:
+            instance[key] = copy.deepcopy(sub["default"])
+        if isinstance(instance.get(key), dict) and "properties" in sub:
+            _fill_defaults(instance[key], sub)
+    return instance
+
+
+def defaults(section: str | None = None) -> dict:
+    """The schema's defaults: the whole configuration (keys without a default, such as
+    ``n_samples``, absent) or one section (``defaults("learning")``). A fresh dict each call."""
+    full = _fill_defaults({}, _schema())
+    if section is None:
+        return full
+    if section not in full or not isinstance(full[section], dict):
+        raise KeyError(f"no configuration section {section!r} with defaults (sections: "
+                       f"{', '.join(k for k, v in full.items() if isinstance(v, dict))})")
+    return full[section]
+
+
+def validate_config(cfg: dict, source: str = "the configuration") -> dict:
+    """Fill the schema's defaults into ``cfg`` (in place) and validate it; returns ``cfg``.
+    A violation raises ConfigError naming the key (dotted path) and ``source``."""
+    from jsonschema import Draft202012Validator
+    from jsonschema.exceptions import best_match
+
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"{source}: a configuration is a mapping of keys, got {type(cfg).__name__}")
+    _fill_defaults(cfg, _schema())
+    error = best_match(Draft202012Validator(_schema()).iter_errors(cfg))
+    if error is not None:
+        key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
+        raise ConfigError(f"{source}: invalid value at {key}: {error.message}")
+    return cfg
+
+
+def load_config(path) -> dict:
+    """A configuration file (YAML or JSON) read, defaults filled and validated against the schema.
+    A missing or unreadable file, or one that does not validate, raises ConfigError naming it."""
+    import yaml
+
+    path = Path(path)
+    try:
+        cfg = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} not found") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ConfigError(f"cannot read config file {path}: {error}") from None
+    except yaml.YAMLError as error:
+        raise ConfigError(f"config file {path} is not valid YAML: {error}") from None
+    return validate_config(cfg if cfg is not None else {}, source=f"config file {path}")
+
+
+def shipped_config(name: str = "config") -> Path:
+    """Path of the shipped configuration ``name``: config (laptop), paper (the seed paper's scale)
+    or test (tiny, CI)."""
+    if name not in SHIPPED_CONFIGS:
+        raise KeyError(f"no shipped configuration {name!r} (one of {', '.join(SHIPPED_CONFIGS)})")
+    return CONFIGS_DIR / f"{name}.yaml"
+
+
+__all__ = ["SCHEMA_PATH", "CONFIGS_DIR", "SHIPPED_CONFIGS", "schema", "defaults", "validate_config",
+           "load_config", "shipped_config"]

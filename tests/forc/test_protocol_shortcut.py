@@ -1,0 +1,93 @@
+"""The protocol's remainder-copy shortcut (``same_state_tol``) against the family computed without it.
+
+A FORC that reaches a state within ``same_state_tol`` (max cell |Δm|) of the descending state at the
+same field is ended there and the rest copied from the FORC that reverses at that field. The
+reference is the same film, the same protocol and minimizer settings with ``same_state_tol = 0``
+(the comparison is strict, so nothing is copied). Compared: the 8-bit images (mean and max |Δ|, in
+units of m: one step is 1/127.5 = 0.0078) and the ⟨m_z⟩ curves.
+
+Stated bounds: image mean ≤ one step and max ≤ two steps; curves mean |Δ⟨m_z⟩| ≤ 0.002 and max
+≤ same_state_tol = 0.02. (At the copy point |Δ⟨m_z⟩| ≤ max cell |Δm| < same_state_tol exactly; the
+max bound says the copied and the computed continuations do not drift apart beyond that.)
+
+Films: two Hamiltonians of the laptop config's draws (Table I ranges; draws 12 and 38 of seed
+20261122) with hysteretic FORCs, on 32×32×1 cells of 2×2×4 nm, 32 fields, the laptop minimizer
+settings (torque 1e-3 T). Measured on main (shared 2-core machine): film A curves max 1.07e-2, mean
+8.2e-5, image max 1 step, mean 7e-5, 91 vs 529 relaxations; film B curves max 9e-5, mean 4e-6, image
+max 1 step, mean 4e-5, 371 vs 529 relaxations. The laptop-size check (64×64×1, 64 fields) is slow.
+"""
+
+import numpy as np
+import pytest
+
+from forcdecode.forc.protocol import quasistatic_family
+from forcdecode.forc.raster import rasterize_grid_family
+from forcdecode.micromag import Mesh, disordered_film
+
+STEP = 1 / 127.5  # one 8-bit image step in units of m_z
+TORQUE_TOL_T, MAX_ITERATIONS = 1e-3, 20_000
+
+# Hamiltonians of draws 12 and 38 of the laptop config (seed 20261122), SI; N_pin on the paper's grid;
+# ``seed`` seeds the disorder
+FILMS = {
+    "A": dict(Ms=325977.0728753011, A_ex=4.980156845738431e-12, K_u=226425.72399142437, D=0.00190167385340575,
+              N_pin=181, sigma_theta_deg=8.030540055934152, sigma_K=0.17891258973389826, seed=12),
+    "B": dict(Ms=333219.6771602256, A_ex=5.711707437716016e-12, K_u=52104.14124484683, D=0.004103021464072883,
+              N_pin=2, sigma_theta_deg=8.010723676273129, sigma_K=0.1733063548789731, seed=38),
+}
+SAME_STATE_TOL = 0.02
+
+
+def make_film(name, n):
+    p = FILMS[name]
+    mesh = Mesh(n, n, 1, 2e-9, 2e-9, 4e-9)
+    n_pin = int(round(p["N_pin"] * mesh.n_cells / (256 * 256 * 2)))  # the paper's density
+    film, m0, _ = disordered_film(mesh, Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
+                                  sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=n_pin,
+                                  rng=np.random.default_rng(p["seed"]), n_grains=255)
+    return film, m0
+
+
+def compare(film, m0, n_fields):
+    """(families with and without the shortcut, image |Δ| in units of m, curve |Δ⟨m_z⟩|)."""
+    families = [quasistatic_family(film, m0, n_fields=n_fields, B_max_T=1.0, torque_tol_T=TORQUE_TOL_T,
+                                   max_iterations=MAX_ITERATIONS, same_state_tol=tol) for tol in (SAME_STATE_TOL, 0.0)]
+    shortcut, reference = families
+    image_delta = np.abs(rasterize_grid_family(shortcut.curves_mz).astype(int)
+                         - rasterize_grid_family(reference.curves_mz).astype(int)) * STEP
+    curve_delta = np.abs(shortcut.curves_mz - reference.curves_mz)
+    return shortcut, reference, image_delta, curve_delta
+
+
+def check(shortcut, reference, image_delta, curve_delta, label):
+    print(f"{label}: image max {image_delta.max() / STEP:.0f} step(s), mean {image_delta.mean():.2e}; "
+          f"curves max {np.nanmax(curve_delta):.2e}, mean {np.nanmean(curve_delta):.2e}; relaxations "
+          f"{shortcut.stats['relaxations']} vs {reference.stats['relaxations']}, "
+          f"wall {shortcut.stats['wall_s']:.1f} s vs {reference.stats['wall_s']:.1f} s")
+    assert shortcut.stats["unconverged"] == reference.stats["unconverged"] == 0
+    assert reference.stats["curves_shortened"] == 0
+    assert shortcut.stats["curves_shortened"] > 0
+    assert shortcut.stats["relaxations"] < 0.8 * reference.stats["relaxations"]
+    # the film has hysteresis: FORCs leave the descending branch by far more than the bounds
+    spread = np.nanmax(np.abs(reference.curves_mz - reference.descending_mz[None, :]))
+    print(f"{label}: largest FORC − descending-branch difference {spread:.2f}")
+    assert spread > 0.5
+    assert np.array_equal(shortcut.descending_mz, reference.descending_mz)
+    assert np.array_equal(np.isnan(shortcut.curves_mz), np.isnan(reference.curves_mz))
+    assert image_delta.mean() <= STEP
+    assert image_delta.max() <= 2 * STEP
+    assert np.nanmax(curve_delta) <= SAME_STATE_TOL
+    assert np.nanmean(curve_delta) <= 0.002
+
+
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_shortcut_matches_reference_family(name):
+    film, m0 = make_film(name, 32)
+    check(*compare(film, m0, 32), f"film {name}, 32x32x1, 32 fields")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["A", "B"])
+def test_shortcut_matches_reference_family_laptop_size(name):
+    film, m0 = make_film(name, 64)
+    check(*compare(film, m0, 64), f"film {name}, 64x64x1, 64 fields")
