@@ -78,6 +78,11 @@ def test_diagram_command_on_a_real_measured_file(tmp_path):
     out = tmp_path / "d.png"
     assert main(["diagram", str(data), "--out", str(out)]) == 0 and out.stat().st_size > 10_000
     assert main(["diagram", str(tmp_path / "missing.frc"), "--out", str(out)]) == 2
+    # the other smoothings of the field's tools from the command line, and a bad VARIFORC setting refused
+    for extra in (["--kernel", "loess"], ["--variforc", "3", "7", "3", "7", "0.07", "0.07"]):
+        out.unlink()
+        assert main(["diagram", str(data), "--out", str(out), *extra]) == 0 and out.stat().st_size > 10_000
+    assert main(["diagram", str(data), "--out", str(out), "--variforc", "3", "7", "3", "-7", "0.07", "0.07"]) == 2
 
 
 def test_all_kernels_recover_the_hysteron_density():

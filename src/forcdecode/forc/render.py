@@ -9,7 +9,16 @@ import numpy as np
 
 from ..core.errors import InputFileError
 from ..core.io import atomic_path
-from .diagram import ForcDiagram, forc_distribution, plot_diagram
+from .diagram import ForcDiagram, Variforc, forc_distribution, plot_diagram, variforc_distribution
+
+
+def diagram_of_grid(reversal_fields_T, fields_T, curves_m, smoothing_factor: int = 3, kernel: str = "pike",
+                    variforc: Variforc | None = None) -> ForcDiagram:
+    """ρ of gridded curves: constant smoothing with the ``pike`` or ``loess`` kernel, or VARIFORC
+    variable smoothing where ``variforc`` settings are given (``smoothing_factor`` is then unused)."""
+    if variforc is not None:
+        return variforc_distribution(reversal_fields_T, fields_T, curves_m, variforc)
+    return forc_distribution(reversal_fields_T, fields_T, curves_m, smoothing_factor, kernel=kernel)
 
 
 def measured_grid(measurement):
@@ -31,7 +40,8 @@ def measured_grid(measurement):
     return np.array([c.reversal_field_T for c in curves]), fields, grid
 
 
-def simulated_diagram(dataset_path, sample_id: int, smoothing_factor: int = 3) -> ForcDiagram:
+def simulated_diagram(dataset_path, sample_id: int, smoothing_factor: int = 3, kernel: str = "pike",
+                      variforc: Variforc | None = None) -> ForcDiagram:
     """The diagram of sample ``sample_id`` of a ``dataset.h5``; InputFileError if it is not there."""
     import h5py
 
@@ -45,17 +55,19 @@ def simulated_diagram(dataset_path, sample_id: int, smoothing_factor: int = 3) -
             raise InputFileError(f"sample {sample_id} is not in {dataset_path}")
         k = ids.index(sample_id)
         fields = h5["fields_T"][:]
-        return forc_distribution(fields, fields, h5["curves_mz"][k].astype(float), smoothing_factor)
+        return diagram_of_grid(fields, fields, h5["curves_mz"][k].astype(float), smoothing_factor, kernel, variforc)
 
 
-def measured_diagram(path, smoothing_factor: int = 3, drift_correction: bool = True) -> tuple[ForcDiagram, str]:
+def measured_diagram(path, smoothing_factor: int = 3, drift_correction: bool = True, kernel: str = "pike",
+                     variforc: Variforc | None = None) -> tuple[ForcDiagram, str]:
     """The diagram of a measured file and its title; InputFileError (ForcFormatError) if unreadable."""
     from ..measured import read_forc
 
     measurement = read_forc(path, drift_correction=drift_correction)
     hr, h, m = measured_grid(measurement)
     source = measurement.source
-    return forc_distribution(hr, h, m, smoothing_factor), str(getattr(source, "name", Path(path).name))
+    return (diagram_of_grid(hr, h, m, smoothing_factor, kernel, variforc),
+            str(getattr(source, "name", Path(path).name)))
 
 
 def save_diagram_png(diagram: ForcDiagram, out, title: str, dpi: int = 150) -> None:
