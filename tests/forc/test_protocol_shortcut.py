@@ -14,7 +14,10 @@ Films: two Hamiltonians of the laptop config's draws (Table I ranges; draws 12 a
 20261122) with hysteretic FORCs, on 32×32×1 cells of 2×2×4 nm, 32 fields, the laptop minimizer
 settings (torque 1e-3 T). Measured on main (shared 2-core machine): film A curves max 1.07e-2, mean
 8.2e-5, image max 1 step, mean 7e-5, 91 vs 529 relaxations; film B curves max 9e-5, mean 4e-6, image
-max 1 step, mean 4e-5, 371 vs 529 relaxations. The laptop-size check (64×64×1, 64 fields) is slow.
+max 1 step, mean 4e-5, 371 vs 529 relaxations. The laptop-size check (64×64×1, 64 fields, film B,
+~3 min) is marked slow; measured there: curves max 1.9e-4, mean 3e-6, image identical, 1569 vs 2081
+relaxations but only 130k vs 154k minimizer iterations (the copied remainders are the cheap
+near-saturation ends of the curves).
 """
 
 import numpy as np
@@ -87,7 +90,6 @@ def test_shortcut_matches_reference_family(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["A", "B"])
-def test_shortcut_matches_reference_family_laptop_size(name):
-    film, m0 = make_film(name, 64)
-    check(*compare(film, m0, 64), f"film {name}, 64x64x1, 64 fields")
+def test_shortcut_matches_reference_family_laptop_size():
+    film, m0 = make_film("B", 64)
+    check(*compare(film, m0, 64), "film B, 64x64x1, 64 fields")
