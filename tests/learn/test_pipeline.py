@@ -15,7 +15,7 @@ import pytest
 from forcdecode.core.errors import DatasetError
 from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize
 from forcdecode.learn.data import LearningData
-from forcdecode.learn.pipeline import train_parameter
+from forcdecode.learn.pipeline import DEFAULT_SETTINGS, train_parameter
 from forcdecode.learn.predictor import ParameterModel, hamiltonian, load_models, predict_parameters
 from forcdecode.learn.report import evaluate
 
@@ -52,6 +52,7 @@ def trained(tmp_path_factory):
     return data, metrics, out
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_alice_learns_and_reports_on_the_test_split_only(trained):
     data, metrics, out = trained
     frame = pd.read_parquet(out / "D_predictions.parquet")
@@ -69,6 +70,7 @@ def test_alice_learns_and_reports_on_the_test_split_only(trained):
     assert np.asarray(metrics["learning_curve"]["mae"]).shape == (2, 2)  # sizes x seeds
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_baselines_and_intervals(trained):
     """The image carries the target: the network beats the M_s-only baseline with an interval above 0,
     and shuffling the test images destroys the skill."""
@@ -85,6 +87,7 @@ def test_baselines_and_intervals(trained):
         assert 0 < row["width_90"] < 1 and np.isfinite(row["spearman"])
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_bob_ranks_the_hard_inputs(trained):
     data, metrics, out = trained
     frame = pd.read_parquet(out / "D_predictions.parquet")
@@ -96,6 +99,7 @@ def test_bob_ranks_the_hard_inputs(trained):
     assert metrics["bob"]["retention"]["area_bob"] < metrics["bob"]["retention"]["area_random"]
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_conformal_intervals_cover_two_sided_and_are_narrower_than_trivial(trained):
     """Coverage inside its binomial band on both sides (an interval that always covers, such as the
     trivial [0, 1], fails the width bound; one that is too narrow fails the lower side)."""
@@ -111,6 +115,7 @@ def test_conformal_intervals_cover_two_sided_and_are_narrower_than_trivial(train
     assert metrics["coverage_90_ci90"][0] <= bob["coverage_90"] <= metrics["coverage_90_ci90"][1]
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_saved_model_predicts_what_the_pipeline_recorded(trained):
     data, _, out = trained
     frame = pd.read_parquet(out / "D_predictions.parquet")
@@ -125,6 +130,7 @@ def test_saved_model_predicts_what_the_pipeline_recorded(trained):
     assert hamiltonian(prediction)["Ms"] == data.values["Ms"][0]
 
 
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_evaluate_writes_metrics_and_figures(trained, tmp_path):
     _, _, out = trained
     metrics = evaluate([out / "D_metrics.json"], [out / "D_predictions.parquet"], tmp_path / "metrics.json", tmp_path / "fig")
@@ -156,8 +162,7 @@ def test_leakage_canary_test_targets_never_enter_the_fit(tmp_path):
     for randomise in (False, True):
         data = synthetic_dataset(n=120, seed=5)
         if randomise:
-            test = assign_splits(data.sample_id, 9, settings["split"] if "split" in settings else
-                                 [0.55, 0.15, 0.15, 0.15])["test"]
+            test = assign_splits(data.sample_id, 9, DEFAULT_SETTINGS["split"])["test"]
             data.values["D"] = data.values["D"].copy()
             data.values["D"][test] = np.random.default_rng(1).permutation(data.values["D"][test])[::-1] * 0.5
         out = tmp_path / str(randomise)

@@ -22,6 +22,7 @@ def trained():
     return alice, images, ms, u, test
 
 
+@pytest.mark.slow  # the `trained` fixture: ~30 s of training on this 2-core machine
 def test_alice_beats_the_median_baseline(trained):
     alice, images, ms, u, test = trained
     mae = np.abs(alice.predict(images[test], ms[test]) - u[test]).mean()
@@ -29,6 +30,7 @@ def test_alice_beats_the_median_baseline(trained):
     assert mae < 0.5 * baseline, (mae, baseline)
 
 
+@pytest.mark.slow  # the `trained` fixture: ~30 s of training on this 2-core machine
 def test_best_epoch_is_the_lowest_validation_loss(trained):
     alice = trained[0]
     assert alice.best_epoch == int(np.argmin(alice.history["val_loss"]))

@@ -49,4 +49,55 @@ def test_real_measured_files_are_reported_out_of_domain(tmp_path):
         pytest.skip(f"{path} is absent")
     assert main(["loop", str(path), "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
-    assert report["in_domain"] is False and "does not reach" in report["out_of_domain_reason"]
+    # a rock-magnetic sample: the loop closes near ±0.1 T but a reversible slope remains (not saturated)
+    assert report["in_domain"] is False and "not saturated" in report["out_of_domain_reason"]
+    assert report["domain"]["usable"] is False and report["domain"]["noise_Am2"] > 0
+    assert "Out of the domain" in (tmp_path / "report.md").read_text()
+
+
+def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_resimulated(tmp_path):
+    """A film that saturates near ±0.65 T, measured to ±0.8 T on irregular fields (not the grid), with
+    noise and a 3 % calibration drift: in the domain (no window check), the image completed outside the
+    window, and the file's own protocol re-simulated on the same disorder as the truth, so that the
+    residual at the measured points, in A m², is the instrument noise."""
+    from forcdecode.core.streams import stream_rng
+    from forcdecode.loop.resimulate import DISORDER_STREAM, simulate_measured
+
+    cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
+    cfg["field"]["n_fields"] = 32
+    cfg["n_grains"] = 32
+    config_path = tmp_path / "cfg.yaml"
+    config_path.write_text(yaml.safe_dump(cfg))
+    # a granular film that switches gradually between about ±0.2 and ±0.6 T
+    params = {"Ms": 6e5, "A_ex": 2e-12, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 15.0, "sigma_K": 0.3}
+    (tmp_path / "params.json").write_text(json.dumps(params))
+    rng = np.random.default_rng(5)
+    reversal = np.sort(rng.uniform(-0.8, 0.8, 40))
+    fields = [np.concatenate([[h], np.sort(rng.uniform(h, 0.8, max(2, int((0.8 - h) / 0.02))))]) for h in reversal]
+    # as the file stores them (7 significant digits): a nearly square loop's avalanche can move with 1e-7 T
+    reversal = np.array([float(f"{x:+.6E}") for x in reversal])
+    fields = [np.array([float(f"{x:+.6E}") for x in f]) for f in fields]
+    truth = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, "measured", 0), reversal, fields)
+    mesh = mesh_from_config(cfg)
+    moment = params["Ms"] * mesh.n_cells * mesh.cell_volume
+    noise = 0.003
+    drift = np.linspace(1.0, 1.03, len(reversal))[::-1]  # the instrument's gain rises over time (highest H_r first)
+    curves = [(f, moment * g * (m + noise * rng.normal(size=m.size))) for f, m, g in zip(fields, truth.curves, drift)]
+    path = write_micromag_0015(tmp_path / "film.frc", reversal, curves, calibration_moments_Am2=moment * 0.998 * drift,
+                               calibration_field_T=0.8)
+    out = tmp_path / "loop"
+    assert main(["loop", str(path), "--out", str(out), "--params", str(tmp_path / "params.json"), "--config",
+                 str(config_path), "--profiles", "1", "--measured-profiles", "1", "--no-physics"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["in_domain"] is True and report["status"] == "analysed"
+    domain = report["domain"]
+    assert 0.4 < domain["H_plus_T"] < 0.8 and -0.8 < domain["H_minus_T"] < -0.4
+    assert domain["fraction_unknown"] == 0.0 and 0.3 < domain["fraction_completed"] < 0.6
+    assert domain["noise_Am2"] == pytest.approx(noise * moment, rel=0.25)
+    assert report["drift_correction"].startswith("multiplicative")
+    points = report["measured_points"]
+    assert points["n_points"] == sum(len(f) for f in fields)
+    # same disorder, same protocol, drift corrected: what is left is the noise (measured 1.0 σ)
+    assert points["rms_over_noise"] == pytest.approx(1.0, abs=0.25)
+    assert points["rms_Am2"] == pytest.approx(noise * moment, rel=0.25)
+    assert "% measured" in (out / "report.md").read_text()

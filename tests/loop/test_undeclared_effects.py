@@ -103,7 +103,8 @@ def test_undeclared_measured_side_effect_is_named_and_sized(film, tmp_path, effe
         assert result["parameters"][name] == pytest.approx(value, abs=tolerance), result["parameters"]
         # the reported 1σ uncertainty is honest: the truth lies within 4σ
         assert abs(result["parameters"][name] - value) < 4 * result["uncertainties"][name] + 1e-4
-    assert len(result["candidates"]) == 15  # 11 measured-side (singles and pairs) + none + 3 physics
+    # 11 measured-side (singles and pairs) + none + 5 physics (K_2, bias, second phase, field tilt, thermal)
+    assert len(result["candidates"]) == 17
 
 
 @pytest.mark.parametrize("effect,size,fraction,expected", [

@@ -14,7 +14,7 @@ from forcdecode.micromag import MU0, Film, Mesh
 pytest.importorskip("magnumnp", reason="magnum.np not installed: pip install -e .[reference]")
 from forcdecode.reference import MagnumFilm  # noqa: E402
 
-pytestmark = pytest.mark.reference
+pytestmark = [pytest.mark.reference, pytest.mark.slow]  # slow: the `pair` fixture builds magnum.np's kernels, ~30 s
 MESH = Mesh(32, 32, 2, 2e-9, 2.5e-9, 3e-9)
 MS, A, D = 7e5, 1.2e-11, 2e-3
 B_EXT = np.array([0.05, 0.0, 0.3])

@@ -5,7 +5,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from forcdecode.dataset.io import write_json
+from forcdecode.core.io import write_json
 from snakemake.settings.types import DeploymentMethod
 from snakemake.utils import validate
 
@@ -14,6 +14,9 @@ validate(config, "../schemas/config.schema.yaml", set_default=True)
 
 # sections that only the learning and loop stages read (kept out of the dataset's config.json)
 STAGE_SECTIONS = ("learning", "loop")
+# sections that only optional rules read (kept out of config.json and learning.json: changing them
+# reruns only their own rule, passed to it as a parameter)
+OPTION_SECTIONS = ("posterior",)
 RESULTS = config["results_dir"].rstrip("/")
 LEARN_PARAMETERS = config["learning"]["parameters"]
 N_SCREEN_CHUNKS = -(-config["n_samples"] // config["chunk_size"])

@@ -6,7 +6,7 @@ rule resolve_config:
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
-        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS}, sort_keys=True),
+        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS}, sort_keys=True),
     run:
         write_json(output[0], json.loads(params.cfg))
         Path(log[0]).write_text(f"wrote {output[0]}\n")

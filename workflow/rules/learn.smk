@@ -128,3 +128,38 @@ rule closed_loop:
         "{params.cli} closed-loop --config {input.config} --learning {input.learning} --dataset {input.dataset} "
         "--predictions {input.predictions} --out {output.summary} --table {output.table} --figures {params.figures} "
         "--workers {threads} 2> {log}"
+
+
+rule train_posterior:
+    """Neural posterior of all learned parameters (CNN embedding + neural spline flow) on the train split,
+    early stopping on validation, calibrated on test (SBC ranks, coverage, MAE). Not in `all`: an option,
+    `snakemake results/posterior/metrics.json`."""
+    input:
+        config=rules.resolve_learning.output,
+        dataset=rules.merge.output.h5,
+    output:
+        model=f"{RESULTS}/posterior/model.pt",
+        metrics=f"{RESULTS}/posterior/metrics.json",
+        figure=report(
+            f"{RESULTS}/posterior/figures/posterior_calibration.png",
+            caption="../report/posterior_calibration.rst",
+            category="2. Learning",
+            labels={"name": "Posterior calibration", "kind": "figure"},
+        ),
+    log:
+        f"{RESULTS}/logs/posterior.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/train_posterior/train_posterior.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["posterior"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    params:
+        cli=FORCDECODE_1T,
+        settings=json.dumps(config["posterior"], sort_keys=True),
+        figures=lambda wildcards, output: os.path.dirname(output.figure),
+    shell:
+        "{params.cli} learn posterior --config {input.config} --dataset {input.dataset} --settings {params.settings:q} "
+        "--model {output.model} --metrics {output.metrics} --figures {params.figures} --threads {threads} 2> {log}"

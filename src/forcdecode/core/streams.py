@@ -38,6 +38,7 @@ _REGISTRY: dict[str, tuple[int, str]] = {
     "instrument_noise": (15, "noise and drift of a simulated measurement (keys: purpose, case)"),
     "bench_film": (16, "disorder of a benchmark film (keys: benchmark, case)"),
     "ablation": (17, "weights and batch order of the head ablation (keys: head, parameter)"),
+    "posterior": (18, "weights, batch order, posterior draws and calibration of the neural posterior (keys: purpose)"),
 }
 
 _LEGACY_PER_SAMPLE = frozenset({"parameters", "disorder"})

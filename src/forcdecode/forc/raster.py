@@ -56,36 +56,34 @@ def resample_curves(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64
     return out
 
 
-def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_max_T: float = 1.0, n: int = 64,
-                   saturation_tolerance: float = 0.05):
-    """A measured family on the training grid: moments normalized by the saturation moment, curves
-    resampled onto the 64-point grid over ±B_max. Returns (image uint8, grid family, domain note).
+def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_max_T: float = 1.0, n: int = 64):
+    """A measured family on the training grid with a known saturation moment (e.g. M_s·V of a
+    simulated film): moments divided by it, curves resampled onto the grid (``resample_curves``, no
+    completion). Returns (image uint8, grid family, domain note).
 
-    Out of domain (note is not None) when the family does not span the training window or does not
-    saturate inside it: the first FORC must start below −B_max·(1 − 1/n) and the curves must end
-    above +B_max·(1 − 1/n) with the top value within ``saturation_tolerance`` of saturation."""
+    The note (None: in domain) is the physical rule of ``forc.saturation.analyse_saturation``: the
+    major loop must saturate inside the measured window, and the grid must be measured or completed
+    where the state is known."""
+    from .saturation import analyse_saturation
+
     reversal_fields_T = np.asarray(reversal_fields_T, dtype=float)
     normalized = [(np.asarray(f, dtype=float), np.asarray(m, dtype=float) / moment_saturation_Am2) for f, m in curves]
-    reasons = []
-    margin = B_max_T * (1 - 1 / n)
-    if reversal_fields_T.min() > -margin:
-        reasons.append(f"lowest reversal field {reversal_fields_T.min():+.3f} T does not reach -{B_max_T} T")
-    top = max(f.max() for f, _ in normalized)
-    if top < margin:
-        reasons.append(f"largest field {top:+.3f} T does not reach +{B_max_T} T")
-    end_values = np.array([m[np.argmax(f)] for f, m in normalized])
-    if np.any(np.abs(end_values - 1.0) > saturation_tolerance):
-        reasons.append(f"curves end at m = {end_values.min():.3f}..{end_values.max():.3f}, not saturated")
+    note = analyse_saturation(reversal_fields_T, normalized, B_max_T, n).reason
     grid_family = resample_curves(reversal_fields_T, normalized, B_max_T, n)
     image = quantize(fill_below_reversal(grid_family))  # resample_curves leaves no gap above the diagonal
-    return image, grid_family, ("; ".join(reasons) if reasons else None)
+    return image, grid_family, note
 
 
-def measurement_on_grid(data, B_max_T: float = 1.0, n: int = 64):
+def measurement_on_grid(data, B_max_T: float = 1.0, n: int = 64, with_domain: bool = False):
     """A read measurement (``forcdecode.measured`` data: curves with ``reversal_field_T``, ``field_T``,
-    ``moment_Am2``) on the training grid, normalized by its saturation moment (the median of the
-    curves' values at their largest field). Returns (image, grid family, domain note, saturation moment A·m²)."""
-    moment_saturation = float(np.median([c.moment_Am2[np.argmax(c.field_T)] for c in data.curves]))
-    image, family, note = measured_image([c.reversal_field_T for c in data.curves],
-                                         [(c.field_T, c.moment_Am2) for c in data.curves], moment_saturation, B_max_T, n)
-    return image, family, note, moment_saturation
+    ``moment_Am2``) on the training grid (``forc.saturation``): m = (M − M_0)/M_sat from the
+    saturated branches, completed where the state is known. Returns (image, grid family, domain note,
+    saturation moment A·m²), and the ``MeasuredDomain`` last with ``with_domain``. Cells whose state
+    is unknown (only in a family out of domain) hold the last measured value of their curve."""
+    from .saturation import domain_of_measurement
+
+    domain = domain_of_measurement(data, B_max_T, n)
+    family = domain.family
+    image = quantize(fill_below_reversal(family))
+    out = (image, family, domain.reason, float(domain.moment_saturation_Am2))
+    return out + (domain,) if with_domain else out

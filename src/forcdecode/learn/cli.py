@@ -1,7 +1,9 @@
-"""``forcdecode learn train|evaluate`` (workflow stages) and ``forcdecode predict`` (the user command).
+"""``forcdecode learn train|evaluate|posterior`` (workflow stages) and ``forcdecode predict`` (the user command).
 
     learn train     --config C --dataset dataset.h5 --parameter P --model M.pt --predictions X.parquet --metrics J.json
     learn evaluate  --metrics J.json... --predictions X.parquet... --out metrics.json --figures DIR
+    learn posterior --config C --dataset dataset.h5 --model results/posterior/model.pt
+                    --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
         INPUT: a FORC file (any format `forcdecode read` knows), a 64×64 image (.npy, uint8 or m in [−1, 1]),
         or dataset.h5 with --sample-id.
@@ -35,6 +37,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="metrics.json")
     p.add_argument("--learning-curve", help="learning_curve.json (default: beside --out)")
     p.add_argument("--figures", required=True)
+    p = sub.add_parser("posterior", help="neural posterior estimate of all parameters, calibrated on the test split")
+    p.add_argument("--config", required=True, help="resolved learning.json (seed, learning.split; a posterior section if any)")
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--model", required=True, help="output posterior model (.pt)")
+    p.add_argument("--metrics", required=True, help="output calibration metrics (.json)")
+    p.add_argument("--figures", required=True, help="directory of the calibration figure")
+    p.add_argument("--settings", help="posterior settings as JSON (override the config's posterior section)")
+    p.add_argument("--threads", type=int, default=1)
 
 
 def run(args) -> int:
@@ -56,6 +66,24 @@ def run(args) -> int:
         metrics = train_parameter(data, args.parameter, cfg.get("learning", {}), cfg["seed"], args.model,
                                   args.predictions, log=_log)
         write_json(args.metrics, json.loads(json.dumps(metrics, default=float)))
+        return 0
+    if args.step == "posterior":
+        from pathlib import Path
+
+        from .data import load_dataset
+        from .posterior import train_posterior
+
+        torch.set_num_threads(max(1, args.threads))
+        cfg = read_config(args.config)
+        settings = dict(cfg.get("posterior") or {})
+        if args.settings:
+            try:
+                settings.update(json.loads(args.settings))
+            except (json.JSONDecodeError, TypeError, ValueError) as error:
+                raise ConfigError(f"--settings is not a JSON mapping: {error}") from None
+        data = load_dataset(args.dataset)
+        train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
+                        Path(args.figures) / "posterior_calibration.png", log=_log)
         return 0
     if args.step == "evaluate":
         from .report import evaluate, markdown

@@ -1,6 +1,7 @@
 """``forcdecode loop FILE --out DIR``: close the loop on a measured (or simulated-as-measured) file
-(``loop.measured_loop.close_loop_on_file``: domain check, prediction or given Hamiltonian,
-re-simulation, residual effects). Writes DIR/report.json, DIR/report.md and figures.
+(``loop.measured_loop.close_loop_on_file``: domain check by physics, prediction or given
+Hamiltonian, re-simulation on the grid and on the file's own protocol, residual effects, optional
+Hamiltonian refit, structured-residual verdict). Writes DIR/report.json, DIR/report.md and figures.
 """
 
 from __future__ import annotations
@@ -23,6 +24,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--every-k", type=int, default=4, help="hold out every k-th curve")
     parser.add_argument("--no-physics", action="store_true", help="skip the physics-side candidates (K_2, bias, second phase)")
     parser.add_argument("--force", action="store_true", help="analyse even when the file is out of domain")
+    parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
+                                                          "before the effect selection, comma-separated (e.g. K_u,A_ex)")
+    parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
+    parser.add_argument("--no-measured-protocol", action="store_true",
+                        help="skip the re-simulation of the file's own protocol (residual at the measured points)")
+    parser.add_argument("--measured-profiles", type=int, default=2,
+                        help="pinning profiles of the measured-protocol re-simulation (default 2)")
+    parser.add_argument("--max-measured-points", type=int, default=5000,
+                        help="thin the measured protocol to about this many points (default 5000)")
 
 
 def load_config(path=None) -> dict:
@@ -48,10 +58,13 @@ def run(args) -> int:
     report = close_loop_on_file(args.file, args.out, cfg, params=params, models_dir=args.models,
                                 ms_values_A_per_m=ms_values, profiles=args.profiles,
                                 sweep_profiles=args.sweep_profiles, every_k=args.every_k,
-                                physics=not args.no_physics, force=args.force)
+                                physics=not args.no_physics, force=args.force,
+                                refit=[n.strip() for n in args.refit.split(",") if n.strip()] if args.refit else None,
+                                refit_budget=args.refit_budget, measured_protocol=not args.no_measured_protocol,
+                                measured_profiles=args.measured_profiles, max_measured_points=args.max_measured_points)
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     else:
-        print(f"effect: {report['effect']}; held-out RMS {report['heldout_rms_before']:.4f} -> "
-              f"{report['heldout_rms_after']:.4f}; report in {args.out}")
+        print(f"verdict: {report['verdict']}; effect: {report['effect']}; held-out RMS "
+              f"{report['heldout_rms_before']:.4f} -> {report['heldout_rms_after']:.4f}; report in {args.out}")
     return 0

@@ -1,12 +1,15 @@
 """The closed loop on one measured (or simulated-as-measured) FORC file.
 
-Reads the file, puts the family on the training grid (normalized by its saturation moment, flagged
-out of domain if it does not span ±B_max or does not saturate), takes the given Hamiltonian (SI) or
+Reads the file, decides whether it is usable by physics (``forc.saturation``: the major loop saturates
+inside the measured window) and puts the family on the training grid (normalized by the saturated
+branches, completed where the state is known), takes the given Hamiltonian (SI) or
 predicts it with the trained Alice networks, sweeping M_s when it is not given and keeping the M_s
 whose re-simulation is closest to the measurement; re-simulates it averaged over pinning profiles,
 and traces the residual on the raw curves to an effect the model lacks (measured-side and
-physics-side candidates, chosen on held-out curves: ``physics_effects.analyse_residual``). Writes
-OUT/report.json, OUT/report.md and figures (fields μ0H in T, m normalized).
+physics-side candidates, chosen on held-out curves: ``physics_effects.analyse_residual``;
+optionally against the Hamiltonian refitted without the candidate, ``loop.refit``), says "unexplained structured residual" where nothing explains a
+structured residual, and re-simulates the file's own protocol for the residual at the measured
+points in A·m². Writes OUT/report.json, OUT/report.md and figures (fields μ0H in T, m normalized).
 """
 
 from __future__ import annotations
@@ -40,34 +43,100 @@ def _json_ready(obj):
 def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_progress):
     """Predict the Hamiltonian at each M_s, re-simulate it, keep the M_s whose family is closest to
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
-    re-simulated ``family`` and ``n_profiles``."""
+    re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
     from ..learn.predictor import hamiltonian, predict_parameters
-    from .resimulate import observation_error, resimulate
+    from .resimulate import observation_error, resimulate_with_spread
 
     rows = []
     for k, ms in enumerate(progress(ms_values, desc="M_s sweep", unit="values")):
         prediction = predict_parameters(models, image, ms)
         params = hamiltonian(prediction)
-        resim = resimulate(cfg, params, n_profiles=n_profiles)
+        resim, spread = resimulate_with_spread(cfg, params, n_profiles=n_profiles)
         rms = observation_error(family, resim)["rms"]
         rows.append({"Ms": float(ms), "prediction": prediction, "params": params, "observation_rms": rms,
-                     "family": resim, "n_profiles": n_profiles})
+                     "family": resim, "spread": spread, "n_profiles": n_profiles})
         log(f"M_s {ms / 1e3:.0f} kA/m ({k + 1}/{len(ms_values)}): observation RMS {rms:.4f}")
     best = min(rows, key=lambda r: r["observation_rms"])
     return best, rows
 
 
+def _drift_note(data) -> str:
+    if not data.calibration:
+        return "none (the file has no calibration points)"
+    if not data.drift_corrected:
+        return "none (not applied)"
+    timed = data.curves and data.curves[0].time_s is not None and data.calibration[0].time_s is not None
+    return ("multiplicative, calibration moment interpolated in time" if timed
+            else "multiplicative, one factor per curve from its calibration point")
+
+
+def thin_protocol(data, max_points: int):
+    """(indices of the curves kept, per kept curve the indices of its points kept): every k-th curve and
+    every l-th point (ends kept) so that at most about ``max_points`` points remain."""
+    n_points = sum(len(c) for c in data.curves)
+    if n_points <= max_points:
+        return list(range(len(data.curves))), [np.arange(len(c)) for c in data.curves]
+    ratio = n_points / max_points
+    k = max(1, int(np.floor(np.sqrt(ratio))))
+    curves = list(range(0, len(data.curves), k))
+    kept = sum(len(data.curves[i]) for i in curves)
+    l = max(1, int(np.ceil(kept / max_points)))
+    points = [np.unique(np.append(np.arange(0, len(data.curves[i]), l), len(data.curves[i]) - 1)) for i in curves]
+    return curves, points
+
+
+def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max_points: int = 5000, progress=None) -> dict:
+    """The re-simulation on the file's own protocol (its reversal fields and field points, sweep as
+    measured; thinned to about ``max_points``) and the residual at the measured points in A·m²:
+    model moment = M_0 + M_sat·⟨m⟩·ĥ with M_sat, M_0 of ``forc.saturation`` (the measured saturated
+    branches; explicit normalization, no fitted scale), measured moments after the drift
+    correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²)."""
+    from .resimulate import resimulate_measured
+
+    curves, points = thin_protocol(data, max_points)
+    reversal = [data.curves[i].reversal_field_T for i in curves]
+    fields = [data.curves[i].field_T[p] for i, p in zip(curves, points)]
+    # the reversal point is measured at the reversal field: pass it as such (exact descending state)
+    fields = [np.concatenate([[h], f[1:]]) if abs(f[0] - h) < 1e-9 else f for h, f in zip(reversal, fields)]
+    m = resimulate_measured(cfg, params, reversal, fields, n_profiles=n_profiles, progress=progress)
+    M_sat, M_0 = domain.moment_saturation_Am2, domain.moment_offset_Am2
+    residuals, per_curve = [], []
+    for i, p, values in zip(curves, points, m):
+        r = data.curves[i].moment_Am2[p] - (M_0 + M_sat * values)
+        residuals.append(r)
+        per_curve.append([float(data.curves[i].reversal_field_T), float(np.sqrt(np.mean(r**2)))])
+    r = np.concatenate(residuals)
+    rms = float(np.sqrt(np.mean(r**2)))
+    sigma = domain.noise_Am2
+    return {"rms_Am2": rms, "rms_over_noise": rms / sigma if sigma > 0 else None,
+            "rms_over_moment_saturation": rms / M_sat if M_sat > 0 else None, "noise_Am2": sigma,
+            "n_points": int(r.size), "n_points_file": int(sum(len(c) for c in data.curves)),
+            "n_curves": len(curves), "n_profiles": n_profiles,
+            "normalization": f"model = M_0 + M_sat * m_sim; {domain.summary.get('normalization', '')}",
+            "per_curve": per_curve}
+
+
 def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, models_dir="results/models",
                        ms_values_A_per_m=None, profiles: int = 20, sweep_profiles: int = 2, every_k: int = 4,
-                       physics: bool = True, force: bool = False, log=_progress) -> dict:
+                       physics: bool = True, force: bool = False, refit=None, refit_budget: int = 20,
+                       measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
+                       log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
+    Domain (``forc.saturation``): the family is usable when its major loop saturates inside the
+    measured window; the training image is completed where the state is known. A file out of the
+    domain is reported with the specific reason and not analysed unless ``force``.
     ``params``: a Hamiltonian (SI) to re-simulate instead of predicting one with the models of
     ``models_dir``; ``ms_values_A_per_m``: M_s values tried (one: known M_s; several: swept, each
     re-simulated with ``sweep_profiles`` profiles). ``profiles``: profiles of the final
-    re-simulation. A file out of the training domain is reported and not analysed unless ``force``.
-    Raises InputFileError for an unreadable file, ModelFileError for missing models."""
+    re-simulation (their spread is the disorder floor of the structure test). ``refit``: names of
+    Hamiltonian parameters refitted around the prediction before the effect selection
+    (``loop.refit.analyse_with_refit``, ``refit_budget`` re-simulations of ``sweep_profiles``
+    profiles each). ``measured_protocol``: also re-simulate the file's own protocol
+    (``measured_profiles`` profiles, at most ``max_measured_points`` points) and report the residual
+    at the measured points in A·m². Raises InputFileError for an unreadable file, ModelFileError for
+    missing models."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
@@ -75,18 +144,18 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     out.mkdir(parents=True, exist_ok=True)
     data = read_forc(path)
     B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
-    image, family, domain_note, moment_saturation = measurement_on_grid(data, B_max, n)
+    image, family, domain_note, moment_saturation, domain = measurement_on_grid(data, B_max, n, with_domain=True)
     report = {"file": str(path), "format": data.format, "n_curves": len(data.curves),
-              "drift_percent": data.drift_percent, "moment_saturation_Am2": moment_saturation,
-              "in_domain": domain_note is None, "out_of_domain_reason": domain_note}
+              "drift_percent": data.drift_percent, "drift_correction": _drift_note(data),
+              "moment_saturation_Am2": moment_saturation, "moment_offset_Am2": domain.moment_offset_Am2,
+              "in_domain": domain_note is None, "out_of_domain_reason": domain_note, "domain": domain.report()}
     if domain_note is not None and not force:
         report["status"] = "out of domain"
-        write_json(out / "report.json", report)
-        write_text(out / "report.md", f"# {Path(path).name}\n\n**Out of the training domain**: {domain_note}.\n\n"
-                                       "The networks were trained on ±1 T perpendicular-film FORCs; no prediction is made.\n")
+        write_json(out / "report.json", _json_ready(report))
+        write_text(out / "report.md", _markdown_domain(path, report) + "\nNo prediction is made (`--force` analyses it anyway).\n")
         return report
     from .physics_effects import analyse_residual, physics_candidate_families
-    from .resimulate import observation_error, resimulate
+    from .resimulate import observation_error, protocol_name, resimulate_with_spread
 
     fields = np.linspace(-B_max, B_max, n)
     resim = None  # the final re-simulation, unless the prediction step already made it
@@ -104,28 +173,78 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                       Ms_source="given" if len(ms_values) == 1 else "swept",
                       Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
         if best["n_profiles"] == profiles:
-            resim = best["family"]
+            resim, spread = best["family"], best["spread"]
     if resim is None:
-        resim = resimulate(cfg, params, n_profiles=profiles,
-                           progress=counter("re-simulation", "profiles"))
+        resim, spread = resimulate_with_spread(cfg, params, n_profiles=profiles,
+                                               progress=counter("re-simulation", "profiles"))
     error = observation_error(family, resim)
-    candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
-                  if physics else {})
-    analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], **candidates)
+    noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
+    final_params = params
+    if refit:
+        from .refit import analyse_with_refit
+
+        analysis = analyse_with_refit(cfg, params, family, fields, names=tuple(refit), every_k=every_k,
+                                      n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
+                                      noise_sigma=noise, progress=counter("Hamiltonian refit", "re-simulations"))
+        final_params = analysis["hamiltonian"]["refit_without_effect"]
+        report["hamiltonian"] = analysis["hamiltonian"]
+        report["refit"] = analysis["refit"]
+    else:
+        candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
+                      if physics else {})
+        analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
+                                    floor_variance=spread, n_profiles=profiles, **candidates)
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
                   per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],
-                  effect=analysis["chosen"], analysis=_json_ready(analysis),
+                  effect=analysis["chosen"], verdict=analysis["verdict"], verdict_text=analysis["verdict_text"],
+                  analysis=_json_ready(analysis),
                   heldout_rms_before=analysis["heldout_rms_before"], heldout_rms_after=analysis["heldout_rms_after"])
+    if measured_protocol and protocol_name(cfg) == "quasistatic":
+        report["measured_points"] = measured_points_residual(
+            cfg, final_params, data, domain, n_profiles=measured_profiles, max_points=max_measured_points,
+            progress=counter("measured protocol", "profiles"))
     write_json(out / "report.json", _json_ready(report))
     _figures(out, fields, family, resim, residual, analysis.get("arrays", {}).get("residual_after"))
     write_text(out / "report.md", _markdown(path, report, analysis))
     return report
 
 
-def _markdown(path, report, analysis) -> str:
+def _markdown_domain(path, report) -> str:
+    d = report["domain"]
+
+    def t(v):
+        return "—" if v is None else f"{v:+.3f} T"
+
     lines = [f"# Closed loop: {Path(path).name}", "",
-             f"Format {report['format']}, {report['n_curves']} curves, drift {report['drift_percent']:.2f} %.", ""]
+             f"Format {report['format']}, {report['n_curves']} curves; drift {report['drift_percent']:.2f} % "
+             f"(correction: {report['drift_correction']}).", "",
+             "## Domain (physics, not the window)", "",
+             "Usable when the major loop saturates inside the measured window: the curves reversed at the "
+             "lowest fields coincide and the ascending branch rejoins the descending one (within τ = max(4σ, one "
+             "8-bit image level)), over at least one training-grid step, and both saturated branches change by at "
+             "most 10 % of the half loop height per tesla (see `forc.saturation`).", "",
+             f"- noise σ = {d['noise_Am2']:.3g} A m² (along the curves)"
+             + (f"; {d['calibration_noise_Am2']:.3g} A m² from successive calibration points"
+                if d.get("calibration_noise_Am2") else "") + f"; τ = {d['tolerance_Am2']:.3g} A m²",
+             f"- loop closes (curves coincide) below {t(d.get('closure_field_lower_T'))} and above "
+             f"{t(d.get('closure_field_upper_T'))}; saturated branches: lower {d['lower_saturated']}, upper {d['upper_saturated']}",
+             f"- measured: reversal fields {d['measured_reversal_fields_T'][0]:+.3f}..{d['measured_reversal_fields_T'][1]:+.3f} T, "
+             f"fields {d['measured_fields_T'][0]:+.3f}..{d['measured_fields_T'][1]:+.3f} T; on the ±{d['grid_B_max_T']:g} T "
+             f"training grid: {100 * d['fraction_measured']:.1f} % measured, {100 * d['fraction_completed']:.1f} % "
+             f"completed, {100 * d['fraction_unknown']:.1f} % unknown",
+             "- completed: " + "; ".join(d["completed"]),
+             f"- M_sat = {report['moment_saturation_Am2']:.4g} A m², offset M_0 = {report['moment_offset_Am2']:.3g} A m² "
+             f"({d['normalization']})", ""]
+    if report["out_of_domain_reason"]:
+        lines += [f"**Out of the domain**: {report['out_of_domain_reason']}.", ""]
+    else:
+        lines += ["**In the domain.**", ""]
+    return "\n".join(lines)
+
+
+def _markdown(path, report, analysis) -> str:
+    lines = [_markdown_domain(path, report)]
     prediction = report.get("prediction")
     if prediction:
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
@@ -136,14 +255,38 @@ def _markdown(path, report, analysis) -> str:
                              f"{e['interval_90'][0]:.3g}–{e['interval_90'][1]:.3g} | {e['bob_error_normalized']:.3f} |")
         if len(report.get("Ms_sweep", [])) > 1:
             lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
-    lines += ["", f"Observation-space RMS error (all FORC points): {report['observation_rms']:.4f}.", "",
-              f"**Effect chosen on held-out curves: {analysis['chosen']}** ({analysis.get('kind', '')}) "
+    lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "
+              f"{report['observation_rms']:.4f}.", ""]
+    points = report.get("measured_points")
+    if points:
+        lines += [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
+                  f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
+                  f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
+                  f"({points['normalization']}).", ""]
+    hamiltonian = report.get("hamiltonian")
+    if hamiltonian:
+        refit = report["refit"]
+        lines += [f"Hamiltonian refitted around the prediction ({', '.join(refit['names'])}; {refit['evaluations']} "
+                  f"re-simulations): training MSE {refit['training_mse_prediction']:.4g} → {refit['training_mse_refit']:.4g}.", "",
+                  "| parameter | prediction | refitted without the effect | refitted with the effect |", "|---|---|---|---|"]
+        with_effect = (hamiltonian.get("refit_with_effect") or {}).get("params", {})
+        for name in refit["names"]:
+            lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
+                         f"{with_effect.get(name, float('nan')):.4g} |")
+        lines.append("")
+    lines += [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
+              f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
               f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
               f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
               f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
               "| candidate | held-out RMS | accepted |", "|---|---|---|"]
     for name, c in sorted(analysis["candidates"].items(), key=lambda kv: kv[1]["heldout_rms"]):
         lines.append(f"| {name} | {c['heldout_rms']:.4f} | {c.get('accepted', '')} |")
+    structure = analysis.get("structure", {})
+    if "chi2_ratio" in structure:
+        lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
+                  f"{structure['runs_z']:.1f}, lag-1 z {structure['lag1_z']:.1f} (noise σ {structure['noise_sigma']:.3g}, "
+                  f"{structure['noise_source']}); rule: {structure['rule']}."]
     lines += ["", "![families](families.png)", "", "![residual](residual.png)", ""]
     return "\n".join(lines)
 

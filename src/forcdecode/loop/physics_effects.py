@@ -9,6 +9,15 @@ Physics-side candidates (m normalized to the film's saturation moment, fields μ
   non-interacting phase with the same parameters but a lower uniaxial anisotropy K_u,soft,
   re-simulated over a grid of K_u,soft; for each, the moment fraction f ∈ [0, 1] is fitted by linear
   least squares on the training curves, and K_u,soft is chosen by the training error (two parameters).
+- ``field_tilt``: the applied field misaligned from the film normal by ψ (degrees), a gridded
+  re-simulation with the field applied at ψ and ⟨m⟩·ĥ recorded (``forc.measured_protocol``).
+- ``thermal_activation``: every coercivity reduced by the Sharrock factor 1 − ε at fixed bias
+  (``forc.thermal.coercivity_scaled_family``), ε ∈ [0, 0.6] fitted on the training curves (one
+  parameter, bounded scalar minimization).
+
+After the selection the residual of the chosen model is tested for structure (``loop.structure``):
+when nothing earns its place but the residual is structured, the verdict is "unexplained structured
+residual", with where it lives, instead of a forced candidate.
 
 ``analyse_residual`` puts these and the measured-side candidates (``effects.py``: singles and
 combinations) through one held-out selection rule (``effects.choose_candidate``).
@@ -28,7 +37,7 @@ from ..core.streams import stream_rng
 from .effects import (EFFECTS, _grid_resolution, _per_curve_mse, choose_candidate, fit_effect, fit_grid_effect,
                       heldout_folds, heldout_mse, measurement_clock)
 
-PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T"}
+PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
 
 SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
@@ -37,11 +46,12 @@ SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
 
 def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.15, 0.3, 0.45),
                                bias_fields_T=(-0.04, -0.02, 0.02, 0.04), soft_K_u_ratios=(0.05, 0.1, 0.2, 0.3),
-                               n_profiles: int = 1, first_profile: int = 0, progress=None) -> dict:
+                               tilts_deg=(3.0, 6.0, 10.0, 15.0), n_profiles: int = 1, first_profile: int = 0,
+                               progress=None) -> dict:
     """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``): K_2 = r·K_u for
-    r in ``K_2_ratios``, B_bias in ``bias_fields_T``, and soft phases with K_u,soft = r·K_u for r in
-    ``soft_K_u_ratios``. Cost: one ``resimulate`` (``n_profiles`` families) per grid value (12 by
-    default). The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
+    r in ``K_2_ratios``, B_bias in ``bias_fields_T``, soft phases with K_u,soft = r·K_u for r in
+    ``soft_K_u_ratios`` and the field tilted by ψ in ``tilts_deg`` (quasi-static protocol only; none
+    for "llg"). Cost: one ``resimulate`` (``n_profiles`` families) per grid value (16 by default). The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
     film, K_2 = 0.25 K_u lies between grid families 0.2 and 0.3 K_u that each miss curves badly,
     and is left unnamed). ``progress(done, total)``, if given, is called after each family.
 
@@ -49,7 +59,10 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     "soft_phase_families": {K_u_soft: family}}, ready for ``analyse_residual(..., **this)``."""
     from .resimulate import resimulate
 
-    total = len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios)
+    from .resimulate import protocol_name
+
+    tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
+    total = len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())
     done = []
 
     def run(extra):
@@ -65,6 +78,8 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
         physics["K_2"] = {r * K_u: run({"K_2": r * K_u}) for r in K_2_ratios}
     if bias_fields_T:
         physics["bias_field"] = {float(b): run({"B_bias_T": float(b)}) for b in bias_fields_T}
+    if tilts_deg:
+        physics["field_tilt"] = {float(t): run({"field_tilt_deg": float(t)}) for t in tilts_deg}
     soft = {r * K_u: run({"K_u": r * K_u}) for r in soft_K_u_ratios}
     return {"physics_families": physics, "soft_phase_families": soft}
 
@@ -100,6 +115,38 @@ def fit_second_phase(measured, film_family, soft_families: dict, train) -> dict:
             "model": model}
 
 
+def fit_thermal(measured, base_family, fields, train, bounds=(0.0, 0.6)):
+    """Sharrock reduction ε of every coercivity (``forc.thermal.coercivity_scaled_family``) fitted on the
+    ``train`` curves: a grid over ``bounds`` in steps of 0.05, then a bounded scalar minimization
+    around the best node. Returns (ε, its standard error from the curvature of the training
+    sum of squares, model family)."""
+    from scipy.optimize import minimize_scalar
+
+    from ..forc.thermal import coercivity_scaled_family
+
+    measured = np.asarray(measured, float)
+    rows = np.zeros(measured.shape, dtype=bool)
+    rows[train] = True
+
+    def sse(epsilon):
+        model = coercivity_scaled_family(base_family, fields, epsilon)
+        ok = rows & np.isfinite(model) & np.isfinite(measured)
+        return float(((model[ok] - measured[ok]) ** 2).sum()), int(ok.sum())
+
+    nodes = np.arange(bounds[0], bounds[1] + 1e-9, 0.05)
+    values = [sse(e)[0] for e in nodes]
+    k = int(np.argmin(values))
+    lo, hi = nodes[max(k - 1, 0)], nodes[min(k + 1, len(nodes) - 1)]
+    best = minimize_scalar(lambda e: sse(e)[0], bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    epsilon = float(best.x) if best.fun <= values[k] else float(nodes[k])
+    value, count = sse(epsilon)
+    h = 0.01
+    curvature = (sse(min(epsilon + h, bounds[1] + h))[0] - 2 * value + sse(max(epsilon - h, 0.0))[0]) / h**2
+    sigma2 = value / max(count - 1, 1)
+    error = float(np.sqrt(2 * sigma2 / curvature)) if curvature > 0 else float("nan")
+    return epsilon, error, coercivity_scaled_family(base_family, fields, epsilon)
+
+
 def _reduction_ci(before, after, rng, n_boot):
     """1 − RMS_after/RMS_before over held-out curves, and its paired-bootstrap 90 % interval."""
     both = np.isfinite(before) & np.isfinite(after)
@@ -120,7 +167,9 @@ def _rms_per_curve(residual):
 
 def analyse_residual(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
                      measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
-                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05) -> dict:
+                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
+                     thermal: bool = True, noise_sigma: float | None = None, floor_variance=None,
+                     n_profiles: int = 1) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -155,6 +204,13 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     ``heldout_reduction`` = 1 − after/before and ``heldout_reduction_ci90`` (paired bootstrap over
     held-out curves, 5 %–95 %), and ``arrays`` {"model", "residual_before", "residual_after"}
     (numpy n × n).
+
+    ``thermal``: offer the ``thermal_activation`` candidate. ``noise_sigma`` (m units; default:
+    estimated from the residual), ``floor_variance`` (variance of m between the re-simulation's
+    disorder profiles, n × n or scalar) and ``n_profiles`` (profiles averaged in ``base_family``)
+    enter the structure test of the chosen model's residual (``loop.structure``): ``structure``,
+    and ``verdict``: the chosen effect, "none", or "unexplained structured residual" (nothing earns
+    its place but the residual is structured; ``verdict_text`` says where it lives).
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -183,6 +239,11 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             model, uncertainties = result.pop("model"), result.pop("uncertainties")
             return model, result, uncertainties
         candidates["second_phase"] = ("physics", 2, fit)
+    if thermal:
+        def fit(rows):
+            epsilon, error, model = fit_thermal(measured, base_family, fields, rows)
+            return model, {"epsilon": epsilon}, {"epsilon": error}
+        candidates["thermal_activation"] = ("physics", 1, fit)
 
     mse, records, models = {}, {}, {}
     for name, (kind, n_parameters, fit) in candidates.items():
@@ -205,7 +266,18 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     residual_before = measured - base_family
     residual_after = measured - models[chosen]
     same = [k for group in SAME_OBSERVABLE if chosen in group for k in sorted(group - {chosen}) if k in candidates]
-    return {
+    from .structure import describe, residual_structure
+
+    structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
+    if chosen == "none" and structure["structured"]:
+        verdict, verdict_text = "unexplained structured residual", describe(structure)
+    elif chosen == "none":
+        verdict, verdict_text = "none", "no candidate earns its place and the residual is not structured beyond the noise"
+    else:
+        verdict = chosen
+        verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
+                                             if structure["structured"] else "")
+    return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure,
         "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
         "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
         "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),

@@ -4,8 +4,12 @@
 energy minimization, or the seed paper's adaptive slew-rate LLG with slaved pinning cells, as
 ``dataset.simulate`` runs it) for given parameters on one disorder realisation drawn from a given
 generator. ``resimulate`` averages it over several disorder profiles (same N_pin, σ_θ, σ_K; new
-grains and pinning sites), as the seed paper does for measured data. ``observation_error`` is the
-RMS difference of ⟨m_z⟩ over every FORC point the two families share (H ≥ H_r), and per curve.
+grains and pinning sites), as the seed paper does for measured data (``resimulate_with_spread`` also
+returns the variance between profiles). ``simulate_measured``/``resimulate_measured`` run a measured
+file's own protocol (its reversal fields and field points, ``forc.measured_protocol``), and a
+parameter ``field_tilt_deg`` applies the field at that angle from the normal (a misaligned sample).
+``observation_error`` is the RMS difference of ⟨m_z⟩ over every FORC point the two families share
+(H ≥ H_r), and per curve.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
 from ..forc.adaptive import SlewRate, adaptive_family
+from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.protocol import quasistatic_family
 from ..micromag.build import build_film
 
@@ -31,10 +36,21 @@ def protocol_name(cfg: dict) -> str:
     return name
 
 
+def _tilt(params: dict) -> float:
+    """The applied field's tilt from the film normal (degrees, ``params["field_tilt_deg"]``; 0 if absent)."""
+    value = params.get("field_tilt_deg", 0.0)
+    return 0.0 if value is None or not np.isfinite(value) else float(value)
+
+
 def simulate_family(cfg: dict, params: dict, rng: np.random.Generator) -> np.ndarray:
     """One FORC family of ``params`` (SI) on the config's field grid, disorder drawn from ``rng``, with
-    the dataset's protocol: ⟨m_z⟩ (n_fields × n_fields, row = reversal field, NaN below the diagonal)."""
+    the dataset's protocol: ⟨m_z⟩ (n_fields × n_fields, row = reversal field, NaN below the diagonal).
+    With ``params["field_tilt_deg"]`` ≠ 0 (a misaligned sample, quasi-static protocol only) the field
+    is applied at that angle from the normal and ⟨m⟩·ĥ is recorded (``forc.measured_protocol``)."""
     n_fields, B_max_T = cfg["field"]["n_fields"], cfg["field"]["B_max_T"]
+    if _tilt(params) != 0.0:
+        reversal, fields = grid_protocol(n_fields, B_max_T)
+        return protocol_to_grid(simulate_measured(cfg, params, rng, reversal, fields), n_fields)
     if protocol_name(cfg) == "llg":
         p = cfg["protocol"]
         film, m0, _ = build_film(cfg, params, rng=rng, pinning="slaved")
@@ -63,6 +79,58 @@ def resimulate(cfg: dict, params: dict, n_profiles: int = 1, first_profile: int 
         if progress is not None:
             progress(p + 1, n_profiles)
     return total / n_profiles
+
+
+def resimulate_with_spread(cfg: dict, params: dict, n_profiles: int = 2, first_profile: int = 0, progress=None,
+                           key: int | str = "measured") -> tuple[np.ndarray, np.ndarray]:
+    """``resimulate`` (same streams, same mean) and the variance of m between the profiles at every
+    point (ddof 1; zeros for one profile): the disorder floor of an observation error."""
+    if n_profiles < 1:
+        raise ValueError("n_profiles must be >= 1")
+    total = squares = None
+    for p in range(n_profiles):
+        curves = simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, first_profile + p))
+        total = curves if total is None else total + curves
+        squares = curves**2 if squares is None else squares + curves**2
+        if progress is not None:
+            progress(p + 1, n_profiles)
+    mean = total / n_profiles
+    variance = (squares - n_profiles * mean**2) / (n_profiles - 1) if n_profiles > 1 else np.zeros_like(mean)
+    return mean, np.clip(variance, 0, None)
+
+
+def simulate_measured(cfg: dict, params: dict, rng: np.random.Generator, reversal_fields_T, curve_fields_T,
+                      max_step_T: float | None = None, field_tol_T: float = 1e-12):
+    """One family of ``params`` on a measured protocol (``forc.measured_protocol``: the file's reversal
+    fields and per-curve fields in measurement order), disorder from ``rng``, field tilted by
+    ``params["field_tilt_deg"]``. Returns a ``ProtocolFamily`` (⟨m⟩·ĥ at every point). The
+    quasi-static protocol only: ConfigError for "llg"."""
+    if protocol_name(cfg) != "quasistatic":
+        raise ConfigError("the measured protocol is re-simulated quasi-statically only (protocol: quasistatic)")
+    film, m0, _ = build_film(cfg, params, rng=rng)
+    return measured_protocol_family(film, m0, reversal_fields_T, curve_fields_T,
+                                    direction=field_direction(_tilt(params)),
+                                    torque_tol_T=cfg["minimizer"]["torque_tol_T"],
+                                    max_iterations=cfg["minimizer"]["max_iterations"], max_step_T=max_step_T,
+                                    field_tol_T=field_tol_T)
+
+
+def resimulate_measured(cfg: dict, params: dict, reversal_fields_T, curve_fields_T, n_profiles: int = 1,
+                        first_profile: int = 0, key: int | str = "measured", max_step_T: float | None = None,
+                        progress=None) -> list:
+    """``simulate_measured`` averaged over ``n_profiles`` disorder profiles (the streams of
+    ``resimulate``: the same disorder as the grid re-simulation of the same key). Returns per curve
+    the mean ⟨m⟩·ĥ at its fields (input order)."""
+    if n_profiles < 1:
+        raise ValueError("n_profiles must be >= 1")
+    total = None
+    for p in range(n_profiles):
+        family = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, first_profile + p),
+                                   reversal_fields_T, curve_fields_T, max_step_T=max_step_T)
+        total = family.curves if total is None else [a + b for a, b in zip(total, family.curves)]
+        if progress is not None:
+            progress(p + 1, n_profiles)
+    return [c / n_profiles for c in total]
 
 
 def observation_error(reference: np.ndarray, candidate: np.ndarray) -> dict:

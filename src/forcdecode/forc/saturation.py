@@ -1,0 +1,451 @@
+"""Is a measured FORC family usable? Domain by physics: the major loop must saturate (close) inside
+the measured window; the training-grid image is then completed where the state is known.
+
+Fields are μ0H in tesla; moments in the file's A·m²; m = (M − M_0)/M_sat on the grid.
+
+**Noise σ** (A·m²): every interior point of every curve is compared with the straight line through
+its two neighbours, r = M_i − [w M_{i−1} + (1 − w) M_{i+1}], w = (H_{i+1} − H_i)/(H_{i+1} − H_{i−1});
+for white noise Var r = σ²(1 + w² + (1 − w)²), so σ = 1.4826·MAD of r/√(1 + w² + (1 − w)²) over all
+curves (robust: the few points at a switching jump do not count). Where the file has calibration
+points, the scatter of successive ones, 1.4826·MAD(ΔM_cal)/√2, is reported beside it.
+
+**Coincidence**: a curve coincides with a reference (another curve, or the upper branch) on a field
+range when the 5-point running median of their difference stays within τ = max(4σ, q), q = one
+8-bit level of the training image, (2/255)·M_half, M_half = half the loop height (max − min of all
+moments)/2: a difference below one grey level is invisible to the networks.
+
+**Rule** (δ = one training-grid step, 2B_max/(n − 1)):
+
+- lower end: the closure field is the largest reversal field up to which every curve coincides with
+  the lowest curve (the curves reversed there start from one state); the flat field the largest
+  field up to which the lower branch L (those curves' points below the closure field, running
+  median) stays within max(τ, 0.1·M_half·(H − H_min)/T) of its first value (a steeper branch is a
+  reversible, unsaturated magnetization, e.g. a paramagnetic slope). H_− is the smaller of the two;
+  the end is saturated when H_− − H_r,min ≥ δ and H_− ≥ −B_max;
+- upper end: the longest-reaching of those curves (the ascending major branch, from negative
+  saturation) is compared with the upper branch U (the descending branch: the curves' reversal
+  points, above the highest reversal field the highest curve reaching there, and the calibration
+  point at HCal); the closure field is the lowest field from which on it coincides with U to its
+  end, the flat field the lowest field from which U stays within max(τ, 0.1·M_half·(top − H)/T)
+  of its last value; H_+ is the larger. Saturated when the ascending branch's end − H_+ ≥ δ and
+  H_+ ≤ B_max.
+
+Usable when both ends saturate and the completed image has no unknown cell. Completion on the
+training grid (rows H_r, columns H, n × n, NaN below the diagonal): a row takes the measured curve
+nearest to its reversal field, interpolated linearly in H; rows reversed at or above H_+ are the
+reversible upper branch; rows below the lowest reversal field are the ascending branch (m = −1 where
+not measured); beyond a curve's last field the state is known only if the curve has rejoined the
+upper branch (its last points coincide with U, or it ends above H_+): it continues as U, and as
+m = +1 beyond the measured window. A cell that none of these rules reaches is unknown.
+Normalization: M_sat = (U_s − L_s)/2 and M_0 = (U_s + L_s)/2, U_s and L_s the medians of the
+measured points on the saturated upper (H ≥ H_+) and lower (curves reversed at or below H_−,
+H ≤ H_−) branches; a family without both saturated branches (analysed only when forced) is divided
+by the median of its curves' values at their largest field, without offset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826
+NOISE_FACTOR = 4.0
+"""τ = max(NOISE_FACTOR·σ, one image level): a 5-point running median of white noise of σ√2 has a
+standard deviation of about 0.75σ, so 4σ is more than 5 of them."""
+RUNNING = 5
+FLAT_SLOPE_PER_T = 0.10
+"""A saturated branch changes by at most this fraction of the half loop height per tesla (beyond τ):
+the completion holds m = ±1 outside the window, off by less than 0.1 one tesla away."""
+
+MEASURED, COMPLETED, UNKNOWN = 1, 2, 0
+"""Source of each grid cell (``MeasuredDomain.source``)."""
+
+
+def noise_level(curves) -> float:
+    """σ (moment units) of the point-to-point noise along the curves (module docstring); NaN when no
+    curve has three points."""
+    values = []
+    for h, y in curves:
+        h = np.asarray(h, float)
+        y = np.asarray(y, float)
+        if h.size < 3:
+            continue
+        span = h[2:] - h[:-2]
+        ok = np.abs(span) > 0
+        w = np.where(ok, (h[2:] - h[1:-1]) / np.where(ok, span, 1.0), 0.5)
+        r = y[1:-1] - (w * y[:-2] + (1 - w) * y[2:])
+        values.append((r / np.sqrt(1 + w**2 + (1 - w) ** 2))[ok])
+    if not values:
+        return float("nan")
+    r = np.concatenate(values)
+    return float(MAD_TO_SIGMA * np.median(np.abs(r - np.median(r))))
+
+
+def calibration_noise(calibration_moments) -> float:
+    """σ from successive calibration points, 1.4826·MAD(ΔM)/√2; NaN below five points."""
+    m = np.asarray(calibration_moments, float)
+    if m.size < 5:
+        return float("nan")
+    d = np.diff(m)
+    return float(MAD_TO_SIGMA * np.median(np.abs(d - np.median(d))) / np.sqrt(2))
+
+
+def _running_median(x, width=RUNNING):
+    """Median over a centred window of ``width`` points, truncated at the ends (3 points there)."""
+    x = np.asarray(x, float)
+    if x.size < width:
+        return x.copy() if x.size < 3 else np.full(x.size, np.median(x))
+    half = width // 2
+    padded = np.concatenate([np.full(half, np.nan), x, np.full(half, np.nan)])
+    return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, width), axis=1)
+
+
+def _interpolation_allowance(ref_h, ref_y, h):
+    """A bound on the error of interpolating the reference linearly at ``h``: a quarter of the larger
+    |second difference| of the reference at the ends of the interval holding h (f''Δ²/8 at mid-interval
+    is an eighth; exact where the fields coincide)."""
+    if ref_h.size < 3:
+        return np.zeros(h.size)
+    d2 = np.abs(ref_y[:-2] - 2 * ref_y[1:-1] + ref_y[2:])
+    node = np.concatenate([[d2[0]], d2, [d2[-1]]])
+    k = np.clip(np.searchsorted(ref_h, h) - 1, 0, ref_h.size - 2)
+    on_node = np.isclose(h, ref_h[k], rtol=0, atol=1e-12) | np.isclose(h, ref_h[k + 1], rtol=0, atol=1e-12)
+    return np.where(on_node, 0.0, np.maximum(node[k], node[k + 1]) / 4)
+
+
+def _difference(h, y, ref_h, ref_y):
+    """(fields, running-median difference y − ref, less the reference's interpolation allowance,
+    never below 0 in size) on the fields of (h, y) inside the reference's range."""
+    h = np.asarray(h, float)
+    inside = (h >= ref_h[0] - 1e-12) & (h <= ref_h[-1] + 1e-12)
+    if inside.sum() == 0:
+        return h[:0], h[:0]
+    d = _running_median(np.asarray(y, float)[inside] - np.interp(h[inside], ref_h, ref_y))
+    allowance = _running_median(_interpolation_allowance(np.asarray(ref_h, float), np.asarray(ref_y, float), h[inside]))
+    return h[inside], np.sign(d) * np.maximum(np.abs(d) - allowance, 0.0)
+
+
+def _branch_change(h, y_med):
+    """(|change| between the ends, slope of a straight-line fit) of a branch (moment units, per T)."""
+    change = float(abs(y_med[-1] - y_med[0]))
+    slope = float(np.polyfit(h, y_med, 1)[0]) if h.size >= 2 and np.ptp(h) > 0 else float("nan")
+    return change, slope
+
+
+def _sorted(h, y):
+    order = np.argsort(h, kind="stable")
+    return np.asarray(h, float)[order], np.asarray(y, float)[order]
+
+
+@dataclass
+class MeasuredDomain:
+    """The saturation analysis of one measured family and its completion on the training grid."""
+
+    usable: bool
+    reason: str | None
+    noise_Am2: float
+    tolerance_Am2: float
+    M_half_Am2: float
+    H_minus_T: float
+    H_plus_T: float | None
+    lower_saturated: bool
+    upper_saturated: bool
+    moment_saturation_Am2: float
+    moment_offset_Am2: float
+    calibration_noise_Am2: float = float("nan")
+    high_field_slope_Am2_per_T: float = float("nan")
+    family: np.ndarray | None = field(default=None, repr=False)
+    source: np.ndarray | None = field(default=None, repr=False)
+    summary: dict = field(default_factory=dict)
+
+    def report(self) -> dict:
+        """JSON-ready summary (no arrays)."""
+        def num(v):
+            return None if v is None or not np.isfinite(v) else float(v)
+
+        return {"usable": self.usable, "reason": self.reason, "noise_Am2": num(self.noise_Am2),
+                "calibration_noise_Am2": num(self.calibration_noise_Am2), "tolerance_Am2": num(self.tolerance_Am2),
+                "half_loop_height_Am2": num(self.M_half_Am2), "H_minus_T": num(self.H_minus_T),
+                "H_plus_T": num(self.H_plus_T), "lower_saturated": self.lower_saturated,
+                "upper_saturated": self.upper_saturated, "moment_saturation_Am2": num(self.moment_saturation_Am2),
+                "moment_offset_Am2": num(self.moment_offset_Am2),
+                "high_field_slope_Am2_per_T": num(self.high_field_slope_Am2_per_T), **self.summary}
+
+
+def _upper_branch(curves_by_hr, calibration):
+    """U as (fields, moments): the reversal points of every curve, then, above the highest field
+    covered so far, the points of the highest curve reaching there, and the calibration point."""
+    points_h = [c[0][0] for c in curves_by_hr]
+    points_y = [c[1][0] for c in curves_by_hr]
+    top = max(points_h)
+    for h, y in reversed(curves_by_hr):  # highest reversal field first
+        above = h > top + 1e-12
+        if above.any():
+            points_h.extend(h[above])
+            points_y.extend(y[above])
+            top = h[above].max()
+    if calibration is not None and calibration[0] > top + 1e-12:
+        points_h.append(calibration[0])
+        points_y.append(calibration[1])
+    h, y = _sorted(points_h, points_y)
+    keep = np.concatenate([[True], np.diff(h) > 0])
+    return h[keep], y[keep]
+
+
+def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64, *,
+                       calibration=None, calibration_moments=None) -> MeasuredDomain:
+    """The rule of the module docstring for curves (field_T, moment) reversed at ``reversal_fields_T``
+    (any order; each curve from its reversal field upward). ``calibration``: (H_cal, M_cal) on the
+    upper branch, optional; ``calibration_moments``: all calibration moments (noise cross-check).
+    Returns a ``MeasuredDomain`` with the completed grid family (``family``, ``source``)."""
+    hr = np.asarray(reversal_fields_T, float)
+    order = np.argsort(hr, kind="stable")
+    hr = hr[order]
+    curves = [_sorted(*curves[k]) for k in order]
+    step = 2 * B_max_T / (n - 1)
+    sigma = noise_level(curves)
+    everything = np.concatenate([y for _, y in curves])
+    M_half = float((everything.max() - everything.min()) / 2)
+    tau = max(NOISE_FACTOR * (sigma if np.isfinite(sigma) else 0.0), 2 / 255 * M_half)
+    reasons = []
+
+    # lower end: curves that coincide with the lowest one
+    accepted = [0]
+    first_miss = None
+    for k in range(1, len(curves)):
+        ref = max(accepted, key=lambda a: curves[a][0][-1])
+        h, d = _difference(*curves[k], *curves[ref])
+        if h.size < 3:
+            h, d = _difference(*curves[ref], *curves[k])  # the reference inside this curve
+        if h.size >= 3 and np.all(np.abs(d) <= tau):
+            accepted.append(k)
+            continue
+        first_miss = (k, h, d)
+        break
+    H_close_minus = float(hr[accepted[-1]])
+    lower_points = [(h[h <= H_close_minus + 1e-12], y[h <= H_close_minus + 1e-12]) for h, y in (curves[a] for a in accepted)]
+    low_h, low_y = _sorted(np.concatenate([p[0] for p in lower_points]), np.concatenate([p[1] for p in lower_points]))
+    low_med = _running_median(low_y)
+    allowed = np.maximum(tau, FLAT_SLOPE_PER_T * M_half * (low_h - low_h[0]))
+    steep = np.abs(low_med - low_med[0]) > allowed
+    H_flat_minus = float(low_h[np.argmax(steep) - 1]) if steep.any() and np.argmax(steep) > 0 else (
+        float(low_h[0]) if steep.any() else H_close_minus)
+    H_minus = min(H_close_minus, H_flat_minus)
+    lower_saturated = H_minus - hr[0] >= step - 1e-12 and H_minus >= -B_max_T
+    if not lower_saturated:
+        if H_close_minus - hr[0] < step - 1e-12:
+            if first_miss is not None and first_miss[1].size:
+                k, h, d = first_miss
+                j = int(np.argmax(np.abs(d)))
+                reasons.append(
+                    f"lower end not saturated: the curves reversed at {hr[0]:+.4f} T and {hr[k]:+.4f} T differ by "
+                    f"{abs(d[j]):.3g} A m² ({100 * abs(d[j]) / M_half:.1f} % of the half loop height, "
+                    f"{abs(d[j]) / sigma if sigma > 0 else np.inf:.0f} σ) at {h[j]:+.4f} T; curves coincide only "
+                    f"up to H_r = {H_close_minus:+.4f} T, {step:.3f} T (one training-grid step) above the lowest "
+                    "reversal field is needed")
+            else:
+                reasons.append(f"lower end not saturated: curves coincide only up to H_r = {H_close_minus:+.4f} T "
+                               f"({H_close_minus - hr[0]:.4f} T above the lowest reversal field; {step:.3f} T needed)")
+        elif H_minus < -B_max_T:
+            reasons.append(f"the loop saturates on the negative side only below {H_minus:+.3f} T, beyond the "
+                           f"training window's {-B_max_T:+.2f} T")
+        else:
+            change, slope = _branch_change(low_h, low_med)
+            reasons.append(f"lower branch closed (curves coincide up to H_r = {H_close_minus:+.4f} T) but not saturated: "
+                           f"over [{low_h[0]:+.3f}, {low_h[-1]:+.3f}] T it changes by {change:.3g} A m² "
+                           f"({100 * change / M_half:.0f} % of the half loop height; slope {100 * abs(slope) / M_half:.0f} % "
+                           f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
+                           "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
+
+    # upper end: the ascending major branch against the upper branch
+    cal = None
+    if calibration is not None and np.all(np.isfinite(calibration)):
+        cal = (float(calibration[0]), float(calibration[1]))
+    U_h, U_y = _upper_branch(curves, cal)
+    a = max(accepted, key=lambda k: curves[k][0][-1])
+    A_h, A_y = curves[a]
+    h, d = _difference(A_h, A_y, U_h, U_y)
+    H_close_plus = None
+    ok = np.abs(d) <= tau
+    if ok.size and ok[-1]:
+        start = ok.size - np.argmin(ok[::-1]) if not ok.all() else 0
+        H_close_plus = float(h[start])
+    top = float(U_h[-1])
+    U_med = _running_median(U_y)
+    allowed = np.maximum(tau, FLAT_SLOPE_PER_T * M_half * (top - U_h))
+    steep = np.abs(U_med - U_med[-1]) > allowed
+    H_flat_plus = float(U_h[U_h.size - np.argmax(steep[::-1])]) if steep.any() else float(U_h[0])
+    H_plus = None if H_close_plus is None else max(H_close_plus, H_flat_plus)
+    upper_saturated = H_plus is not None and h[-1] - H_plus >= step - 1e-12 and H_plus <= B_max_T
+    if not upper_saturated:
+        if H_close_plus is None or h[-1] - H_close_plus < step - 1e-12:
+            tail = h >= h[-1] - step if h.size else h
+            j = int(np.argmax(np.abs(np.where(tail, d, 0)))) if h.size else None
+            if j is None:
+                reasons.append("upper end not saturated: the ascending branch does not reach the upper branch")
+            else:
+                reasons.append(
+                    f"upper end not saturated: the branch from the lowest reversal field ({hr[a]:+.4f} T) ends at "
+                    f"{A_h[-1]:+.4f} T and still differs from the upper (descending) branch by {abs(d[j]):.3g} A m² "
+                    f"({100 * abs(d[j]) / M_half:.1f} % of the half loop height, "
+                    f"{abs(d[j]) / sigma if sigma > 0 else np.inf:.0f} σ) at {h[j]:+.4f} T"
+                    + (f"; it coincides only from {H_close_plus:+.4f} T on ({step:.3f} T needed)"
+                       if H_close_plus is not None else ""))
+        elif H_plus > B_max_T:
+            reasons.append(f"the loop saturates on the positive side only at {H_plus:+.3f} T, beyond the training "
+                           f"window's {B_max_T:+.2f} T")
+        else:
+            sel = U_h >= H_close_plus - 1e-12
+            change, slope = _branch_change(U_h[sel], U_med[sel])
+            reasons.append(f"upper branch closed (from {H_close_plus:+.4f} T) but not saturated: over "
+                           f"[{H_close_plus:+.3f}, {top:+.3f}] T it changes by {change:.3g} A m² "
+                           f"({100 * change / M_half:.0f} % of the half loop height; slope {100 * abs(slope) / M_half:.0f} % "
+                           f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
+                           "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
+
+    # normalization from the saturated branches (or the curve extremes when they are not saturated)
+    if H_plus is not None:
+        upper_vals = np.concatenate([y[h >= H_plus - 1e-12] for h, y in curves] + [U_y[U_h >= H_plus - 1e-12]])
+    else:
+        upper_vals = U_y[-RUNNING:]
+    U_s = float(np.median(upper_vals))
+    L_s = float(np.median(low_y)) if low_y.size else float(everything.min())
+    M_sat, M_0 = (U_s - L_s) / 2, (U_s + L_s) / 2
+    normalization = "saturated branches: M_sat = (U_s - L_s)/2, M_0 = (U_s + L_s)/2"
+    if not (lower_saturated and upper_saturated) or not M_sat > 0:
+        # no saturated branches bracket the loop (a family analysed out of the domain): the median of
+        # the curves' values at their largest field, no offset
+        M_sat, M_0 = float(np.median([y[-1] for _, y in curves])), 0.0
+        normalization = "median of the curves' values at their largest field (no saturated branches), no offset"
+    slope = float("nan")
+    if H_plus is not None:
+        sel = U_h >= H_plus - 1e-12
+        if sel.sum() >= 3 and np.ptp(U_h[sel]) > 0:
+            slope = float(np.polyfit(U_h[sel], U_y[sel], 1)[0])
+
+    domain = MeasuredDomain(
+        usable=False, reason=None, noise_Am2=sigma, tolerance_Am2=tau, M_half_Am2=M_half, H_minus_T=H_minus,
+        H_plus_T=H_plus, lower_saturated=bool(lower_saturated), upper_saturated=bool(upper_saturated),
+        moment_saturation_Am2=M_sat, moment_offset_Am2=M_0,
+        calibration_noise_Am2=calibration_noise(calibration_moments) if calibration_moments is not None else float("nan"),
+        high_field_slope_Am2_per_T=slope)
+    if not M_sat > 0:
+        reasons.append("the saturation moment is not positive (M_sat <= 0)")
+    family, source, summary = _complete(hr, curves, U_h, U_y, domain, B_max_T, n, tau)
+    summary.update(closure_field_lower_T=H_close_minus, closure_field_upper_T=H_close_plus,
+                   flat_field_lower_T=H_flat_minus, flat_field_upper_T=H_flat_plus, training_grid_step_T=step,
+                   normalization=normalization)
+    domain.family, domain.source, domain.summary = family, source, summary
+    unknown = summary["fraction_unknown"]
+    if not reasons and unknown > 0:
+        rows = summary["unknown_reversal_fields_T"]
+        reasons.append(f"the state is unknown on {100 * unknown:.1f} % of the training image: curves reversed at "
+                       f"H_r in [{rows[0]:+.3f}, {rows[1]:+.3f}] T end before rejoining the upper branch")
+    domain.usable = not reasons
+    domain.reason = "; ".join(reasons) if reasons else None
+    return domain
+
+
+def _complete(hr, curves, U_h, U_y, domain, B_max_T, n, tau):
+    """The completed grid family (normalized), the source of every cell and the summary (module docstring)."""
+    grid = np.linspace(-B_max_T, B_max_T, n)
+    M_sat = domain.moment_saturation_Am2 if domain.moment_saturation_Am2 > 0 else max(domain.M_half_Am2, 1e-300)
+    M_0 = domain.moment_offset_Am2
+
+    def norm(y):
+        return (np.asarray(y, float) - M_0) / M_sat
+
+    H_plus = domain.H_plus_T if domain.upper_saturated else None
+    H_minus = domain.H_minus_T if domain.lower_saturated else None
+    U_top = U_h[-1]
+    # which curves have rejoined the upper branch by their last field
+    merged = []
+    for h, y in curves:
+        if H_plus is not None and h[-1] >= H_plus - 1e-12:
+            merged.append(True)
+            continue
+        hh, d = _difference(h, y, U_h, U_y)
+        tail = hh >= hh[-1] - 1e-12 if hh.size else hh
+        merged.append(bool(hh.size >= 3 and np.all(np.abs(d[-3:]) <= tau) and tail.any()))
+    family = np.full((n, n), np.nan)
+    source = np.full((n, n), UNKNOWN, dtype=np.int8)
+    source[np.tril_indices(n, -1)] = -1  # below the diagonal: not part of the family
+    upper = norm(U_y)
+
+    def upper_value(H):
+        return np.where(H <= U_top + 1e-12, np.interp(H, U_h, upper), 1.0)
+
+    for i, g in enumerate(grid):
+        cols = np.arange(i, n)
+        H = grid[cols]
+        if H_plus is not None and g >= H_plus - 1e-12:
+            family[i, cols] = upper_value(H)
+            inside = (H <= U_top + 1e-12) & (g <= hr[-1] + 1e-12)
+            source[i, cols] = np.where(inside, MEASURED, COMPLETED)
+            continue
+        k = int(np.argmin(np.abs(hr - g)))
+        h, y = curves[k]
+        below_window = g < hr[0] - 1e-12
+        if below_window and H_minus is not None:
+            k = int(np.argmax([c[0][-1] if hr[j] <= H_minus + 1e-12 else -np.inf for j, c in enumerate(curves)]))
+            h, y = curves[k]
+        values = np.interp(H, h, norm(y))
+        src = np.full(H.size, MEASURED, dtype=np.int8)
+        if below_window:  # a curve reversed below the window: inferred, never measured
+            before = H < h[0] - 1e-12
+            src[:] = COMPLETED if H_minus is not None else UNKNOWN
+            if H_minus is not None:
+                values[before] = -1.0
+        beyond = H > h[-1] + 1e-12
+        if beyond.any():
+            if merged[k] or (H_plus is not None and h[-1] >= H_plus - 1e-12):
+                values[beyond] = upper_value(H[beyond])
+                src[beyond] = COMPLETED
+            else:
+                src[beyond] = UNKNOWN  # values hold the last measured point (np.interp), flagged unknown
+        family[i, cols] = values
+        source[i, cols] = src
+    cells = source >= 0
+    total = int(cells.sum())
+    unknown_rows = [grid[i] for i in range(n) if np.any(source[i] == UNKNOWN)]
+    summary = {
+        "grid_B_max_T": float(B_max_T), "grid_n": int(n), "fraction_measured": float((source == MEASURED).sum() / total),
+        "fraction_completed": float((source == COMPLETED).sum() / total),
+        "fraction_unknown": float((source == UNKNOWN).sum() / total),
+        "measured_reversal_fields_T": [float(hr[0]), float(hr[-1])],
+        "measured_fields_T": [float(min(c[0][0] for c in curves)), float(max(c[0][-1] for c in curves))],
+        "completed": _completed_text(hr, curves, H_minus, H_plus, B_max_T),
+        "unknown_reversal_fields_T": [float(min(unknown_rows)), float(max(unknown_rows))] if unknown_rows else None,
+        "curves_rejoining_upper_branch": int(sum(merged)), "n_curves": len(curves),
+    }
+    return family, source, summary
+
+
+def _completed_text(hr, curves, H_minus, H_plus, B_max_T):
+    parts = []
+    if H_minus is not None and hr[0] > -B_max_T:
+        parts.append(f"rows H_r < {hr[0]:+.3f} T: ascending branch from negative saturation (m = -1 below the window)")
+    if H_plus is not None:
+        parts.append(f"rows H_r >= {H_plus:+.3f} T: reversible upper branch")
+    top = max(c[0][-1] for c in curves)
+    if top < B_max_T:
+        parts.append(f"fields H > {top:+.3f} T: m = +1 (saturated upper branch)")
+    parts.append("beyond each curve's last field, where it has rejoined the upper branch: the upper branch")
+    return parts
+
+
+def domain_of_measurement(data, B_max_T: float = 1.0, n: int = 64) -> MeasuredDomain:
+    """``analyse_saturation`` of a read measurement (``forcdecode.measured``), with its first
+    calibration point (on the upper branch, drift-corrected scale) when it has them."""
+    calibration = None
+    moments = None
+    if data.calibration:
+        moments = [p.moment_Am2 for p in data.calibration]
+        calibration = (data.calibration[0].field_T, data.calibration[0].moment_Am2)
+    return analyse_saturation([c.reversal_field_T for c in data.curves], [(c.field_T, c.moment_Am2) for c in data.curves],
+                              B_max_T, n, calibration=calibration, calibration_moments=moments)
+
+
+__all__ = ["MEASURED", "COMPLETED", "UNKNOWN", "MeasuredDomain", "analyse_saturation", "calibration_noise",
+           "domain_of_measurement", "noise_level"]

@@ -1,0 +1,170 @@
+"""Calibration of a posterior measured on held-out samples with known truth.
+
+Input everywhere: posterior draws ``samples`` of shape (n_obs, n_draws, n_params) and the true
+values ``truth`` (n_obs, n_params), in the same (normalized) units.
+
+- **SBC** (simulation-based calibration, Talts et al. 2018): the rank of the truth among the draws,
+  r = #{draws < truth} ∈ {0..L}, is uniform when the posterior is calibrated. The KS test runs on
+  the randomized PIT (r + v)/(L + 1), v ~ U(0, 1), which is exactly U(0, 1) under calibration
+  (the plain discrete ranks make the KS test conservative).
+- **Marginal coverage**: the fraction of samples whose truth lies in the central (equal-tailed)
+  credible interval at level α, and the interval's mean width.
+- **TARP** (Lemos et al., ICML 2023): expected coverage of the joint posterior. With a reference
+  point θ_r per sample (drawn from the prior), f = fraction of draws nearer to θ_r than the truth;
+  the expected coverage at α is the fraction of samples with f < α. Necessary and sufficient for
+  calibration when θ_r is random.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from ..core.errors import DatasetError
+
+DEFAULT_LEVELS = (0.5, 0.68, 0.9)
+
+
+def _check(samples, truth) -> tuple[np.ndarray, np.ndarray]:
+    samples, truth = np.asarray(samples, dtype=float), np.asarray(truth, dtype=float)
+    if samples.ndim != 3 or truth.ndim != 2 or samples.shape[0] != truth.shape[0] or samples.shape[2] != truth.shape[1]:
+        raise DatasetError(f"calibration needs draws (n_obs, n_draws, n_params) and truth (n_obs, n_params); "
+                           f"got {samples.shape} and {truth.shape}")
+    if samples.shape[0] == 0 or samples.shape[1] < 2:
+        raise DatasetError(f"calibration needs at least one sample and two draws (got {samples.shape[:2]})")
+    if not (np.isfinite(samples).all() and np.isfinite(truth).all()):
+        raise DatasetError("posterior draws or true values are not finite")
+    return samples, truth
+
+
+def sbc_ranks(samples, truth) -> np.ndarray:
+    """Rank of the truth among the draws, per sample and parameter: integers in 0..n_draws."""
+    samples, truth = _check(samples, truth)
+    return (samples < truth[:, None, :]).sum(axis=1)
+
+
+def sbc_ks_pvalues(ranks, n_draws: int, rng: np.random.Generator) -> np.ndarray:
+    """KS p-value of uniformity per parameter, on the randomized PIT (r + v)/(n_draws + 1)."""
+    ranks = np.asarray(ranks, dtype=float)
+    pit = (ranks + rng.random(ranks.shape)) / (n_draws + 1)
+    return np.array([stats.kstest(pit[:, j], "uniform").pvalue for j in range(pit.shape[1])])
+
+
+def central_intervals(samples, level: float) -> tuple[np.ndarray, np.ndarray]:
+    """Central credible interval at ``level`` per sample and parameter: (low, high), each (n_obs, n_params)."""
+    samples = np.asarray(samples, dtype=float)
+    tail = (1.0 - level) / 2.0
+    low, high = np.quantile(samples, [tail, 1.0 - tail], axis=1)
+    return low, high
+
+
+def marginal_coverage(samples, truth, levels) -> dict:
+    """level -> (coverage per parameter, mean width per parameter) of the central intervals."""
+    samples, truth = _check(samples, truth)
+    out = {}
+    for level in levels:
+        low, high = central_intervals(samples, level)
+        covered = (truth >= low) & (truth <= high)
+        out[float(level)] = (covered.mean(axis=0), (high - low).mean(axis=0))
+    return out
+
+
+def tarp_coverage(samples, truth, references, levels) -> np.ndarray:
+    """TARP expected coverage of the joint posterior at each level (Euclidean distance to one
+    reference point per sample, ``references`` (n_obs, n_params), drawn from the prior)."""
+    samples, truth = _check(samples, truth)
+    references = np.asarray(references, dtype=float)
+    if references.shape != truth.shape:
+        raise DatasetError(f"TARP needs one reference point per sample: {references.shape} != {truth.shape}")
+    d_draws = np.linalg.norm(samples - references[:, None, :], axis=2)
+    d_truth = np.linalg.norm(truth - references, axis=1)
+    f = (d_draws < d_truth[:, None]).mean(axis=1)
+    return np.array([(f < level).mean() for level in np.asarray(levels, dtype=float)])
+
+
+def calibration_metrics(samples, truth, names, rng: np.random.Generator, levels=DEFAULT_LEVELS,
+                        point_truth=None) -> dict:
+    """Per parameter: ``mae_mean``, ``mae_median`` (against ``point_truth``, default ``truth``),
+    ``sbc_ks_p``, ``coverage_<level>``, ``width_<level>``; joint: TARP coverage at ``levels`` and on a
+    grid (the coverage curve), with reference points drawn uniformly on the unit cube (the prior of
+    normalized parameters)."""
+    samples, truth = _check(samples, truth)
+    if len(names) != truth.shape[1]:
+        raise DatasetError(f"{len(names)} names for {truth.shape[1]} parameters")
+    point_truth = truth if point_truth is None else np.asarray(point_truth, dtype=float)
+    n_draws = samples.shape[1]
+    ranks = sbc_ranks(samples, truth)
+    p_values = sbc_ks_pvalues(ranks, n_draws, rng)
+    coverage = marginal_coverage(samples, truth, levels)
+    mean, median = samples.mean(axis=1), np.median(samples, axis=1)
+    per_parameter = {}
+    for j, name in enumerate(names):
+        row = {"mae_mean": float(np.abs(mean[:, j] - point_truth[:, j]).mean()),
+               "mae_median": float(np.abs(median[:, j] - point_truth[:, j]).mean()),
+               "sbc_ks_p": float(p_values[j])}
+        for level, (cov, width) in coverage.items():
+            tag = f"{int(round(level * 100))}"
+            row[f"coverage_{tag}"], row[f"width_{tag}"] = float(cov[j]), float(width[j])
+        per_parameter[name] = row
+    grid = np.linspace(0.05, 0.95, 19)
+    curve = marginal_coverage(samples, truth, grid)
+    references = rng.random(truth.shape)
+    return {
+        "per_parameter": per_parameter,
+        "joint": {"tarp": {f"coverage_{int(round(a * 100))}": float(c)
+                           for a, c in zip(levels, tarp_coverage(samples, truth, references, levels))},
+                  "tarp_curve": {"levels": grid.tolist(), "coverage": tarp_coverage(samples, truth, references, grid).tolist()}},
+        "coverage_curve": {"levels": grid.tolist(),
+                           "per_parameter": {name: [float(curve[a][0][j]) for a in curve] for j, name in enumerate(names)}},
+        "ranks": {name: ranks[:, j].tolist() for j, name in enumerate(names)},
+        "n_draws": int(n_draws), "n_test": int(truth.shape[0]),
+    }
+
+
+def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
+    """Rank histograms per parameter (with the 90 % band of a uniform histogram) and the coverage
+    curves (marginal central intervals per parameter, joint TARP) against the diagonal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..core import io
+
+    ranks = metrics["ranks"]
+    names = list(ranks)
+    n_draws, n_obs = metrics["n_draws"], metrics["n_test"]
+    columns = 4
+    rows = -(-(len(names) + 1) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns, 2.8 * rows), squeeze=False)
+    expected = n_obs / bins
+    low, high = stats.binom.ppf([0.05, 0.95], n_obs, 1.0 / bins)
+    for ax, name in zip(axes.flat, names):
+        ax.axhspan(low, high, color="0.85", label="90 % band (uniform)")
+        ax.axhline(expected, color="0.5", lw=0.8)
+        ax.hist(ranks[name], bins=np.linspace(0, n_draws, bins + 1), color="tab:blue", alpha=0.8)
+        p = metrics["per_parameter"][name]["sbc_ks_p"]
+        ax.set_title(f"{name}: KS p = {p:.2g}", fontsize=9)
+        ax.set_xlabel("rank of the truth")
+    axes.flat[0].legend(fontsize=7)
+    ax = axes.flat[len(names)]
+    curve = metrics["coverage_curve"]
+    for name in names:
+        ax.plot(curve["levels"], curve["per_parameter"][name], lw=1, label=name)
+    tarp = metrics["joint"]["tarp_curve"]
+    ax.plot(tarp["levels"], tarp["coverage"], "k-", lw=2, label="joint (TARP)")
+    ax.plot([0, 1], [0, 1], "k:", lw=0.8)
+    ax.set_xlabel("credibility level")
+    ax.set_ylabel("expected coverage")
+    ax.set_title(f"coverage on {n_obs} test samples", fontsize=9)
+    ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(names) + 1:]:
+        ax.axis("off")
+    fig.tight_layout()
+    with io.atomic_path(out_path) as tmp:
+        fig.savefig(tmp, dpi=130, format="png")
+    plt.close(fig)
+
+
+__all__ = ["DEFAULT_LEVELS", "sbc_ranks", "sbc_ks_pvalues", "central_intervals", "marginal_coverage",
+           "tarp_coverage", "calibration_metrics", "calibration_figure"]

@@ -1,0 +1,425 @@
+"""Neural posterior estimation (NPE): the joint posterior p(θ | FORC image, M_s) of the learned
+parameters θ = (N_pin, A_ex, K_u, D, σ_θ, σ_K), normalized to u ∈ [0, 1] by the configured bounds
+(K_u on a log scale, as in the parameter table).
+
+Model: a CNN embedding of the image (the small head's two 3×3 convolutions and 4×4 average pool,
+then a dense layer of ``width`` features), M_s appended, conditions a neural spline flow
+(``zuko.flows.NSF``: autoregressive rational-quadratic splines; zuko, not a hand-written flow).
+Trained by maximum likelihood on the workflow's train split, early stopping on the validation split's
+negative log-likelihood (the same hash split as Alice: ``splits.py``). The test split is used only
+for the calibration (``calibration.py``).
+
+Bounded support: the flow lives in logit space. u is squeezed to [ε, 1 − ε] (ε = 1e-3, so a value
+on a bound, e.g. N_pin = 0, stays finite), z = logit(u), standardized by the training split's mean
+and spread (the spline acts on [−5, 5]); draws map back by the sigmoid and lie inside [0, 1] by
+construction (no clipping of the density). N_pin is a count: its 256 levels on the laptop grid are
+0.004 apart in u, far below any posterior width, and it is treated as continuous.
+
+Every random number derives from the config seed through the stream ``posterior`` (weights, batch
+order, dropout, draws); the same model and seed give the same draws after a save and a reload.
+"""
+
+from __future__ import annotations
+
+import pickle
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..config import defaults, schema
+from ..core import io
+from ..core.errors import ConfigError, DatasetError, ModelFileError, OutOfDomainError
+from ..core.parameters import LOG_SCALE, denormalize
+from ..core.streams import stream_rng, stream_seed
+from .models import conv_features, image_tensor
+from .scoring import binomial_band
+from .splits import SPLITS, assign_splits
+
+FORMAT = "forcdecode-posterior/1"
+SQUEEZE = 1e-3
+"""u is squeezed to [ε, 1 − ε] before the logit."""
+EMBEDDINGS = ("cnn", "mlp")
+
+BOUNDED_SUPPORT = (f"flow in logit space: u squeezed to [{SQUEEZE:g}, {1 - SQUEEZE:g}], z = logit(u) standardized "
+                   "by the training split; draws mapped back by the sigmoid (inside [0, 1], no clipping)")
+
+
+def posterior_settings(overrides: dict | None = None, source: str = "posterior settings") -> dict:
+    """The schema's ``posterior`` defaults updated by ``overrides``, validated against the schema's
+    ``posterior`` section (ConfigError naming the key)."""
+    from jsonschema import Draft202012Validator
+    from jsonschema.exceptions import best_match
+
+    settings = {**defaults("posterior"), **(overrides or {})}
+    error = best_match(Draft202012Validator(schema()["properties"]["posterior"]).iter_errors(settings))
+    if error is not None:
+        key = ".".join(str(p) for p in error.absolute_path) or "(section)"
+        raise ConfigError(f"{source}: invalid value at posterior.{key}: {error.message}")
+    return settings
+
+
+# ---------------------------------------------------------------- the bounded latent space
+def to_latent(u) -> np.ndarray:
+    """u ∈ [0, 1] → logit of the squeezed value (unstandardized)."""
+    s = SQUEEZE + (1.0 - 2.0 * SQUEEZE) * np.asarray(u, dtype=float)
+    return np.log(s) - np.log1p(-s)
+
+
+def from_latent(z) -> np.ndarray:
+    """Inverse of :func:`to_latent`: logit space → u ∈ [0, 1]."""
+    s = 1.0 / (1.0 + np.exp(-np.asarray(z, dtype=float)))
+    return np.clip((s - SQUEEZE) / (1.0 - 2.0 * SQUEEZE), 0.0, 1.0)
+
+
+# ---------------------------------------------------------------- networks
+class ConvEmbedding(nn.Module):
+    """The small head's convolutions (1→8→16, 3×3, ReLU) and 4×4 average pool, then dense → ``width``
+    (ReLU, dropout): FORC image (n, side, side) in [0, 1] → (n, width)."""
+
+    def __init__(self, image_size: int, width: int, dropout: float):
+        super().__init__()
+        self.conv1 = nn.Conv2d(1, 8, 3)
+        self.conv2 = nn.Conv2d(8, 16, 3)
+        self.pool = nn.AvgPool2d(4)
+        self.dense = nn.Linear(conv_features(image_size, pooled=True), width)
+        self.drop = nn.Dropout(dropout)
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        x = image.unsqueeze(1) if image.dim() == 3 else image
+        x = torch.relu(self.conv2(torch.relu(self.conv1(x))))
+        return self.drop(torch.relu(self.dense(self.pool(x).flatten(1))))
+
+
+class MLPEmbedding(nn.Module):
+    """Two dense layers for vector observations (n, features) → (n, width) (low-dimensional tests)."""
+
+    def __init__(self, features: int, width: int, dropout: float):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(features, width), nn.ReLU(), nn.Linear(width, width), nn.ReLU(),
+                                 nn.Dropout(dropout))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class PosteriorNet(nn.Module):
+    """Embedding + M_s → context of a zuko neural spline flow over the standardized logits."""
+
+    def __init__(self, architecture: dict):
+        import zuko
+
+        super().__init__()
+        a = architecture
+        if a["embedding"] == "cnn":
+            self.embedding = ConvEmbedding(a["image_size"], a["width"], a["dropout"])
+        elif a["embedding"] == "mlp":
+            self.embedding = MLPEmbedding(a["features"], a["width"], a["dropout"])
+        else:
+            raise ConfigError(f"unknown embedding {a['embedding']!r} (one of {', '.join(EMBEDDINGS)})")
+        self.flow = zuko.flows.NSF(a["dim"], context=a["width"] + 1, bins=a["bins"], transforms=a["transforms"],
+                                   hidden_features=(a["hidden"], a["hidden"]))
+        self.register_buffer("z_mean", torch.zeros(a["dim"]))
+        self.register_buffer("z_std", torch.ones(a["dim"]))
+        self.float()
+
+    def context(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+        return torch.cat([self.embedding(x), ms_norm.reshape(-1, 1)], dim=1)
+
+    def log_prob(self, z_std: torch.Tensor, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+        """log density of the standardized logits given the observation."""
+        return self.flow(self.context(x, ms_norm)).log_prob(z_std)
+
+
+# ---------------------------------------------------------------- the estimator
+@dataclass
+class PosteriorEstimator:
+    """A trained posterior: ``sample`` gives draws of u ∈ [0, 1] per observation."""
+
+    net: PosteriorNet
+    architecture: dict
+    names: tuple
+    bounds: dict = field(default_factory=dict)
+    history: dict = field(default_factory=dict)
+    best_epoch: int = -1
+    metadata: dict = field(default_factory=dict)
+
+    def _inputs(self, x, ms_norm) -> tuple[torch.Tensor, torch.Tensor]:
+        a = self.architecture
+        x = np.asarray(x)
+        if a["embedding"] == "cnn":
+            if x.ndim == 2:
+                x = x[None]
+            side = a["image_size"]
+            if x.ndim != 3 or x.shape[-2:] != (side, side):
+                raise OutOfDomainError(f"the posterior was trained on {side}×{side} FORC images, got shape {x.shape}")
+            tensor = image_tensor(x)
+        else:
+            if x.ndim == 1:
+                x = x[None]
+            if x.ndim != 2 or x.shape[1] != a["features"]:
+                raise OutOfDomainError(f"the posterior expects observations of {a['features']} features, got shape {x.shape}")
+            tensor = torch.as_tensor(x, dtype=torch.float32)
+        ms = np.broadcast_to(np.asarray(ms_norm, dtype=float), (x.shape[0],))
+        if not (np.isfinite(ms).all() and torch.isfinite(tensor).all()):
+            raise OutOfDomainError("the observation or M_s is not finite")
+        return tensor, torch.tensor(ms, dtype=torch.float32)
+
+    def sample(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64) -> np.ndarray:
+        """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``."""
+        x, ms = self._inputs(x, ms_norm)
+        if n_draws < 1:
+            raise ConfigError(f"n_draws must be positive, got {n_draws}")
+        self.net.eval()
+        out = []
+        with torch.no_grad(), torch.random.fork_rng(devices=[]):
+            torch.manual_seed(int(seed))
+            for start in range(0, x.shape[0], chunk):
+                ctx = self.net.context(x[start:start + chunk], ms[start:start + chunk])
+                z = self.net.flow(ctx).sample((n_draws,))          # (n_draws, chunk, dim)
+                z = z * self.net.z_std + self.net.z_mean
+                out.append(from_latent(z.transpose(0, 1).double().numpy()))
+        return np.concatenate(out) if out else np.zeros((0, n_draws, len(self.names)))
+
+    def log_prob(self, u, x, ms_norm) -> np.ndarray:
+        """log density of u ∈ [0, 1] per observation (one u per observation), change of variables included."""
+        x, ms = self._inputs(x, ms_norm)
+        u = np.atleast_2d(np.asarray(u, dtype=float))
+        z = to_latent(u)
+        s = SQUEEZE + (1.0 - 2.0 * SQUEEZE) * u
+        # du → dz: dz/du = (1 − 2ε)/(s(1 − s)); standardization: 1/σ_z
+        log_jac = (np.log1p(-2.0 * SQUEEZE) - np.log(s) - np.log1p(-s)).sum(axis=1)
+        log_jac -= float(torch.log(self.net.z_std).sum())
+        zs = torch.as_tensor((z - self.net.z_mean.numpy()) / self.net.z_std.numpy(), dtype=torch.float32)
+        self.net.eval()
+        with torch.no_grad():
+            return self.net.log_prob(zs, x, ms).double().numpy() + log_jac
+
+    def save(self, path, **metadata) -> None:
+        """Atomic write of the weights, architecture, names, bounds and ``metadata`` (plain values)."""
+        payload = {"format": FORMAT, "architecture": dict(self.architecture), "names": list(self.names),
+                   "bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
+                   "best_epoch": int(self.best_epoch), "state": self.net.state_dict(), "metadata": metadata}
+        with io.atomic_path(path) as tmp:
+            torch.save(payload, tmp)
+
+    @classmethod
+    def load(cls, path) -> "PosteriorEstimator":
+        """ModelFileError when the file is missing, unreadable or not a posterior model."""
+        path = Path(path)
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as error:
+            raise ModelFileError(f"cannot load posterior model {path}: {error}") from None
+        if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+            found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+            raise ModelFileError(f"{path} is not a forcdecode posterior model (format {found!r})")
+        net = PosteriorNet(payload["architecture"])
+        try:
+            net.load_state_dict(payload["state"])
+        except RuntimeError as error:
+            raise ModelFileError(f"posterior model {path} does not match its architecture: {error}") from None
+        return cls(net.eval(), payload["architecture"], tuple(payload["names"]), payload["bounds"],
+                   best_epoch=payload["best_epoch"], metadata=payload.get("metadata", {}))
+
+
+def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = None, seed: int = 0,
+                  embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
+    """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
+    of the epoch with the lowest validation negative log-likelihood; ``x`` are uint8 images (cnn) or
+    float vectors (mlp), ``u`` the targets in [0, 1], shape (n, len(names))."""
+    settings = posterior_settings(settings)
+    u = np.asarray(u, dtype=float)
+    train, val = np.asarray(train), np.asarray(val)
+    if u.ndim != 2 or u.shape[1] != len(names) or u.shape[0] != len(np.asarray(x)):
+        raise DatasetError(f"targets of shape {u.shape} do not match {len(np.asarray(x))} observations of {len(names)} parameters")
+    if not np.isfinite(u).all() or u.min() < 0.0 or u.max() > 1.0:
+        raise DatasetError("normalized targets must be finite and inside [0, 1]")
+    if len(train) < 2 or len(val) < 1:
+        raise DatasetError(f"the posterior needs at least 2 training and 1 validation samples (got {len(train)}, {len(val)})")
+    if embedding not in EMBEDDINGS:
+        raise ConfigError(f"unknown embedding {embedding!r} (one of {', '.join(EMBEDDINGS)})")
+    x = np.asarray(x)
+    architecture = {"embedding": embedding, "dim": len(names), "width": int(settings["width"]),
+                    "dropout": float(settings["dropout"]), "transforms": int(settings["transforms"]),
+                    "hidden": int(settings["hidden"]), "bins": int(settings["bins"])}
+    if embedding == "cnn":
+        if x.ndim != 3 or x.shape[1] != x.shape[2]:
+            raise DatasetError(f"the CNN embedding needs square images (n, side, side), got {x.shape}")
+        architecture["image_size"] = int(x.shape[-1])
+    else:
+        if x.ndim != 2:
+            raise DatasetError(f"the MLP embedding needs vectors (n, features), got {x.shape}")
+        architecture["features"] = int(x.shape[1])
+    torch.manual_seed(stream_seed(seed, "posterior", "weights"))
+    net = PosteriorNet(architecture)
+    est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}))
+    x_all, ms_all = est._inputs(x, ms_norm)
+    z = to_latent(u)
+    mean, std = z[train].mean(axis=0), z[train].std(axis=0) + 1e-6
+    net.z_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+    net.z_std.copy_(torch.as_tensor(std, dtype=torch.float32))
+    z_all = torch.as_tensor((z - mean) / std, dtype=torch.float32)
+    generator = torch.Generator().manual_seed(stream_seed(seed, "posterior", "batches"))
+    train_t, val_t = torch.as_tensor(train), torch.as_tensor(val)
+    started = time.perf_counter()
+    history = {}
+    if settings["pretrain"]:
+        # 1. the embedding as a regression of the standardized logits (posterior-mean summaries)
+        head = nn.Linear(architecture["width"] + 1, architecture["dim"])
+        regression = nn.ModuleDict({"embedding": net.embedding, "head": head})
+
+        def mse(index):
+            return torch.nn.functional.mse_loss(head(net.context(x_all[index], ms_all[index])), z_all[index])
+
+        history["pretrain_train_mse"], history["pretrain_val_mse"], history["pretrain_best_epoch"] = _train(
+            regression, mse, train_t, val_t, settings, generator, log, "embedding regression MSE")
+    if settings["pretrain"] and settings["freeze_embedding"]:
+        # 2a. the flow on fixed summaries: the embedding's output computed once, no dropout
+        net.embedding.requires_grad_(False)
+        net.embedding.eval()
+        with torch.no_grad():
+            ctx_all = net.context(x_all, ms_all)
+
+        def nll(index):
+            return -net.flow(ctx_all[index]).log_prob(z_all[index]).mean()
+
+        trained = net.flow
+    else:
+        # 2b. embedding and flow together
+        def nll(index):
+            return -net.log_prob(z_all[index], x_all[index], ms_all[index]).mean()
+
+        trained = net
+    history["train_nll"], history["val_nll"], best_epoch = _train(trained, nll, train_t, val_t, settings, generator,
+                                                                  log, "posterior NLL")
+    net.embedding.requires_grad_(True)
+    history["train_seconds"] = time.perf_counter() - started
+    net.eval()
+    est.history, est.best_epoch = history, best_epoch
+    return est
+
+
+def _train(module: nn.Module, loss_of, train_t, val_t, settings, generator, log, what: str):
+    """AdamW on ``loss_of(batch indices)`` over the training indices; early stopping on the validation
+    loss; the module is left with the weights of its best epoch. Returns (train losses, validation
+    losses, best epoch)."""
+    optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=settings["lr"],
+                                  weight_decay=settings["weight_decay"])
+    train_loss, val_loss = [], []
+    best, best_state, best_epoch, waited = np.inf, None, -1, 0
+    batch_size, epochs = int(settings["batch_size"]), int(settings["epochs"])
+    for epoch in range(epochs):
+        module.train()
+        order = train_t[torch.randperm(len(train_t), generator=generator)]
+        total = 0.0
+        for start in range(0, len(order), batch_size):
+            batch = order[start:start + batch_size]
+            optimizer.zero_grad()
+            loss = loss_of(batch)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * len(batch)
+        module.eval()
+        with torch.no_grad():
+            val = float(loss_of(val_t))
+        train_loss.append(total / len(order))
+        val_loss.append(val)
+        if log is not None and (epoch % 10 == 0 or epoch == epochs - 1):
+            log(f"{what}, epoch {epoch + 1}: train {train_loss[-1]:.3f}, validation {val:.3f}")
+        if np.isfinite(val) and val < best:
+            best, best_epoch, waited = val, epoch, 0
+            best_state = {k: v.detach().clone() for k, v in module.state_dict().items()}
+        else:
+            waited += 1
+            if waited >= int(settings["patience"]):
+                break
+    if best_state is None:
+        raise DatasetError(f"the {what} on the validation split was never finite")
+    module.load_state_dict(best_state)
+    module.eval()
+    return train_loss, val_loss, best_epoch
+
+
+# ---------------------------------------------------------------- summaries (SI)
+def summarize(samples, names, bounds, levels=(0.68, 0.9)) -> dict:
+    """Per parameter: median, mean, central intervals (normalized and SI, through the bounds) of one
+    observation's draws (n_draws, n_params); pairwise Pearson correlations of the draws in u."""
+    samples = np.asarray(samples, dtype=float)
+    out = {"parameters": {}, "correlation": {"names": list(names),
+                                             "matrix": np.corrcoef(samples, rowvar=False).tolist()}}
+    for j, name in enumerate(names):
+        col = samples[:, j]
+        row = {"median": float(np.median(col)), "mean": float(col.mean()),
+               "median_value": float(denormalize(name, np.median(col), bounds))}
+        for level in levels:
+            tag = int(round(level * 100))
+            lo, hi = np.quantile(col, [(1 - level) / 2, (1 + level) / 2])
+            row[f"interval_{tag}"] = [float(lo), float(hi)]
+            row[f"value_{tag}"] = [float(denormalize(name, lo, bounds)), float(denormalize(name, hi, bounds))]
+        out["parameters"][name] = row
+    return out
+
+
+# ---------------------------------------------------------------- the workflow stage
+def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
+                    figure_path, log=print) -> dict:
+    """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
+    the test split; write the model, metrics.json and the calibration figure (all atomically)."""
+    from .calibration import calibration_figure, calibration_metrics
+
+    settings = posterior_settings(settings)
+    learning = {**defaults("learning"), **(learning or {})}
+    names = tuple(settings["parameters"])
+    missing = [n for n in names if n not in data.values]
+    if missing:
+        raise DatasetError(f"the dataset has no column for {', '.join(missing)}")
+    n = len(data)
+    if n < learning["min_samples"]:
+        raise DatasetError(f"the dataset has {n} FORC families; the posterior needs at least {learning['min_samples']}")
+    splits = assign_splits(data.sample_id, seed, learning["split"], learning["protocol"])
+    empty = [k for k in SPLITS if len(splits[k]) == 0]
+    if empty:
+        raise DatasetError(f"the {', '.join(empty)} split(s) of {n} FORC families are empty; raise n_samples")
+    train, val, test = splits["train"], splits["validation"], splits["test"]
+    u = np.stack([data.target(name) for name in names], axis=1)
+    log(f"posterior: {len(names)} parameters, {len(train)} training / {len(val)} validation / {len(test)} test samples")
+    started = time.perf_counter()
+    est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=settings, seed=seed,
+                        embedding="cnn", bounds=data.bounds, log=log)
+    train_s = time.perf_counter() - started
+    started = time.perf_counter()
+    draws = int(settings["draws"])
+    samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"))
+    levels = [float(a) for a in settings["levels"]]
+    calibration = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
+    calibration_s = time.perf_counter() - started
+    metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
+               "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
+               "parameters": list(names), "log_scale": [p for p in names if p in LOG_SCALE], "units": "normalized u in [0, 1]",
+               "bounded_support": BOUNDED_SUPPORT, "estimator": "zuko NSF conditioned on a CNN embedding and M_s",
+               "coverage": "central (equal-tailed) marginal credible intervals; joint: TARP",
+               "coverage_binomial_band": {f"{int(round(a * 100))}": binomial_band(len(test), a) for a in levels},
+               "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]},
+               "best_epoch": int(est.best_epoch), "epochs_run": len(est.history["val_nll"]),
+               "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
+               "sample_id_test": [int(s) for s in data.sample_id[test]],
+               "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
+    metrics["wall_s"]["total"] = train_s + calibration_s
+    est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings,
+             summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
+             per_parameter=metrics["per_parameter"])
+    io.write_json(metrics_path, metrics)
+    calibration_figure(metrics, figure_path)
+    for name, row in metrics["per_parameter"].items():
+        log(f"posterior {name}: MAE mean {row['mae_mean']:.3f} median {row['mae_median']:.3f}; SBC KS p {row['sbc_ks_p']:.3f}; "
+            f"coverage 50/68/90 {row.get('coverage_50', float('nan')):.2f}/{row.get('coverage_68', float('nan')):.2f}/"
+            f"{row.get('coverage_90', float('nan')):.2f}; width 90 {row.get('width_90', float('nan')):.3f}")
+    return metrics
+
+
+__all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
+           "PosteriorEstimator", "fit_posterior", "summarize", "train_posterior"]

@@ -1,0 +1,170 @@
+"""Re-fit of the Hamiltonian around a prediction, so that an effect candidate is judged against the
+Hamiltonian refitted without it.
+
+``refit_hamiltonian``: a few parameters of the Hamiltonian (default K_u; any of K_u, A_ex, D, Ms,
+sigma_K, sigma_theta_deg), each a multiplier of its predicted value bounded to [1 − b, 1 + b]
+(b = ``relative_bounds``, 0.3), minimize the mean-square misfit of the re-simulated family on the
+training curves (optionally with a measured-side effect fitted on top at every evaluation). Every
+evaluation re-simulates on the same disorder profiles (common random numbers: stream
+``closed_loop_disorder``, keys (``key``, profile)), so two evaluations differ by the Hamiltonian only.
+Search: one parameter, a grid of 7 multipliers over the bounds, then a golden-section search in the
+bracket around the best node; several, a coordinate (pattern) search from the prediction, step b/2
+halved when no coordinate improves; at most ``budget`` re-simulations (cached).
+
+``analyse_with_refit``: split the curves (every ``every_k``-th held out), refit on the training curves,
+re-simulate the physics-side candidates around the refitted Hamiltonian and run the held-out
+selection (``physics_effects.analyse_residual``, the same split) with the refitted family as the
+base model "none": a candidate earns its place only by beating the Hamiltonian refitted without it.
+When a measured-side effect is chosen the Hamiltonian is refitted once more with it (the Hamiltonian
+with the effect); both are reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import ConfigError
+
+REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
+GOLDEN = (np.sqrt(5) - 1) / 2
+
+
+def _training_mse(measured, model, rows):
+    mask = np.zeros(measured.shape, dtype=bool)
+    mask[rows] = True
+    ok = mask & np.isfinite(measured) & np.isfinite(model)
+    return float(np.mean((model[ok] - measured[ok]) ** 2)) if ok.any() else float("inf")
+
+
+def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("K_u",), relative_bounds: float = 0.3,
+                      n_profiles: int = 1, budget: int = 20, key: str = "refit", effect=None, fields=None, order=None,
+                      progress=None) -> dict:
+    """The search of the module docstring. ``measured``: the grid family (n × n, NaN below the
+    diagonal); ``train_rows``: the curves (rows) fitted; ``effect``: an ``effects.Effect`` fitted on
+    top at every evaluation (needs ``fields``; ``order`` default ``effects.measurement_clock``).
+    Returns {"params", "multipliers", "objective", "objective_at_prediction", "evaluations",
+    "history" [(multipliers, objective)], "family" (the refitted re-simulation), "model" (with the
+    effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
+    from .effects import fit_effect, measurement_clock
+    from .resimulate import resimulate
+
+    measured = np.asarray(measured, float)
+    names = tuple(names)
+    for name in names:
+        if name not in REFITTABLE:
+            raise ConfigError(f"cannot refit {name!r}; refittable: {', '.join(REFITTABLE)}")
+        if not float(params[name]) > 0:
+            raise ConfigError(f"cannot refit {name!r} by a multiplier around {params[name]!r} (must be > 0)")
+    if effect is not None:
+        fields = np.asarray(fields, float)
+        order = measurement_clock(measured.shape[0]) if order is None else np.asarray(order, float)
+    cache, history = {}, []
+
+    def evaluate(multipliers):
+        multipliers = tuple(float(np.round(m, 6)) for m in multipliers)
+        if multipliers in cache:
+            return cache[multipliers][0]
+        trial = {**params, **{n: float(params[n]) * m for n, m in zip(names, multipliers)}}
+        family = resimulate(cfg, trial, n_profiles=n_profiles, key=key)
+        model, theta = family, {}
+        if effect is not None and effect.parameters:
+            values, _ = fit_effect(effect, measured, family, fields, order, list(train_rows))
+            model = effect.model(family, fields, order, values)
+            theta = dict(zip(effect.parameters, map(float, values)))
+        value = _training_mse(measured, model, train_rows)
+        cache[multipliers] = (value, family, model, theta)
+        history.append((list(multipliers), value))
+        if progress is not None:
+            progress(len(cache), budget)
+        return value
+
+    lo, hi = 1 - relative_bounds, 1 + relative_bounds
+    start = tuple([1.0] * len(names))
+    at_prediction = evaluate(start)
+    if len(names) == 1:
+        nodes = np.linspace(lo, hi, 7)
+        values = [evaluate((m,)) for m in nodes]
+        k = int(np.argmin(values))
+        a, b = nodes[max(k - 1, 0)], nodes[min(k + 1, len(nodes) - 1)]
+        c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+        fc, fd = evaluate((c,)), evaluate((d,))
+        while len(cache) < budget and b - a > 1e-3:
+            if fc <= fd:
+                b, d, fd = d, c, fc
+                c = b - GOLDEN * (b - a)
+                fc = evaluate((c,))
+            else:
+                a, c, fc = c, d, fd
+                d = a + GOLDEN * (b - a)
+                fd = evaluate((d,))
+    else:
+        current, best = np.array(start), at_prediction
+        step = relative_bounds / 2
+        while len(cache) < budget and step > 1e-3:
+            improved = False
+            for i in range(len(names)):
+                for sign in (1, -1):
+                    trial = current.copy()
+                    trial[i] = np.clip(trial[i] + sign * step, lo, hi)
+                    if len(cache) >= budget:
+                        break
+                    value = evaluate(trial)
+                    if value < best:
+                        current, best, improved = trial, value, True
+                        break
+            if not improved:
+                step /= 2
+    best_key = min(cache, key=lambda k: cache[k][0])
+    value, family, model, theta = cache[best_key]
+    refitted = {**params, **{n: float(params[n]) * m for n, m in zip(names, best_key)}}
+    return {"params": refitted, "multipliers": dict(zip(names, best_key)), "objective": value,
+            "objective_at_prediction": at_prediction, "evaluations": len(cache), "history": history,
+            "family": family, "model": model, "effect_parameters": theta}
+
+
+def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
+                       relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
+                       physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
+                       progress=None, **analysis) -> dict:
+    """The held-out selection against the Hamiltonian refitted without the candidate (module
+    docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
+    None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
+    with ``hamiltonian`` {"prediction", "refit_without_effect", "refit_with_effect" (None unless a
+    measured-side effect is chosen)}, ``refit`` (objective at the prediction and refitted, held-out
+    RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}."""
+    from .effects import EFFECTS, heldout_folds
+    from .physics_effects import analyse_residual, physics_candidate_families
+
+    measured = np.asarray(measured, float)
+    fields = np.asarray(fields, float)
+    train, held = heldout_folds(measured, every_k, cross_fit=False)[0]
+    refit = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
+                              n_profiles=n_profiles, budget=budget, progress=progress)
+    base = refit["family"]
+    candidates = {}
+    if physics:
+        candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, **(physics_grids or {}))
+    result = analyse_residual(measured, base, fields, every_k=every_k, cross_fit=False,
+                              seed=cfg["seed"] if seed is None else seed, noise_sigma=noise_sigma,
+                              n_profiles=n_profiles, **candidates, **analysis)
+    with_effect = None
+    if result["kind"] == "measured":
+        joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
+                                  n_profiles=n_profiles, budget=budget, effect=EFFECTS[result["chosen"]], fields=fields)
+        with_effect = {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
+                       "objective": joint["objective"]}
+    from .resimulate import resimulate
+
+    prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
+    held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
+    result.update(
+        hamiltonian={"prediction": dict(params), "refit_without_effect": refit["params"],
+                     "refit_with_effect": with_effect},
+        refit={"names": list(names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
+               "training_mse_prediction": refit["objective_at_prediction"], "training_mse_refit": refit["objective"],
+               "heldout_rms_prediction": held_rms, "relative_bounds": relative_bounds, "n_profiles": n_profiles},
+        split={"train": list(map(int, train)), "held": list(map(int, held))})
+    return result
+
+
+__all__ = ["REFITTABLE", "analyse_with_refit", "refit_hamiltonian"]

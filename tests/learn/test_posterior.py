@@ -1,0 +1,154 @@
+"""The FORC posterior stage end to end on images whose content is known: the image tells K_u (a bar
+whose height is u_K) and nothing about D (pure noise). The posterior must be narrow and accurate
+for K_u, prior-wide for D, calibrated on the workflow's test split (the hash split Alice uses),
+reproduce its draws after a save and a reload, and refuse bad inputs with typed errors."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from forcdecode.cli import main
+from forcdecode.core.errors import ConfigError, DatasetError, ModelFileError, OutOfDomainError
+from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
+from forcdecode.learn.data import LearningData
+from forcdecode.learn.posterior import (PosteriorEstimator, fit_posterior, from_latent, posterior_settings, summarize,
+                                        to_latent, train_posterior)
+from forcdecode.learn.scoring import binomial_band
+from forcdecode.learn.splits import assign_splits
+
+SIDE = 16
+SETTINGS = {"parameters": ["K_u", "D"], "width": 16, "dropout": 0.0, "epochs": 80, "patience": 10, "batch_size": 32,
+            "lr": 3e-3, "transforms": 2, "hidden": 32, "draws": 300}
+LEARNING = {"split": [0.55, 0.15, 0.15, 0.15], "protocol": "holdout"}
+SEED = 11
+
+
+def bar_dataset(n=320, seed=0) -> LearningData:
+    """Rows 0..round(u_K (SIDE − 1)) bright, noise of 20 grey levels; D drawn independently of the image."""
+    rng = np.random.default_rng(seed)
+    u_k, u_d = rng.random(n), rng.random(n)
+    images = np.zeros((n, SIDE, SIDE))
+    for k, row in enumerate(np.rint(u_k * (SIDE - 1)).astype(int)):
+        images[k, :row + 1] = 235
+    images = (images + rng.integers(0, 20, images.shape)).astype(np.uint8)
+    ms = rng.uniform(*DEFAULT_BOUNDS["Ms"], n)
+    values = {"Ms": ms, "K_u": denormalize("K_u", u_k), "D": denormalize("D", u_d)}
+    return LearningData(images=images, ms_norm=normalize("Ms", ms), values=values, sample_id=np.arange(n) * 7 + 3,
+                        bounds=dict(DEFAULT_BOUNDS), config_hash="bars", fields_T=np.linspace(-1, 1, SIDE))
+
+
+@pytest.fixture(scope="module")
+def stage(tmp_path_factory):
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("posterior")
+    data = bar_dataset()
+    metrics = train_posterior(data, SETTINGS, LEARNING, SEED, out / "model.pt", out / "metrics.json",
+                              out / "figures" / "posterior_calibration.png", log=lambda *_: None)
+    return data, metrics, out
+
+
+def test_accurate_where_the_image_tells_prior_wide_where_it_does_not(stage):
+    _, metrics, _ = stage
+    k, d = metrics["per_parameter"]["K_u"], metrics["per_parameter"]["D"]
+    assert k["mae_median"] < 0.06 and k["mae_mean"] < 0.06, k          # a bar of 16 rows: ±1/32 at best
+    assert d["mae_median"] > 0.17, d                                     # the prior's MAE is 0.25
+    assert k["width_90"] < 0.3 and d["width_90"] > 0.7, (k, d)           # the prior's 90 % width is 0.9
+    band = binomial_band(metrics["n_test"], 0.9, level=0.99)
+    for row in (k, d):
+        assert band[0] <= row["coverage_90"] <= band[1], row
+        assert row["sbc_ks_p"] > 0.001, row
+        assert set(row) >= {"mae_mean", "mae_median", "sbc_ks_p", "coverage_50", "coverage_68", "coverage_90", "width_90"}
+
+
+def test_calibrated_on_alices_test_split_and_files_written(stage):
+    data, metrics, out = stage
+    splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
+    assert metrics["sample_id_test"] == data.sample_id[splits["test"]].tolist()
+    assert metrics["n_train"] == len(splits["train"]) and metrics["n_validation"] == len(splits["validation"])
+    on_disk = json.loads((out / "metrics.json").read_text())
+    assert on_disk["per_parameter"] == json.loads(json.dumps(metrics["per_parameter"]))
+    assert (out / "figures" / "posterior_calibration.png").read_bytes()[:4] == b"\x89PNG"
+    assert 0 <= metrics["best_epoch"] < metrics["epochs_run"] <= SETTINGS["epochs"]
+
+
+def test_a_reloaded_model_reproduces_its_draws(stage):
+    data, _, out = stage
+    est = PosteriorEstimator.load(out / "model.pt")
+    again = PosteriorEstimator.load(out / "model.pt")
+    first = est.sample(data.images[:5], data.ms_norm[:5], 50, seed=4)
+    np.testing.assert_array_equal(first, again.sample(data.images[:5], data.ms_norm[:5], 50, seed=4))
+    assert not np.array_equal(first, est.sample(data.images[:5], data.ms_norm[:5], 50, seed=5))
+    assert first.shape == (5, 50, 2) and est.names == ("K_u", "D") and est.metadata["config_hash"] == "bars"
+    # the summary in SI: the K_u median maps back through the log-scale bounds
+    summary = summarize(first[0], est.names, est.bounds)
+    assert summary["parameters"]["K_u"]["median_value"] == pytest.approx(
+        denormalize("K_u", np.median(first[0, :, 0])), rel=1e-9)
+    assert np.asarray(summary["correlation"]["matrix"]).shape == (2, 2)
+
+
+def test_the_latent_map_is_a_bijection_onto_the_bounds():
+    u = np.array([0.0, 1e-4, 0.3, 0.999, 1.0])
+    np.testing.assert_allclose(from_latent(to_latent(u)), u, atol=1e-12)
+    assert np.isfinite(to_latent(u)).all() and from_latent(np.array([-50.0, 50.0])).tolist() == [0.0, 1.0]
+
+
+def test_bad_inputs_raise_typed_errors(stage, tmp_path):
+    data, _, out = stage
+    est = PosteriorEstimator.load(out / "model.pt")
+    with pytest.raises(OutOfDomainError, match="16×16"):
+        est.sample(np.zeros((2, 32, 32), np.uint8), [0.5, 0.5], 10, seed=0)
+    with pytest.raises(OutOfDomainError, match="not finite"):
+        est.sample(data.images[:2], [np.nan, 0.5], 10, seed=0)
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    with pytest.raises(ModelFileError):
+        PosteriorEstimator.load(tmp_path / "junk.pt")
+    torch.save({"format": "forcdecode-alice-bob/1"}, tmp_path / "alice.pt")
+    with pytest.raises(ModelFileError, match="not a forcdecode posterior"):
+        PosteriorEstimator.load(tmp_path / "alice.pt")
+    with pytest.raises(ModelFileError):
+        PosteriorEstimator.load(tmp_path / "missing.pt")
+    with pytest.raises(ConfigError, match="posterior.width"):
+        posterior_settings({"width": 0})
+    with pytest.raises(ConfigError, match="posterior"):
+        posterior_settings({"bogus": 1})
+    u = np.stack([data.target("K_u"), data.target("D")], axis=1)
+    with pytest.raises(DatasetError, match="inside"):
+        fit_posterior(data.images, data.ms_norm, u + 0.5, np.arange(10), np.arange(10, 20), names=("K_u", "D"))
+    with pytest.raises(DatasetError, match="at least"):
+        train_posterior(bar_dataset(n=5), SETTINGS, LEARNING, SEED, tmp_path / "m.pt", tmp_path / "m.json",
+                        tmp_path / "f.png", log=lambda *_: None)
+
+
+def write_dataset_h5(path, data: LearningData) -> None:
+    """The fields of dataset.h5 that ``load_dataset`` reads."""
+    columns = ["Ms", "K_u", "D"]
+    with h5py.File(path, "w") as h5:
+        h5["images"] = data.images
+        h5["sample_id"] = data.sample_id
+        h5["fields_T"] = data.fields_T
+        h5["parameters"] = np.stack([data.values[c] for c in columns], axis=1)
+        h5["parameters"].attrs["columns"] = columns
+        h5.attrs["config_json"] = json.dumps({"seed": SEED})
+        h5.attrs["config_hash"] = "bars"
+
+
+def test_the_command_line_stage(tmp_path, capsys):
+    data = bar_dataset(n=120)
+    write_dataset_h5(tmp_path / "dataset.h5", data)
+    (tmp_path / "learning.json").write_text(json.dumps({"seed": SEED, "learning": LEARNING}))
+    quick = json.dumps({**SETTINGS, "epochs": 3, "draws": 20})
+    args = ["learn", "posterior", "--config", str(tmp_path / "learning.json"), "--dataset", str(tmp_path / "dataset.h5"),
+            "--model", str(tmp_path / "posterior" / "model.pt"), "--metrics", str(tmp_path / "posterior" / "metrics.json"),
+            "--figures", str(tmp_path / "posterior" / "figures")]
+    assert main([*args, "--settings", quick]) == 0
+    metrics = json.loads((tmp_path / "posterior" / "metrics.json").read_text())
+    assert set(metrics["per_parameter"]) == {"K_u", "D"} and metrics["n_draws"] == 20
+    assert (tmp_path / "posterior" / "figures" / "posterior_calibration.png").exists()
+    assert PosteriorEstimator.load(tmp_path / "posterior" / "model.pt").names == ("K_u", "D")
+    capsys.readouterr()
+    assert main([*args, "--settings", json.dumps({"draws": 1})]) == 2
+    assert capsys.readouterr().err.startswith("error: posterior settings: invalid value at posterior.draws")
+    assert main([*args, "--settings", "{not json"]) == 2

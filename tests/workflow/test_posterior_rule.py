@@ -1,0 +1,50 @@
+"""The posterior is an option of the workflow: `snakemake results/posterior/metrics.json` plans
+train_posterior, the default target does not, and its settings stay out of config.json and
+learning.json (changing them re-simulates and retrains nothing else). Each run in a temporary
+directory."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def snakemake(workdir, *args, extra_config=()):
+    return subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
+                           str(workdir), "--cores", "1", *args, "--configfile", str(ROOT / "config" / "test.yaml"),
+                           *map(str, extra_config)],
+                          cwd=workdir, capture_output=True, text=True, timeout=300)
+
+
+def planned_jobs(text: str) -> dict:
+    """The 'Job stats' table of a dry run: rule -> count."""
+    lines = text.split("Job stats:", 1)[1].splitlines()[3:]
+    jobs = {}
+    for line in lines:
+        parts = line.split()
+        if len(parts) != 2 or parts[0] == "total":
+            break
+        jobs[parts[0]] = int(parts[1])
+    return jobs
+
+
+def test_the_posterior_is_an_option_not_in_all(tmp_path):
+    run = snakemake(tmp_path, "-n", "results/posterior/metrics.json")
+    assert run.returncode == 0, run.stderr[-3000:]
+    jobs = planned_jobs(run.stdout)
+    assert jobs.get("train_posterior") == 1 and "train_parameter" not in jobs, jobs
+    run = snakemake(tmp_path, "-n")
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "train_posterior" not in planned_jobs(run.stdout)
+
+
+def test_posterior_settings_stay_out_of_the_stage_configs(tmp_path):
+    (tmp_path / "posterior.yaml").write_text("posterior: {width: 8, epochs: 3}\n")
+    run = snakemake(tmp_path, "results/config.json", "results/learning.json", extra_config=[tmp_path / "posterior.yaml"])
+    assert run.returncode == 0, run.stderr[-3000:]
+    dataset_cfg = json.loads((tmp_path / "results" / "config.json").read_text())
+    learning_cfg = json.loads((tmp_path / "results" / "learning.json").read_text())
+    assert "posterior" not in dataset_cfg and "posterior" not in learning_cfg
+    assert "learning" in learning_cfg and "mesh" in dataset_cfg
