@@ -20,8 +20,8 @@ from forcdecode.learn.scoring import binomial_band
 from forcdecode.learn.splits import assign_splits
 
 SIDE = 16
-SETTINGS = {"parameters": ["K_u", "D"], "width": 16, "dropout": 0.0, "epochs": 80, "patience": 10, "batch_size": 32,
-            "lr": 3e-3, "transforms": 2, "hidden": 32, "draws": 300}
+SETTINGS = {"parameters": ["K_u", "D"], "width": 16, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 16,
+            "lr": 1e-3, "transforms": 2, "hidden": 32, "draws": 300}
 LEARNING = {"split": [0.55, 0.15, 0.15, 0.15], "protocol": "holdout"}
 SEED = 11
 
@@ -72,6 +72,7 @@ def test_calibrated_on_alices_test_split_and_files_written(stage):
     assert on_disk["per_parameter"] == json.loads(json.dumps(metrics["per_parameter"]))
     assert (out / "figures" / "posterior_calibration.png").read_bytes()[:4] == b"\x89PNG"
     assert 0 <= metrics["best_epoch"] < metrics["epochs_run"] <= SETTINGS["epochs"]
+    assert metrics["pretrain"]["best_epoch"] >= 0 and metrics["pretrain"]["validation_mse"] < 1.0  # the summaries learned
 
 
 def test_a_reloaded_model_reproduces_its_draws(stage):
@@ -152,3 +153,26 @@ def test_the_command_line_stage(tmp_path, capsys):
     assert main([*args, "--settings", json.dumps({"draws": 1})]) == 2
     assert capsys.readouterr().err.startswith("error: posterior settings: invalid value at posterior.draws")
     assert main([*args, "--settings", "{not json"]) == 2
+
+
+def test_predict_with_the_posterior_estimator(stage, tmp_path, capsys):
+    data, metrics, out = stage
+    index = int(np.flatnonzero(np.isin(data.sample_id, metrics["sample_id_test"]))[0])
+    np.save(tmp_path / "image.npy", data.images[index])
+    ms_kA_m = float(data.values["Ms"][index]) / 1e3
+    args = ["predict", str(tmp_path / "image.npy"), "--Ms-kA-m", f"{ms_kA_m!r}", "--estimator", "posterior",
+            "--posterior", str(out / "model.pt"), "--draws", "500"]
+    assert main([*args, "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    truth = float(data.values["K_u"][index])
+    k = result["K_u"]
+    assert k["interval_90"][0] <= k["interval_68"][0] <= k["value"] <= k["interval_68"][1] <= k["interval_90"][1]
+    assert abs(normalize("K_u", k["value"]) - data.target("K_u")[index]) < 0.1, (k, truth)
+    assert k["normalized"] == pytest.approx(normalize("K_u", k["value"]), abs=1e-9)
+    assert result["posterior_correlation"]["names"] == ["K_u", "D"] and result["estimator"] == "posterior"
+    assert main([*args, "--json"]) == 0 and json.loads(capsys.readouterr().out) == result  # same seed, same draws
+    assert main(args) == 0
+    table = capsys.readouterr().out
+    assert "K_u" in table and "J/m^3" in table
+    assert main([*args[:-4], "--posterior", str(tmp_path / "none.pt")]) == 2
+    assert "cannot load posterior model" in capsys.readouterr().err

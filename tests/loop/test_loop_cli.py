@@ -55,6 +55,7 @@ def test_real_measured_files_are_reported_out_of_domain(tmp_path):
     assert "Out of the domain" in (tmp_path / "report.md").read_text()
 
 
+@pytest.mark.slow  # about 15 s alone, 25 s on a loaded machine
 def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_resimulated(tmp_path):
     """A film that saturates near ±0.65 T, measured to ±0.8 T on irregular fields (not the grid), with
     noise and a 3 % calibration drift: in the domain (no window check), the image completed outside the
@@ -66,6 +67,9 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
     cfg["field"]["n_fields"] = 32
     cfg["n_grains"] = 32
+    # the shipped config's torque tolerance: at the CI config's looser 3 mT a curve reversed from
+    # saturation can relax into another metastable path, and its family no longer closes
+    cfg["minimizer"]["torque_tol_T"] = 1e-3
     config_path = tmp_path / "cfg.yaml"
     config_path.write_text(yaml.safe_dump(cfg))
     # a granular film that switches gradually between about ±0.2 and ±0.6 T
@@ -77,7 +81,8 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     # as the file stores them (7 significant digits): a nearly square loop's avalanche can move with 1e-7 T
     reversal = np.array([float(f"{x:+.6E}") for x in reversal])
     fields = [np.array([float(f"{x:+.6E}") for x in f]) for f in fields]
-    truth = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, "measured", 0), reversal, fields)
+    truth = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, "measured", 0), reversal, fields,
+                              max_step_T=0.005)  # a continuous sweep in 5 mT steps, as the loop re-simulates it below
     mesh = mesh_from_config(cfg)
     moment = params["Ms"] * mesh.n_cells * mesh.cell_volume
     noise = 0.003
@@ -87,7 +92,7 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
                                calibration_field_T=0.8)
     out = tmp_path / "loop"
     assert main(["loop", str(path), "--out", str(out), "--params", str(tmp_path / "params.json"), "--config",
-                 str(config_path), "--profiles", "1", "--measured-profiles", "1", "--no-physics"]) == 0
+                 str(config_path), "--profiles", "1", "--measured-profiles", "1", "--no-physics", "--measured-max-step-mT", "5"]) == 0
     report = json.loads((out / "report.json").read_text())
     assert report["in_domain"] is True and report["status"] == "analysed"
     domain = report["domain"]

@@ -102,16 +102,24 @@ def _running_median(x, width=RUNNING):
 
 
 def _interpolation_allowance(ref_h, ref_y, h):
-    """A bound on the error of interpolating the reference linearly at ``h``: a quarter of the larger
-    |second difference| of the reference at the ends of the interval holding h (f''Δ²/8 at mid-interval
-    is an eighth; exact where the fields coincide)."""
-    if ref_h.size < 3:
+    """A bound on the error of interpolating the reference linearly at ``h`` (t: the position in the
+    interval [k, k + 1]): the smaller of the monotone bound |y_{k+1} − y_k|·max(t, 1 − t) (a curve is
+    monotone between two points, so the truth lies between them) and the curvature bound
+    max(|Δ²y_k|, |Δ²y_{k+1}|)·max(t, 1 − t) (second differences at the interval's ends: a smooth
+    branch, f''Δ², far below its slope; a jump between two points, an avalanche, J on both). Zero
+    where the fields coincide."""
+    if ref_h.size < 2:
         return np.zeros(h.size)
-    d2 = np.abs(ref_y[:-2] - 2 * ref_y[1:-1] + ref_y[2:])
-    node = np.concatenate([[d2[0]], d2, [d2[-1]]])
     k = np.clip(np.searchsorted(ref_h, h) - 1, 0, ref_h.size - 2)
+    span = ref_h[k + 1] - ref_h[k]
+    t = np.clip(np.where(span > 0, (h - ref_h[k]) / np.where(span > 0, span, 1.0), 0.0), 0.0, 1.0)
+    bound = np.abs(ref_y[k + 1] - ref_y[k])
+    if ref_h.size >= 3:
+        d2 = np.abs(ref_y[:-2] - 2 * ref_y[1:-1] + ref_y[2:])
+        node = np.concatenate([[d2[0]], d2, [d2[-1]]])
+        bound = np.minimum(bound, np.maximum(node[k], node[k + 1]))
     on_node = np.isclose(h, ref_h[k], rtol=0, atol=1e-12) | np.isclose(h, ref_h[k + 1], rtol=0, atol=1e-12)
-    return np.where(on_node, 0.0, np.maximum(node[k], node[k + 1]) / 4)
+    return np.where(on_node, 0.0, bound * np.maximum(t, 1 - t))
 
 
 def _difference(h, y, ref_h, ref_y):
@@ -224,7 +232,8 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
         first_miss = (k, h, d)
         break
     H_close_minus = float(hr[accepted[-1]])
-    lower_points = [(h[h <= H_close_minus + 1e-12], y[h <= H_close_minus + 1e-12]) for h, y in (curves[a] for a in accepted)]
+    lower_points = [(h[h <= H_close_minus + 1e-12], y[h <= H_close_minus + 1e-12])
+                    for h, y in (curves[a] for a in accepted)]
     low_h, low_y = _sorted(np.concatenate([p[0] for p in lower_points]), np.concatenate([p[1] for p in lower_points]))
     low_med = _running_median(low_y)
     allowed = np.maximum(tau, FLAT_SLOPE_PER_T * M_half * (low_h - low_h[0]))
@@ -254,7 +263,8 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
             change, slope = _branch_change(low_h, low_med)
             reasons.append(f"lower branch closed (curves coincide up to H_r = {H_close_minus:+.4f} T) but not saturated: "
                            f"over [{low_h[0]:+.3f}, {low_h[-1]:+.3f}] T it changes by {change:.3g} A m² "
-                           f"({100 * change / M_half:.0f} % of the half loop height; slope {100 * abs(slope) / M_half:.0f} % "
+                           f"({100 * change / M_half:.0f} % of the half loop height; "
+                           f"slope {100 * abs(slope) / M_half:.0f} % "
                            f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
                            "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
 
@@ -300,7 +310,8 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
             change, slope = _branch_change(U_h[sel], U_med[sel])
             reasons.append(f"upper branch closed (from {H_close_plus:+.4f} T) but not saturated: over "
                            f"[{H_close_plus:+.3f}, {top:+.3f}] T it changes by {change:.3g} A m² "
-                           f"({100 * change / M_half:.0f} % of the half loop height; slope {100 * abs(slope) / M_half:.0f} % "
+                           f"({100 * change / M_half:.0f} % of the half loop height; "
+                           f"slope {100 * abs(slope) / M_half:.0f} % "
                            f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
                            "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
 
@@ -401,7 +412,9 @@ def _complete(hr, curves, U_h, U_y, domain, B_max_T, n, tau):
         if beyond.any():
             if merged[k] or (H_plus is not None and h[-1] >= H_plus - 1e-12):
                 values[beyond] = upper_value(H[beyond])
-                src[beyond] = COMPLETED
+                # above the measured upper branch the state is known only when that branch is saturated
+                known = (H[beyond] <= U_top + 1e-12) | (H_plus is not None)
+                src[beyond] = np.where(known, COMPLETED, UNKNOWN)
             else:
                 src[beyond] = UNKNOWN  # values hold the last measured point (np.interp), flagged unknown
         family[i, cols] = values
@@ -429,9 +442,10 @@ def _completed_text(hr, curves, H_minus, H_plus, B_max_T):
     if H_plus is not None:
         parts.append(f"rows H_r >= {H_plus:+.3f} T: reversible upper branch")
     top = max(c[0][-1] for c in curves)
-    if top < B_max_T:
+    if H_plus is not None and top < B_max_T:
         parts.append(f"fields H > {top:+.3f} T: m = +1 (saturated upper branch)")
-    parts.append("beyond each curve's last field, where it has rejoined the upper branch: the upper branch")
+    parts.append("beyond each curve's last field, where it has rejoined the upper branch: the upper branch"
+                 + ("" if H_plus is not None else " (inside the measured window only: it is not saturated)"))
     return parts
 
 

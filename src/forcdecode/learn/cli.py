@@ -5,6 +5,7 @@
     learn posterior --config C --dataset dataset.h5 --model results/posterior/model.pt
                     --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
+    predict INPUT --Ms-kA-m 800 --estimator posterior --posterior results/posterior/model.pt [--json]
         INPUT: a FORC file (any format `forcdecode read` knows), a 64×64 image (.npy, uint8 or m in [−1, 1]),
         or dataset.h5 with --sample-id.
 """
@@ -103,15 +104,28 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training domain")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
+                        help="alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
+                             "neural posterior (medians, credible intervals, correlations)")
+    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
+    parser.add_argument("--draws", type=int, default=4000, help="posterior draws (--estimator posterior)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the posterior draws")
 
 
 def run_predict(args) -> int:
     from .predictor import image_from_input, load_models, predict_parameters, prediction_lines
 
-    models = load_models(args.models)
-    size = next(iter(models.values())).image_size
-    image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
-    result = predict_parameters(models, image, args.ms_kA_m * 1e3)
+    if args.estimator == "posterior":
+        from .posterior import PosteriorEstimator, posterior_prediction
+
+        estimator = PosteriorEstimator.load(args.posterior)
+        image, note = image_from_input(args.input, estimator.image_size, args.sample_id, args.B_max_T, args.force)
+        result = posterior_prediction(estimator, image, args.ms_kA_m * 1e3, args.draws, args.seed)
+    else:
+        models = load_models(args.models)
+        size = next(iter(models.values())).image_size
+        image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
+        result = predict_parameters(models, image, args.ms_kA_m * 1e3)
     if note:
         result["out_of_domain"] = note
     print(json.dumps(result, indent=2) if args.json else "\n".join(prediction_lines(result, args.input, args.ms_kA_m)))

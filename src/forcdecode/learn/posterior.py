@@ -2,8 +2,9 @@
 parameters θ = (N_pin, A_ex, K_u, D, σ_θ, σ_K), normalized to u ∈ [0, 1] by the configured bounds
 (K_u on a log scale, as in the parameter table).
 
-Model: a CNN embedding of the image (the small head's two 3×3 convolutions and 4×4 average pool,
-then a dense layer of ``width`` features), M_s appended, conditions a neural spline flow
+Model: a CNN embedding of the image and M_s (the small head's two 3×3 convolutions and 4×4 average
+pool, M_s joined as in Alice, then a dense layer of ``width`` features), M_s appended again,
+conditions a neural spline flow
 (``zuko.flows.NSF``: autoregressive rational-quadratic splines; zuko, not a hand-written flow).
 Trained by maximum likelihood on the workflow's train split, early stopping on the validation split's
 negative log-likelihood (the same hash split as Alice: ``splits.py``). The test split is used only
@@ -35,7 +36,7 @@ from ..core import io
 from ..core.errors import ConfigError, DatasetError, ModelFileError, OutOfDomainError
 from ..core.parameters import LOG_SCALE, denormalize
 from ..core.streams import stream_rng, stream_seed
-from .models import conv_features, image_tensor
+from .models import MS_NODES, conv_features, image_tensor
 from .scoring import binomial_band
 from .splits import SPLITS, assign_splits
 
@@ -77,33 +78,36 @@ def from_latent(z) -> np.ndarray:
 
 # ---------------------------------------------------------------- networks
 class ConvEmbedding(nn.Module):
-    """The small head's convolutions (1→8→16, 3×3, ReLU) and 4×4 average pool, then dense → ``width``
-    (ReLU, dropout): FORC image (n, side, side) in [0, 1] → (n, width)."""
+    """The small head's layout: convolutions 1→8→16 (3×3, ReLU), 4×4 average pool, the pooled features
+    joined with ``MS_NODES`` copies of the normalized M_s (as Alice's), dense → ``width`` (ReLU,
+    dropout). M_s enters before the dense layer so that features can combine image and M_s (e.g. the
+    switching field scales as 2K_u/M_s). (image (n, side, side) in [0, 1], M_s (n,)) → (n, width)."""
 
     def __init__(self, image_size: int, width: int, dropout: float):
         super().__init__()
         self.conv1 = nn.Conv2d(1, 8, 3)
         self.conv2 = nn.Conv2d(8, 16, 3)
         self.pool = nn.AvgPool2d(4)
-        self.dense = nn.Linear(conv_features(image_size, pooled=True), width)
+        self.dense = nn.Linear(conv_features(image_size, pooled=True) + MS_NODES, width)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
+    def forward(self, image: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
         x = image.unsqueeze(1) if image.dim() == 3 else image
-        x = torch.relu(self.conv2(torch.relu(self.conv1(x))))
-        return self.drop(torch.relu(self.dense(self.pool(x).flatten(1))))
+        x = self.pool(torch.relu(self.conv2(torch.relu(self.conv1(x))))).flatten(1)
+        x = torch.cat([x, ms_norm.reshape(-1, 1).expand(-1, MS_NODES)], dim=1)
+        return self.drop(torch.relu(self.dense(x)))
 
 
 class MLPEmbedding(nn.Module):
-    """Two dense layers for vector observations (n, features) → (n, width) (low-dimensional tests)."""
+    """Two dense layers for vector observations: ((n, features), M_s (n,)) → (n, width) (low-dimensional tests)."""
 
     def __init__(self, features: int, width: int, dropout: float):
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(features, width), nn.ReLU(), nn.Linear(width, width), nn.ReLU(),
+        self.net = nn.Sequential(nn.Linear(features + 1, width), nn.ReLU(), nn.Linear(width, width), nn.ReLU(),
                                  nn.Dropout(dropout))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.net(x)
+    def forward(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x, ms_norm.reshape(-1, 1)], dim=1))
 
 
 class PosteriorNet(nn.Module):
@@ -127,7 +131,7 @@ class PosteriorNet(nn.Module):
         self.float()
 
     def context(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
-        return torch.cat([self.embedding(x), ms_norm.reshape(-1, 1)], dim=1)
+        return torch.cat([self.embedding(x, ms_norm), ms_norm.reshape(-1, 1)], dim=1)
 
     def log_prob(self, z_std: torch.Tensor, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
         """log density of the standardized logits given the observation."""
@@ -146,6 +150,13 @@ class PosteriorEstimator:
     history: dict = field(default_factory=dict)
     best_epoch: int = -1
     metadata: dict = field(default_factory=dict)
+
+    @property
+    def image_size(self) -> int:
+        """Side of the FORC images the CNN embedding was trained on."""
+        if self.architecture["embedding"] != "cnn":
+            raise OutOfDomainError("this posterior reads vectors, not FORC images")
+        return int(self.architecture["image_size"])
 
     def _inputs(self, x, ms_norm) -> tuple[torch.Tensor, torch.Tensor]:
         a = self.architecture
@@ -364,7 +375,35 @@ def summarize(samples, names, bounds, levels=(0.68, 0.9)) -> dict:
     return out
 
 
+def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float, n_draws: int = 4000,
+                         seed: int = 0) -> dict:
+    """One FORC image and M_s (A/m) → per parameter the posterior median (``value``, SI), mean, the
+    68 % and 90 % central credible intervals (SI and normalized), and the pairwise correlations of the
+    draws (``posterior_correlation``): the format of ``predict_parameters``, Bob's fields absent."""
+    from ..core.parameters import normalize
+
+    ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
+    draws = est.sample(np.asarray(image_uint8)[None], [ms_norm], n_draws, seed=stream_seed(seed, "posterior", "predict"))[0]
+    summary = summarize(draws, est.names, est.bounds)
+    result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws)}
+    for name, row in summary["parameters"].items():
+        result[name] = {"value": row["median_value"], "normalized": row["median"], "mean_normalized": row["mean"],
+                        "interval_68": row["value_68"], "interval_90": row["value_90"],
+                        "interval_68_normalized": row["interval_68"], "interval_90_normalized": row["interval_90"]}
+    result["posterior_correlation"] = summary["correlation"]
+    return result
+
+
 # ---------------------------------------------------------------- the workflow stage
+def _pretrain_summary(history: dict) -> dict | None:
+    """Best epoch, epochs run and validation MSE (standardized logits) of the embedding's regression."""
+    if "pretrain_best_epoch" not in history:
+        return None
+    best = int(history["pretrain_best_epoch"])
+    return {"best_epoch": best, "epochs_run": len(history["pretrain_val_mse"]),
+            "validation_mse": float(history["pretrain_val_mse"][best])}
+
+
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
                     figure_path, log=print) -> dict:
     """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
@@ -406,6 +445,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]},
                "best_epoch": int(est.best_epoch), "epochs_run": len(est.history["val_nll"]),
                "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
+               "pretrain": _pretrain_summary(est.history),
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
     metrics["wall_s"]["total"] = train_s + calibration_s
@@ -422,4 +462,4 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
 
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "summarize", "train_posterior"]
+           "PosteriorEstimator", "fit_posterior", "summarize", "posterior_prediction", "train_posterior"]

@@ -160,11 +160,11 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float) -> list[str]:
     lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m given)",
              f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  unit"]
     for name, entry in result.items():
-        if not isinstance(entry, dict):
+        if not isinstance(entry, dict) or "value" not in entry:
             continue
         i68, i90 = entry.get("interval_68", [np.nan] * 2), entry.get("interval_90", [np.nan] * 2)
         lines.append(f"{name:<16}{entry['value']:>12.4g}  [{i68[0]:>11.4g}, {i68[1]:>11.4g}]  "
-                     f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry['bob_error_normalized']:>18.3f}  {UNITS.get(name, '')}")
+                     f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry.get('bob_error_normalized', np.nan):>18.3f}  {UNITS.get(name, '')}")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
     return lines

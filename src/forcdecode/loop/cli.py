@@ -33,6 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="pinning profiles of the measured-protocol re-simulation (default 2)")
     parser.add_argument("--max-measured-points", type=int, default=5000,
                         help="thin the measured protocol to about this many points (default 5000)")
+    parser.add_argument("--measured-max-step-mT", type=float, default=2.0,
+                        help="largest field sub-step of the measured-protocol re-simulation, mT (default 2)")
 
 
 def load_config(path=None) -> dict:
@@ -61,7 +63,8 @@ def run(args) -> int:
                                 physics=not args.no_physics, force=args.force,
                                 refit=[n.strip() for n in args.refit.split(",") if n.strip()] if args.refit else None,
                                 refit_budget=args.refit_budget, measured_protocol=not args.no_measured_protocol,
-                                measured_profiles=args.measured_profiles, max_measured_points=args.max_measured_points)
+                                measured_profiles=args.measured_profiles, max_measured_points=args.max_measured_points,
+                                measured_max_step_T=args.measured_max_step_mT * 1e-3)
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     else:

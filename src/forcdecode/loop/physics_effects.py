@@ -51,7 +51,8 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``): K_2 = r·K_u for
     r in ``K_2_ratios``, B_bias in ``bias_fields_T``, soft phases with K_u,soft = r·K_u for r in
     ``soft_K_u_ratios`` and the field tilted by ψ in ``tilts_deg`` (quasi-static protocol only; none
-    for "llg"). Cost: one ``resimulate`` (``n_profiles`` families) per grid value (16 by default). The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
+    for "llg"). Cost: one ``resimulate`` (``n_profiles`` families) per grid value (16 by default).
+    The grids must resolve the effect: a family is sensitive to K_2 (on the 16×16 test
     film, K_2 = 0.25 K_u lies between grid families 0.2 and 0.3 K_u that each miss curves badly,
     and is left unnamed). ``progress(done, total)``, if given, is called after each family.
 
