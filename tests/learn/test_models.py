@@ -49,7 +49,8 @@ def test_paper_dropout_positions_conv2_and_dense1_only_ms_never_dropped():
     and after dense1, the M_s nodes never dropped. Checked on the tensors themselves in training mode."""
     torch.manual_seed(2)
     net = PaperCNN(image_size=16).train()
-    x, ms = torch.rand(3, 16, 16), torch.tensor([0.2, 0.5, 0.9])
+    # float32 explicitly: importing magnum.np (other tests) switches torch's default dtype to float64
+    x, ms = torch.rand(3, 16, 16, dtype=torch.float32), torch.tensor([0.2, 0.5, 0.9], dtype=torch.float32)
     seen = _dense_inputs(net, x, ms)
     # no dropout on the first convolution: conv2 sees exactly relu(conv1(x))
     assert torch.equal(seen["conv2_in"], torch.relu(net.conv1(x.unsqueeze(1))))
@@ -71,7 +72,7 @@ def test_paper_dropout_positions_conv2_and_dense1_only_ms_never_dropped():
 def test_small_head_drops_at_the_same_positions():
     torch.manual_seed(3)
     net = SmallCNN(width=64, image_size=16).train()
-    ms = torch.tensor([0.3, 0.7])
-    seen = _dense_inputs(net, torch.rand(2, 16, 16), ms)
+    ms = torch.tensor([0.3, 0.7], dtype=torch.float32)
+    seen = _dense_inputs(net, torch.rand(2, 16, 16, dtype=torch.float32), ms)
     assert torch.equal(seen["dense1"][:, -625:], ms[:, None].expand(-1, 625))
     assert (seen["dense2"] == 0).any()

@@ -21,7 +21,7 @@ from forcdecode.learn.splits import assign_splits
 
 SIDE = 16
 SETTINGS = {"parameters": ["K_u", "D"], "width": 16, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 16,
-            "lr": 1e-3, "transforms": 2, "hidden": 32, "draws": 300}
+            "lr": 1e-3, "transforms": 2, "hidden": 32, "draws": 300, "folds": 3}
 LEARNING = {"split": [0.55, 0.15, 0.15, 0.15], "protocol": "holdout"}
 SEED = 11
 
@@ -72,7 +72,8 @@ def test_calibrated_on_alices_test_split_and_files_written(stage):
     assert on_disk["per_parameter"] == json.loads(json.dumps(metrics["per_parameter"]))
     assert (out / "figures" / "posterior_calibration.png").read_bytes()[:4] == b"\x89PNG"
     assert 0 <= metrics["best_epoch"] < metrics["epochs_run"] <= SETTINGS["epochs"]
-    assert metrics["pretrain"]["best_epoch"] >= 0 and metrics["pretrain"]["validation_mse"] < 1.0  # the summaries learned
+    regression = metrics["summary_regression"]
+    assert regression["best_epoch"] >= 0 and regression["validation_mse"] < 1.0 and metrics["summary"] == "crossfit"
 
 
 def test_a_reloaded_model_reproduces_its_draws(stage):

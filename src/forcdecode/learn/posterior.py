@@ -3,12 +3,21 @@ parameters θ = (N_pin, A_ex, K_u, D, σ_θ, σ_K), normalized to u ∈ [0, 1] b
 (K_u on a log scale, as in the parameter table).
 
 Model: a CNN embedding of the image and M_s (the small head's two 3×3 convolutions and 4×4 average
-pool, M_s joined as in Alice, then a dense layer of ``width`` features), M_s appended again,
-conditions a neural spline flow
-(``zuko.flows.NSF``: autoregressive rational-quadratic splines; zuko, not a hand-written flow).
-Trained by maximum likelihood on the workflow's train split, early stopping on the validation split's
-negative log-likelihood (the same hash split as Alice: ``splits.py``). The test split is used only
-for the calibration (``calibration.py``).
+pool, M_s joined as in Alice, then a dense layer of ``width`` features) conditions a neural spline
+flow (``zuko.flows.NSF``: autoregressive rational-quadratic splines; zuko, not a hand-written flow).
+Everything is fitted on the workflow's train split with early stopping on its validation split (the
+same hash split as Alice: ``splits.py``); the test split serves only the calibration
+(``calibration.py``). Default summary (``crossfit``), for the few hundred families of a laptop run:
+
+1. the CNN and a linear head are fitted as a regression of the six standardized logits (MSE): the
+   head's outputs estimate the posterior means, a learned summary statistic of six numbers;
+2. the training samples' summaries are taken out of fold (K regressions, each blind to its fold, as
+   Bob's errors are): a regression fitted on a sample knows its answer too well, and a flow trained on
+   such summaries would be overconfident on new images;
+3. the flow learns p(θ | summaries, M_s) by maximum likelihood.
+
+``features`` conditions the flow on the regression's CNN features instead (no cross-fitting),
+``joint`` trains CNN and flow together by the likelihood alone.
 
 Bounded support: the flow lives in logit space. u is squeezed to [ε, 1 − ε] (ε = 1e-3, so a value
 on a bound, e.g. N_pin = 0, stays finite), z = logit(u), standardized by the training split's mean
@@ -110,28 +119,48 @@ class MLPEmbedding(nn.Module):
         return self.net(torch.cat([x, ms_norm.reshape(-1, 1)], dim=1))
 
 
+SUMMARIES = ("crossfit", "features", "joint")
+
+
+def _make_embedding(a: dict) -> nn.Module:
+    if a["embedding"] == "cnn":
+        return ConvEmbedding(a["image_size"], a["width"], a["dropout"])
+    if a["embedding"] == "mlp":
+        return MLPEmbedding(a["features"], a["width"], a["dropout"])
+    raise ConfigError(f"unknown embedding {a['embedding']!r} (one of {', '.join(EMBEDDINGS)})")
+
+
 class PosteriorNet(nn.Module):
-    """Embedding + M_s → context of a zuko neural spline flow over the standardized logits."""
+    """Embedding (+ regression head) + M_s → context of a zuko neural spline flow over the
+    standardized logits. ``summary``: ``crossfit`` (context = the head's regression of the logits,
+    6 numbers, and M_s), ``features`` (context = the embedding's features and M_s) or ``joint``
+    (the same context, embedding and flow trained together)."""
 
     def __init__(self, architecture: dict):
         import zuko
 
         super().__init__()
         a = architecture
-        if a["embedding"] == "cnn":
-            self.embedding = ConvEmbedding(a["image_size"], a["width"], a["dropout"])
-        elif a["embedding"] == "mlp":
-            self.embedding = MLPEmbedding(a["features"], a["width"], a["dropout"])
-        else:
-            raise ConfigError(f"unknown embedding {a['embedding']!r} (one of {', '.join(EMBEDDINGS)})")
-        self.flow = zuko.flows.NSF(a["dim"], context=a["width"] + 1, bins=a["bins"], transforms=a["transforms"],
+        self.summary = a.get("summary", "features")
+        if self.summary not in SUMMARIES:
+            raise ConfigError(f"unknown posterior summary {self.summary!r} (one of {', '.join(SUMMARIES)})")
+        self.embedding = _make_embedding(a)
+        self.head = nn.Linear(a["width"] + 1, a["dim"])
+        context = a["dim"] + 1 if self.summary == "crossfit" else a["width"] + 1
+        self.flow = zuko.flows.NSF(a["dim"], context=context, bins=a["bins"], transforms=a["transforms"],
                                    hidden_features=(a["hidden"], a["hidden"]))
         self.register_buffer("z_mean", torch.zeros(a["dim"]))
         self.register_buffer("z_std", torch.ones(a["dim"]))
         self.float()
 
-    def context(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+    def features(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
         return torch.cat([self.embedding(x, ms_norm), ms_norm.reshape(-1, 1)], dim=1)
+
+    def context(self, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
+        features = self.features(x, ms_norm)
+        if self.summary == "crossfit":
+            return torch.cat([self.head(features), ms_norm.reshape(-1, 1)], dim=1)
+        return features
 
     def log_prob(self, z_std: torch.Tensor, x: torch.Tensor, ms_norm: torch.Tensor) -> torch.Tensor:
         """log density of the standardized logits given the observation."""
@@ -254,7 +283,7 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
     if embedding not in EMBEDDINGS:
         raise ConfigError(f"unknown embedding {embedding!r} (one of {', '.join(EMBEDDINGS)})")
     x = np.asarray(x)
-    architecture = {"embedding": embedding, "dim": len(names), "width": int(settings["width"]),
+    architecture = {"embedding": embedding, "summary": settings["summary"], "dim": len(names), "width": int(settings["width"]),
                     "dropout": float(settings["dropout"]), "transforms": int(settings["transforms"]),
                     "hidden": int(settings["hidden"]), "bins": int(settings["bins"])}
     if embedding == "cnn":
@@ -278,40 +307,63 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
     train_t, val_t = torch.as_tensor(train), torch.as_tensor(val)
     started = time.perf_counter()
     history = {}
-    if settings["pretrain"]:
-        # 1. the embedding as a regression of the standardized logits (posterior-mean summaries)
-        head = nn.Linear(architecture["width"] + 1, architecture["dim"])
-        regression = nn.ModuleDict({"embedding": net.embedding, "head": head})
+    mode = settings["summary"]
+    if mode == "joint":
+        # embedding and flow together, by the flow's likelihood alone
+        def nll(index):
+            return -net.log_prob(z_all[index], x_all[index], ms_all[index]).mean()
 
-        def mse(index):
-            return torch.nn.functional.mse_loss(head(net.context(x_all[index], ms_all[index])), z_all[index])
-
-        history["pretrain_train_mse"], history["pretrain_val_mse"], history["pretrain_best_epoch"] = _train(
-            regression, mse, train_t, val_t, settings, generator, log, "embedding regression MSE")
-    if settings["pretrain"] and settings["freeze_embedding"]:
-        # 2a. the flow on fixed summaries: the embedding's output computed once, no dropout
+        history["train_nll"], history["val_nll"], best_epoch = _train(net, nll, train_t, val_t, settings, generator,
+                                                                      log, "posterior NLL")
+    else:
+        # 1. the embedding and a linear head as a regression of the standardized logits (early stopping
+        #    on validation): learned summaries, estimates of the posterior means
+        history["regression_train_mse"], history["regression_val_mse"], history["regression_best_epoch"] = _fit_regression(
+            net.embedding, net.head, x_all, ms_all, z_all, train_t, val_t, settings, generator, log, "summary regression")
         net.embedding.requires_grad_(False)
-        net.embedding.eval()
+        net.head.requires_grad_(False)
         with torch.no_grad():
             ctx_all = net.context(x_all, ms_all)
+        if mode == "crossfit":
+            # 2. the training samples' summaries out of fold (K regressions, each blind to its fold):
+            #    the flow then learns how far summaries of unseen images are from the truth, as at test
+            folds = max(2, min(int(settings["folds"]), len(train)))
+            fold_of = stream_rng(seed, "posterior", "folds").permutation(len(train)) % folds
+            for k in range(folds):
+                held, kept = train[fold_of == k], train[fold_of != k]
+                torch.manual_seed(stream_seed(seed, "posterior", "fold_weights", k))
+                embedding, head = _make_embedding(architecture).float(), nn.Linear(architecture["width"] + 1, len(names))
+                _fit_regression(embedding, head, x_all, ms_all, z_all, torch.as_tensor(kept), val_t, settings,
+                                generator, log, f"summary regression, fold {k + 1}/{folds}")
+                with torch.no_grad():
+                    held_t = torch.as_tensor(held)
+                    features = torch.cat([embedding(x_all[held_t], ms_all[held_t]), ms_all[held_t].reshape(-1, 1)], 1)
+                    ctx_all[held_t] = torch.cat([head(features), ms_all[held_t].reshape(-1, 1)], dim=1)
+        # 3. the flow on the fixed summaries
 
         def nll(index):
             return -net.flow(ctx_all[index]).log_prob(z_all[index]).mean()
 
-        trained = net.flow
-    else:
-        # 2b. embedding and flow together
-        def nll(index):
-            return -net.log_prob(z_all[index], x_all[index], ms_all[index]).mean()
-
-        trained = net
-    history["train_nll"], history["val_nll"], best_epoch = _train(trained, nll, train_t, val_t, settings, generator,
-                                                                  log, "posterior NLL")
-    net.embedding.requires_grad_(True)
+        history["train_nll"], history["val_nll"], best_epoch = _train(net.flow, nll, train_t, val_t, settings,
+                                                                      generator, log, "posterior NLL")
+        net.embedding.requires_grad_(True)
+        net.head.requires_grad_(True)
     history["train_seconds"] = time.perf_counter() - started
     net.eval()
     est.history, est.best_epoch = history, best_epoch
     return est
+
+
+def _fit_regression(embedding, head, x_all, ms_all, z_all, train_t, val_t, settings, generator, log, what):
+    """Fit ``embedding`` + linear ``head`` by the MSE of the standardized logits (early stopping on
+    validation); returns (train MSEs, validation MSEs, best epoch)."""
+    module = nn.ModuleDict({"embedding": embedding, "head": head})
+
+    def mse(index):
+        features = torch.cat([embedding(x_all[index], ms_all[index]), ms_all[index].reshape(-1, 1)], dim=1)
+        return torch.nn.functional.mse_loss(head(features), z_all[index])
+
+    return _train(module, mse, train_t, val_t, settings, generator, log, what)
 
 
 def _train(module: nn.Module, loss_of, train_t, val_t, settings, generator, log, what: str):
@@ -395,13 +447,13 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
 
 
 # ---------------------------------------------------------------- the workflow stage
-def _pretrain_summary(history: dict) -> dict | None:
-    """Best epoch, epochs run and validation MSE (standardized logits) of the embedding's regression."""
-    if "pretrain_best_epoch" not in history:
+def _regression_summary(history: dict) -> dict | None:
+    """Best epoch, epochs run and validation MSE (standardized logits) of the summary regression."""
+    if "regression_best_epoch" not in history:
         return None
-    best = int(history["pretrain_best_epoch"])
-    return {"best_epoch": best, "epochs_run": len(history["pretrain_val_mse"]),
-            "validation_mse": float(history["pretrain_val_mse"][best])}
+    best = int(history["regression_best_epoch"])
+    return {"best_epoch": best, "epochs_run": len(history["regression_val_mse"]),
+            "validation_mse": float(history["regression_val_mse"][best])}
 
 
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
@@ -435,6 +487,17 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"))
     levels = [float(a) for a in settings["levels"]]
     calibration = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
+    # the calibration split is held out from the posterior too (only Alice's conformal step uses it):
+    # test + calibration doubles the samples behind the SBC and coverage figures (reported apart)
+    held_out = np.union1d(test, splits["calibration"])
+    pooled = None
+    if learning["protocol"] == "holdout" and len(held_out) > len(test):
+        extra = est.sample(data.images[splits["calibration"]], data.ms_norm[splits["calibration"]], draws,
+                           seed=stream_seed(seed, "posterior", "calibration_draws"))
+        both = np.concatenate([test, splits["calibration"]])
+        pooled = calibration_metrics(np.concatenate([samples, extra]), u[both], names,
+                                     stream_rng(seed, "posterior", "calibration_pooled"), levels)
+        pooled = {"n": int(len(both)), "per_parameter": pooled["per_parameter"], "joint": pooled["joint"]["tarp"]}
     calibration_s = time.perf_counter() - started
     metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
                "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
@@ -445,7 +508,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]},
                "best_epoch": int(est.best_epoch), "epochs_run": len(est.history["val_nll"]),
                "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
-               "pretrain": _pretrain_summary(est.history),
+               "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
+               "test_and_calibration_splits": pooled,
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
     metrics["wall_s"]["total"] = train_s + calibration_s
