@@ -31,8 +31,10 @@ order, dropout, draws); the same model and seed give the same draws after a save
 
 from __future__ import annotations
 
+import functools
 import pickle
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +58,27 @@ EMBEDDINGS = ("cnn", "mlp")
 
 BOUNDED_SUPPORT = (f"flow in logit space: u squeezed to [{SQUEEZE:g}, {1 - SQUEEZE:g}], z = logit(u) standardized "
                    "by the training split; draws mapped back by the sigmoid (inside [0, 1], no clipping)")
+
+
+
+@contextmanager
+def _float32_default():
+    """Run with torch's default dtype float32 (importing magnum.np switches it to float64 for the whole
+    process; the flow's internal tensors must not follow), restoring whatever was set."""
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float32)
+    try:
+        yield
+    finally:
+        torch.set_default_dtype(previous)
+
+
+def _float32(function):
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        with _float32_default():
+            return function(*args, **kwargs)
+    return wrapper
 
 
 def posterior_settings(overrides: dict | None = None, source: str = "posterior settings") -> dict:
@@ -208,6 +231,7 @@ class PosteriorEstimator:
             raise OutOfDomainError("the observation or M_s is not finite")
         return tensor, torch.tensor(ms, dtype=torch.float32)
 
+    @_float32
     def sample(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64) -> np.ndarray:
         """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``."""
         x, ms = self._inputs(x, ms_norm)
@@ -224,6 +248,7 @@ class PosteriorEstimator:
                 out.append(from_latent(z.transpose(0, 1).double().numpy()))
         return np.concatenate(out) if out else np.zeros((0, n_draws, len(self.names)))
 
+    @_float32
     def log_prob(self, u, x, ms_norm) -> np.ndarray:
         """log density of u ∈ [0, 1] per observation (one u per observation), change of variables included."""
         x, ms = self._inputs(x, ms_norm)
@@ -247,6 +272,7 @@ class PosteriorEstimator:
             torch.save(payload, tmp)
 
     @classmethod
+    @_float32
     def load(cls, path) -> "PosteriorEstimator":
         """ModelFileError when the file is missing, unreadable or not a posterior model."""
         path = Path(path)
@@ -266,6 +292,7 @@ class PosteriorEstimator:
                    best_epoch=payload["best_epoch"], metadata=payload.get("metadata", {}))
 
 
+@_float32
 def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = None, seed: int = 0,
                   embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
     """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
@@ -332,7 +359,7 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
             for k in range(folds):
                 held, kept = train[fold_of == k], train[fold_of != k]
                 torch.manual_seed(stream_seed(seed, "posterior", "fold_weights", k))
-                embedding, head = _make_embedding(architecture).float(), nn.Linear(architecture["width"] + 1, len(names))
+                embedding, head = _make_embedding(architecture).float(), nn.Linear(architecture["width"] + 1, len(names)).float()
                 _fit_regression(embedding, head, x_all, ms_all, z_all, torch.as_tensor(kept), val_t, settings,
                                 generator, log, f"summary regression, fold {k + 1}/{folds}")
                 with torch.no_grad():
