@@ -21,7 +21,7 @@ from forcdecode.learn.splits import assign_splits
 
 SIDE = 16
 SETTINGS = {"parameters": ["K_u", "D"], "width": 16, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 16,
-            "lr": 1e-3, "transforms": 2, "hidden": 32, "draws": 300, "folds": 3}
+            "lr": 1e-3, "transforms": 2, "hidden": 32, "draws": 300}
 LEARNING = {"split": [0.55, 0.15, 0.15, 0.15], "protocol": "holdout"}
 SEED = 11
 
@@ -73,7 +73,7 @@ def test_calibrated_on_alices_test_split_and_files_written(stage):
     assert (out / "figures" / "posterior_calibration.png").read_bytes()[:4] == b"\x89PNG"
     assert 0 <= metrics["best_epoch"] < metrics["epochs_run"] <= SETTINGS["epochs"]
     regression = metrics["summary_regression"]
-    assert regression["best_epoch"] >= 0 and regression["validation_mse"] < 1.0 and metrics["summary"] == "crossfit"
+    assert regression["best_epoch"] >= 0 and regression["validation_mse"] < 1.0 and metrics["summary"] == "features"
 
 
 def test_a_reloaded_model_reproduces_its_draws(stage):
@@ -89,6 +89,17 @@ def test_a_reloaded_model_reproduces_its_draws(stage):
     assert summary["parameters"]["K_u"]["median_value"] == pytest.approx(
         denormalize("K_u", np.median(first[0, :, 0])), rel=1e-9)
     assert np.asarray(summary["correlation"]["matrix"]).shape == (2, 2)
+
+
+def test_the_crossfit_and_joint_summaries_learn_too(tmp_path):
+    """The two other conditioning modes on a smaller set and budget: K_u well below the prior's 0.25."""
+    data = bar_dataset(n=160, seed=1)
+    for summary in ("crossfit", "joint"):
+        metrics = train_posterior(data, {**SETTINGS, "summary": summary, "folds": 2, "epochs": 40}, LEARNING, SEED,
+                                  tmp_path / f"{summary}.pt", tmp_path / f"{summary}.json", tmp_path / f"{summary}.png",
+                                  log=lambda *_: None)
+        assert metrics["summary"] == summary and metrics["per_parameter"]["K_u"]["mae_median"] < 0.1, metrics
+        assert PosteriorEstimator.load(tmp_path / f"{summary}.pt").architecture["summary"] == summary
 
 
 def test_the_latent_map_is_a_bijection_onto_the_bounds():
