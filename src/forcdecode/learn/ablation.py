@@ -38,13 +38,7 @@ def compare_heads(images, ms_norm, targets: dict, splits: dict, *, heads=HEADS, 
                   patience: int | None = None, batch_size: int | None = None, lr: float | None = None,
                   width: int | None = None, seed: int = 1, log=None) -> list[dict]:
     """Train every head on every target (name → normalized u ∈ [0, 1]); one row per (target, head).
-    Settings left None take the schema's learning defaults."""
-    learning = defaults("learning")
-    epochs = learning["epochs"] if epochs is None else epochs
-    patience = learning["patience"] if patience is None else patience
-    batch_size = learning["batch_size"] if batch_size is None else batch_size
-    lr = learning["lr"] if lr is None else lr
-    width = learning["width"] if width is None else width
+    Settings left None take the schema's learning defaults (resolved by ``fit_alice``)."""
     train, val, test = (np.asarray(splits[k]) for k in ("train", "validation", "test"))
     rows = []
     for name, u in targets.items():
