@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
@@ -19,6 +19,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+    films = parser.add_argument_group("films (the same Hamiltonians on the laptop film and larger ones)")
+    films.add_argument("--config", default=None, help="films: base config (default: the shipped laptop config)")
+    films.add_argument("--hamiltonians", type=int, default=20, help="films: screened dataset draws compared")
+    films.add_argument("--films", nargs="+", default=["laptop:20x2", "laptop_paper_grains:20x2", "box128:20x1",
+                                                       "box128:8x2", "paper:5x1"],
+                       help="films: FILM:NxR = the first N Hamiltonians with R disorder realisations each")
+    films.add_argument("--workers", type=int, default=1, help="films: families simulated at once (one core each)")
+    films.add_argument("--out-dir", default="results/bench/films", help="films: one HDF5 per family (resumable)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -42,6 +50,8 @@ def run(args) -> int:
 
     if args.target == "learn":
         return _bench_learn(args, say)
+    if args.target == "films":
+        return _bench_films(args, say)
     from . import engine
 
     if args.target == "effects":
@@ -88,4 +98,36 @@ def _bench_learn(args, say) -> int:
         say(f"wrote {args.out}")
     if args.json:
         print(json.dumps(result))
+    return 0
+
+
+def _bench_films(args, say) -> int:
+    from ..config import load_config, shipped_config
+    from ..core.errors import ConfigError
+    from ..core.io import write_json
+    from ..core.progress import counter
+    from . import films
+
+    cfg = load_config(args.config or shipped_config("config"))
+    plan = []
+    for item in args.films:
+        try:
+            name, counts = item.split(":")
+            n_ham, n_real = (int(v) for v in counts.split("x"))
+        except ValueError:
+            raise ConfigError(f"--films {item!r}: expected FILM:NxR, e.g. box128:20x2") from None
+        if name not in films.FILMS:
+            raise ConfigError(f"--films {item!r}: unknown film {name!r}; known: {', '.join(films.FILMS)}")
+        plan.append((name, min(n_ham, args.hamiltonians), n_real))
+    say(f"screening draws of seed {cfg['seed']} on the laptop film for {args.hamiltonians} Hamiltonians")
+    hamiltonians = films.pick_hamiltonians(cfg, args.hamiltonians, progress=counter("screen", "Hamiltonians"))
+    jobs = films.plan(hamiltonians, plan)
+    say(f"{len(jobs)} families planned in {args.out_dir}")
+    films.run_jobs(cfg, jobs, args.out_dir, workers=args.workers, say=say)
+    summary = films.summarize(args.out_dir)
+    write_json(f"{args.out_dir}/summary.json", summary)
+    for line in films.summary_lines(summary):
+        say(line)
+    if args.json:
+        print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
     return 0

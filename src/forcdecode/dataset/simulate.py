@@ -15,7 +15,7 @@ import numpy as np
 from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.protocol import descending_branch, quasistatic_family
 from ..forc.raster import rasterize_grid_family
-from ..micromag.build import REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells
+from ..micromag.build import REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells, sweep_options
 
 __all__ = ["REFERENCE_CELLS", "build_film", "mesh_from_config", "pinning_cells", "field_grid", "hysteresis_area",
            "screen", "simulate"]  # the first four live in micromag.build (re-exported for old callers)
@@ -41,8 +41,10 @@ def screen(cfg: dict, params: dict, sample_id: int) -> dict:
         film, m0, disorder = build_film(cfg, params, sample_id)
         fields = field_grid(cfg)
         sc = cfg["screening"]
-        descending, states, _ = descending_branch(film, m0, fields, cfg["minimizer"]["torque_tol_T"],
-                                                  cfg["minimizer"]["max_iterations"], keep_states=(0, -1))
+        opts = sweep_options(cfg)
+        descending, states, _ = descending_branch(film, m0, fields, opts["torque_tol_T"], opts["max_iterations"],
+                                                  keep_states=(0, -1), extrapolate=opts["extrapolate"],
+                                                  warm_step=opts["warm_step"])
         free = ~disorder.pinning_mask
         mz_max = float(states[len(fields) - 1][2][free].mean())
         mz_min = float(states[0][2][free].mean())
@@ -82,8 +84,7 @@ def simulate(cfg: dict, params: dict, sample_id: int) -> dict:
         else:
             film, m0, _ = build_film(cfg, params, sample_id)
             fam = quasistatic_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
-                                     torque_tol_T=cfg["minimizer"]["torque_tol_T"],
-                                     max_iterations=cfg["minimizer"]["max_iterations"])
+                                     **sweep_options(cfg))
         out.update(status="ok", image=rasterize_grid_family(fam.curves_mz), curves_mz=fam.curves_mz,
                    descending_mz=fam.descending_mz, relaxations=fam.stats["relaxations"],
                    unconverged=fam.stats["unconverged"], raw_curves=getattr(fam, "raw_curves", None))

@@ -42,8 +42,9 @@ class ForcFamily:
         return self.fields_T
 
 
-def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats):
-    result = film.minimize(m, B, torque_tol_T=torque_tol_T, max_iterations=max_iterations)
+def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats, initial_step=0.0):
+    result = film.minimize(m, B, torque_tol_T=torque_tol_T, max_iterations=max_iterations,
+                           initial_step=initial_step)
     stats["iterations"] += result.iterations
     stats["relaxations"] += 1
     if not result.converged:
@@ -51,8 +52,54 @@ def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats):
     return result
 
 
+class Continuation:
+    """Relaxations along one field sweep, each started from a prediction of its answer.
+
+    Predictor (``extrapolate``): where the last field step changed the state reversibly (max cell
+    |Δm| below ``reversible_dm``), the next state is first moved by the same linear response,
+    m ← normalize(m + (ΔB_next/ΔB_last)·Δm_last), the first-order continuation of the equilibrium
+    branch m(B); after a jump (an avalanche) no extrapolation is made. Step memory (``warm_step``):
+    the first Barzilai–Borwein step is the last one of the previous relaxation (the curvature of the
+    energy barely changes between neighbouring fields), not a blind 0.01 rad. Neither changes the
+    equilibrium reached when it is unique; both are checked against the plain protocol on the same
+    films (``tests/forc/test_protocol_shortcuts.py``).
+    """
+
+    def __init__(self, film: Film, torque_tol_T, max_iterations, stats, extrapolate=False, warm_step=False,
+                 reversible_dm: float = 0.1):
+        self.film, self.tol, self.max_iterations, self.stats = film, torque_tol_T, max_iterations, stats
+        self.extrapolate, self.warm_step, self.reversible_dm = extrapolate, warm_step, reversible_dm
+        self.step = 0.0
+        self.start(None, None)
+
+    def start(self, m, B):
+        """A new sweep starts from the relaxed state ``m`` at field ``B`` (no linear response known yet)."""
+        self.last_m = None if (m is None or not self.extrapolate) else m.copy()
+        self.last_B = B
+        self.prev_m = None
+        self.prev_B = None
+
+    def relax(self, m, B):
+        """Relax ``m`` (in place; the relaxed state at the last field) at field ``B`` (T)."""
+        if self.extrapolate and self.prev_m is not None and self.last_B != self.prev_B:
+            delta = self.last_m - self.prev_m
+            if np.abs(delta).max() < self.reversible_dm:
+                m += delta * ((B - self.last_B) / (self.last_B - self.prev_B))
+                m /= np.sqrt((m * m).sum(axis=0))
+                self.stats["predicted"] = self.stats.get("predicted", 0) + 1
+        result = _relax(self.film, m, B, self.tol, self.max_iterations, self.stats,
+                        self.step if self.warm_step else 0.0)
+        if result.converged and result.last_step > 0.0:
+            self.step = result.last_step
+        if self.extrapolate:
+            self.prev_m, self.prev_B = self.last_m, self.last_B
+            self.last_m, self.last_B = m.copy(), B
+        return result
+
+
 def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_tol_T: float = 1e-3,
-                      max_iterations: int = 20_000, substeps: int = 1, stats=None, keep_states=False):
+                      max_iterations: int = 20_000, substeps: int = 1, stats=None, keep_states=False,
+                      extrapolate: bool = False, warm_step: bool = False):
     """Saturate at ``fields_T[-1]`` (the largest) and descend through ``fields_T`` (increasing grid)
     to its first value. Returns (⟨m_z⟩ per field, states, final m): ``states`` holds the state at
     every field (``keep_states=True``), at the given indices only (a dict index → state, for a
@@ -60,7 +107,9 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
     stats = stats if stats is not None else {"iterations": 0, "relaxations": 0, "unconverged": 0}
     n = len(fields_T)
     m = np.array(m0, dtype=np.float64, order="C", copy=True)
+    sweep = Continuation(film, torque_tol_T, max_iterations, stats, extrapolate, warm_step)
     _relax(film, m, fields_T[-1], torque_tol_T, max_iterations, stats)
+    sweep.start(m, fields_T[-1])
     if keep_states is True:
         states = np.empty((n,) + m.shape, dtype=np.float64)
         wanted = range(n)
@@ -71,7 +120,7 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
     previous = fields_T[-1]
     for j in range(n - 1, -1, -1):
         for B in np.linspace(previous, fields_T[j], substeps + 1)[1:]:
-            _relax(film, m, B, torque_tol_T, max_iterations, stats)
+            sweep.relax(m, B)
         previous = fields_T[j]
         if not np.all(np.isfinite(m)):
             raise SimulationError(f"non-finite magnetization on the descending branch at {fields_T[j]:+.3f} T")
@@ -83,7 +132,8 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
 
 def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0,
                        torque_tol_T: float = 1e-3, max_iterations: int = 20_000, substeps: int = 1,
-                       same_state_tol: float = 0.02, progress=None) -> ForcFamily:
+                       same_state_tol: float = 0.02, progress=None, extrapolate: bool = False,
+                       warm_step: bool = False) -> ForcFamily:
     """Simulate a FORC family with the quasi-static path. ``m0`` is not modified.
 
     ``substeps`` relaxations are made per grid step (at evenly spaced intermediate fields) to follow
@@ -98,14 +148,16 @@ def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: 
     fields = np.linspace(-B_max_T, B_max_T, n_fields)
     stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0}
     descending, states, m = descending_branch(film, m0, fields, torque_tol_T, max_iterations, substeps, stats,
-                                              keep_states=True)
+                                              keep_states=True, extrapolate=extrapolate, warm_step=warm_step)
+    sweep = Continuation(film, torque_tol_T, max_iterations, stats, extrapolate, warm_step)
     curves = np.full((n_fields, n_fields), np.nan)
     for i in range(n_fields - 1, -1, -1):
         curves[i, i] = descending[i]
         m[...] = states[i]
+        sweep.start(m, fields[i])
         for j in range(i + 1, n_fields):
             for B in np.linspace(fields[j - 1], fields[j], substeps + 1)[1:]:
-                _relax(film, m, B, torque_tol_T, max_iterations, stats)
+                sweep.relax(m, B)
             if np.abs(m - states[j]).max() < same_state_tol:
                 curves[i, j:] = curves[j, j:]
                 stats["curves_shortened"] += 1

@@ -21,7 +21,7 @@ from ..core.streams import stream_rng
 from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.protocol import quasistatic_family
-from ..micromag.build import build_film
+from ..micromag.build import build_film, sweep_options
 
 DISORDER_STREAM = "closed_loop_disorder"
 """Named stream of every re-simulation's disorder (keys: sample id or a label, realisation); never a
@@ -59,9 +59,7 @@ def simulate_family(cfg: dict, params: dict, rng: np.random.Generator) -> np.nda
         family = adaptive_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, settings=settings)
     else:
         film, m0, _ = build_film(cfg, params, rng=rng)
-        family = quasistatic_family(film, m0, n_fields=n_fields, B_max_T=B_max_T,
-                                    torque_tol_T=cfg["minimizer"]["torque_tol_T"],
-                                    max_iterations=cfg["minimizer"]["max_iterations"])
+        family = quasistatic_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, **sweep_options(cfg))
     return family.curves_mz
 
 

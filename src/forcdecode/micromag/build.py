@@ -62,7 +62,7 @@ def build_film(cfg: dict, params: dict, sample_id: int | None = None, pinning: s
     mesh = mesh_from_config(cfg)
     spacer = params.get("spacer_after_layer")
     interlayer_J = params.get("interlayer_coupling_J_m2")
-    return disordered_film(
+    film, m0, disorder = disordered_film(
         mesh, Ms=params["Ms"], A_ex=params["A_ex"], K_u=params["K_u"], D=params["D"],
         sigma_K=params["sigma_K"], sigma_theta_rad=np.radians(params["sigma_theta_deg"]),
         n_pin=pinning_cells(params["N_pin"], mesh, cfg), rng=rng, n_grains=cfg["n_grains"],
@@ -72,6 +72,16 @@ def build_film(cfg: dict, params: dict, sample_id: int | None = None, pinning: s
         spacer_after_layer=None if _missing(spacer) else int(spacer),
         interlayer_coupling_J_m2=0.0 if _missing(interlayer_J) else float(interlayer_J),
     )
+    film.preconditioner = cfg.get("minimizer", {}).get("preconditioner", "diagonal")
+    return film, m0, disorder
 
 
-__all__ = ["REFERENCE_CELLS", "mesh_from_config", "pinning_cells", "build_film"]
+def sweep_options(cfg: dict) -> dict:
+    """Keyword arguments of the quasi-static protocol (``forc.protocol``) from the config's
+    ``minimizer`` section: torque criterion, iteration cap and the continuation shortcuts."""
+    mini = cfg["minimizer"]
+    return {"torque_tol_T": mini["torque_tol_T"], "max_iterations": mini["max_iterations"],
+            "warm_step": bool(mini.get("warm_step", False)), "extrapolate": bool(mini.get("extrapolate", False))}
+
+
+__all__ = ["REFERENCE_CELLS", "mesh_from_config", "pinning_cells", "build_film", "sweep_options"]
