@@ -163,3 +163,30 @@ rule train_posterior:
     shell:
         "{params.cli} learn posterior --config {input.config} --dataset {input.dataset} --settings {params.settings:q} "
         "--model {output.model} --metrics {output.metrics} --figures {params.figures} --threads {threads} 2> {log}"
+
+
+rule tune_posterior:
+    """The posterior architecture chosen on validation only: every candidate of
+    forcdecode.learn.posterior_tune fitted on train and scored by its validation likelihood. Not in
+    `all`: `snakemake results/posterior/tuning.json`; put the chosen settings in the config's
+    `posterior` section."""
+    input:
+        config=rules.resolve_learning.output,
+        dataset=rules.merge.output.h5,
+    output:
+        f"{RESULTS}/posterior/tuning.json",
+    log:
+        f"{RESULTS}/logs/posterior_tune.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/tune_posterior/tune_posterior.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["posterior"]["threads"]
+    resources:
+        mem_mb=4000,
+        runtime=480,
+    params:
+        cli=FORCDECODE_1T,
+    shell:
+        "{params.cli} learn posterior-tune --config {input.config} --dataset {input.dataset} --out {output} "
+        "--threads {threads} 2> {log}"

@@ -4,6 +4,7 @@
     learn evaluate  --metrics J.json... --predictions X.parquet... --out metrics.json --figures DIR
     learn posterior --config C --dataset dataset.h5 --model results/posterior/model.pt
                     --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
+    learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
     predict INPUT --Ms-kA-m 800 --estimator posterior --posterior results/posterior/model.pt [--json]
         INPUT: a FORC file (any format `forcdecode read` knows), a 64×64 image (.npy, uint8 or m in [−1, 1]),
@@ -46,6 +47,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--figures", required=True, help="directory of the calibration figure")
     p.add_argument("--settings", help="posterior settings as JSON (override the config's posterior section)")
     p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("posterior-tune", help="choose the posterior architecture on the validation split only")
+    p.add_argument("--config", required=True, help="resolved learning.json (seed, split, posterior section)")
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--out", required=True, help="output table (.json): every candidate's validation scores, the choice")
+    p.add_argument("--threads", type=int, default=1)
 
 
 def run(args) -> int:
@@ -85,6 +91,17 @@ def run(args) -> int:
         data = load_dataset(args.dataset)
         train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
                         Path(args.figures) / "posterior_calibration.png", log=_log)
+        return 0
+    if args.step == "posterior-tune":
+        from .data import load_dataset
+        from .posterior_tune import tune_posterior, tuning_lines
+
+        torch.set_num_threads(max(1, args.threads))
+        cfg = read_config(args.config)
+        result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
+                                cfg["seed"], out=args.out, log=_log)
+        for line in tuning_lines(result):
+            print(line)
         return 0
     if args.step == "evaluate":
         from .report import evaluate, markdown
