@@ -47,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--figures", required=True, help="directory of the calibration figure")
     p.add_argument("--settings", help="posterior settings as JSON (override the config's posterior section)")
     p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("compare", help="Alice + Bob + conformal against the posterior on the same test families")
+    p.add_argument("--metrics", default="results/metrics.json", help="Alice's aggregated metrics.json")
+    p.add_argument("--posterior", default="results/posterior/metrics.json", help="the posterior's metrics.json")
+    p.add_argument("--out", help="also write the table as JSON")
     p = sub.add_parser("posterior-tune", help="choose the posterior architecture on the validation split only")
     p.add_argument("--config", required=True, help="resolved learning.json (seed, split, posterior section)")
     p.add_argument("--dataset", required=True)
@@ -91,6 +95,12 @@ def run(args) -> int:
         data = load_dataset(args.dataset)
         train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
                         Path(args.figures) / "posterior_calibration.png", log=_log)
+        return 0
+    if args.step == "compare":
+        from .compare import compare_estimators, comparison_markdown
+
+        for line in comparison_markdown(compare_estimators(args.metrics, args.posterior, out=args.out)):
+            print(line)
         return 0
     if args.step == "posterior-tune":
         from .data import load_dataset
