@@ -190,3 +190,37 @@ rule tune_posterior:
     shell:
         "{params.cli} learn posterior-tune --config {input.config} --dataset {input.dataset} --out {output} "
         "--threads {threads} 2> {log}"
+
+
+rule posterior_closed_loop:
+    """Posterior draws of the test families re-simulated against the floor (truth on the same new
+    disorder). Not in `all`: `snakemake results/posterior/closed_loop.json` (needs train_posterior)."""
+    input:
+        config=rules.resolve_config.output,
+        learning=rules.resolve_learning.output,
+        dataset=rules.merge.output.h5,
+        model=rules.train_posterior.output.model,
+    output:
+        summary=f"{RESULTS}/posterior/closed_loop.json",
+        table=f"{RESULTS}/posterior/closed_loop.parquet",
+        figure=report(
+            f"{RESULTS}/posterior/figures/posterior_closed_loop.png",
+            caption="../report/posterior_closed_loop.rst",
+            category="3. Closed loop",
+            labels={"name": "Posterior-predictive closed loop", "kind": "figure"},
+        ),
+    log:
+        f"{RESULTS}/logs/posterior_closed_loop.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/posterior_closed_loop/posterior_closed_loop.tsv"
+    conda:
+        CONDA_ENV
+    threads: 2
+    resources:
+        runtime=240,
+    params:
+        cli=FORCDECODE_1T,
+    shell:
+        "{params.cli} posterior-loop --config {input.config} --learning {input.learning} --dataset {input.dataset} "
+        "--posterior {input.model} --out {output.summary} --table {output.table} --figure {output.figure} "
+        "--workers {threads} 2> {log}"
