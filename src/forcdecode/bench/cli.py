@@ -27,6 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="films: FILM:NxR = the first N Hamiltonians with R disorder realisations each")
     films.add_argument("--workers", type=int, default=1, help="films: families simulated at once (one core each)")
     films.add_argument("--out-dir", default="results/bench/films", help="films: one HDF5 per family (resumable)")
+    films.add_argument("--summarize-only", action="store_true", help="films: only summarize the families on disk")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -108,6 +109,15 @@ def _bench_films(args, say) -> int:
     from ..core.progress import counter
     from . import films
 
+    if args.summarize_only:
+        summary = films.summarize(args.out_dir)
+        write_json(f"{args.out_dir}/summary.json", summary)
+        films.figure(summary, f"{args.out_dir}/films.png")
+        for line in films.summary_lines(summary):
+            say(line)
+        if args.json:
+            print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
+        return 0
     cfg = load_config(args.config or shipped_config("config"))
     plan = []
     for item in args.films:
@@ -126,6 +136,7 @@ def _bench_films(args, say) -> int:
     films.run_jobs(cfg, jobs, args.out_dir, workers=args.workers, say=say)
     summary = films.summarize(args.out_dir)
     write_json(f"{args.out_dir}/summary.json", summary)
+    films.figure(summary, f"{args.out_dir}/films.png")
     for line in films.summary_lines(summary):
         say(line)
     if args.json:

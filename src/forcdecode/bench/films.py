@@ -235,7 +235,64 @@ def summarize(out_dir, reference: str = "paper") -> dict:
                         "max_mean_abs_dm": float(np.max(values)),
                         "median_image_levels": float(np.median([r[key]["image_mean_abs_levels"] for r in rows if key in r])),
                         "median_peak_shift_T": float(np.nanmedian([r[key]["peak_shift_T"] for r in rows if key in r]))}
-    return {"rows": rows, "cost": cost, "medians": medians, "films": {f: FILMS[f] for f in films}}
+    return {"rows": rows, "cost": cost, "medians": medians, "films": {f: FILMS[f] for f in films},
+            "by_region": by_region(rows)}
+
+
+REGIONS = {
+    "N_pin < 85": lambda p: p["N_pin"] < 85,
+    "N_pin >= 85": lambda p: p["N_pin"] >= 85,
+    "Q < 2": lambda p: quality_factor(p) < 2.0,
+    "Q >= 2": lambda p: quality_factor(p) >= 2.0,
+}
+"""Parameter regions the realisation floor is reported in: pinning density (sites on the paper's
+256×256×2 grid) and the quality factor Q = 2K_u/(μ0 M_s²) (Q near 1: soft, domain-forming films)."""
+
+
+def quality_factor(params: dict) -> float:
+    """Q = 2 K_u / (μ0 M_s²): anisotropy over shape anisotropy."""
+    return 2.0 * params["K_u"] / (4e-7 * np.pi * params["Ms"] ** 2)
+
+
+def by_region(rows: list[dict]) -> dict:
+    """Median mean |Δm| of every comparison within each parameter region (with the count)."""
+    out = {}
+    keys = sorted({k for r in rows for k in r if k not in ("sample_id", "params")})
+    for region, inside in REGIONS.items():
+        chosen = [r for r in rows if r.get("params") and inside(r["params"])]
+        out[region] = {key: {"n": len([r for r in chosen if key in r]),
+                             "median_mean_abs_dm": (float(np.median([r[key]["mean_abs_dm"] for r in chosen if key in r]))
+                                                    if any(key in r for r in chosen) else None)} for key in keys}
+    return out
+
+
+def figure(summary: dict, path) -> None:
+    """Per Hamiltonian (sorted by the laptop floor): the realisation floor of each film and each film's
+    distance to the paper's film, mean |Δm| over the family."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..core.io import atomic_path
+
+    rows = sorted(summary["rows"], key=lambda r: r.get("floor_laptop", {}).get("mean_abs_dm", np.inf))
+    keys = [k for k in summary["medians"] if k.startswith("floor_") or k.endswith("_vs_paper")]
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for n, key in enumerate(keys):
+        x = [i for i, r in enumerate(rows) if key in r]
+        y = [r[key]["mean_abs_dm"] for r in rows if key in r]
+        ax.plot(x, y, "o" if key.startswith("floor_") else "s", ms=4, label=key.replace("_", " "),
+                mfc="none" if key.startswith("floor_") else None)
+    ax.axhline(2 / 255, color="k", lw=0.8, ls=":", label="one 8-bit step")
+    ax.set_yscale("log")
+    ax.set_xlabel("Hamiltonian (sorted by the laptop film's realisation floor)")
+    ax.set_ylabel("mean |Δm| over the FORC family")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
 
 
 def summary_lines(summary: dict) -> list[str]:
