@@ -194,6 +194,12 @@ def compare(a: dict, b: dict) -> dict:
             "peak_shift_T": float(np.hypot(pa[0] - pb[0], pa[1] - pb[1]))}
 
 
+def _nanmax(values) -> float:
+    """Largest finite value, NaN when none (families run in-process have no per-process memory)."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(max(finite)) if finite else float("nan")
+
+
 def summarize(out_dir, reference: str = "paper") -> dict:
     """Per Hamiltonian: each film against ``reference`` (realisation 0), against the laptop film, and
     the realisation floor (r0 vs r1) of each film; medians per film; cost per family and per film."""
@@ -225,7 +231,7 @@ def summarize(out_dir, reference: str = "paper") -> dict:
                       "mean_family_s": float(np.mean([j["family_s"] for j in mine])),
                       "median_iterations": float(np.median([j["iterations"] for j in mine])),
                       "median_relaxations": float(np.median([j["relaxations"] for j in mine])),
-                      "max_peak_rss_MiB": float(np.nanmax([j["peak_rss_MiB"] for j in mine])),
+                      "max_peak_rss_MiB": _nanmax([j["peak_rss_MiB"] for j in mine]),
                       "n_cells": int(mine[0]["n_cells"]), "unconverged": int(sum(j["unconverged"] for j in mine))}
     medians = {}
     keys = sorted({k for r in rows for k in r if k not in ("sample_id", "params")})
