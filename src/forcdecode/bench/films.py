@@ -283,7 +283,7 @@ def figure(summary: dict, path) -> None:
     from ..core.io import atomic_path
 
     rows = sorted(summary["rows"], key=lambda r: r.get("floor_laptop", {}).get("mean_abs_dm", np.inf))
-    keys = [k for k in summary["medians"] if k.startswith("floor_") or k.endswith("_vs_paper")]
+    keys = list(summary["medians"])
     fig, ax = plt.subplots(figsize=(8, 4))
     for n, key in enumerate(keys):
         x = [i for i, r in enumerate(rows) if key in r]
