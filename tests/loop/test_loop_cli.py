@@ -41,6 +41,14 @@ def test_loop_names_an_undeclared_background(tmp_path):
     assert report["effect"] == "background"
     assert report["heldout_rms_after"] < 0.5 * report["heldout_rms_before"]
     assert (out / "residual.png").stat().st_size > 10_000 and (out / "families.png").exists()
+    # the report page: diagrams side by side, the residual map, the effect and its size, before/after
+    page = (out / "report.html").read_text()
+    assert page.count("data:image/png;base64,") >= 3 and (out / "diagrams.png").stat().st_size > 10_000
+    assert "background" in page and f"{report['heldout_rms_before']:.4f} → {report['heldout_rms_after']:.4f}" in page
+    chi = report["analysis"]["parameters"]["chi_per_T"]
+    assert f"chi_per_T = {chi:.4g}" in page and "±" in page
+    peaks = report["diagram_peaks"]
+    assert set(peaks) == {"measured", "re-simulated"} and all(p["rho_max"] > 0 for p in peaks.values())
 
 
 def test_real_measured_files_are_reported_out_of_domain(tmp_path):
@@ -53,6 +61,8 @@ def test_real_measured_files_are_reported_out_of_domain(tmp_path):
     assert report["in_domain"] is False and "not saturated" in report["out_of_domain_reason"]
     assert report["domain"]["usable"] is False and report["domain"]["noise_Am2"] > 0
     assert "Out of the domain" in (tmp_path / "report.md").read_text()
+    page = (tmp_path / "report.html").read_text()
+    assert "why it stopped" in page and "not saturated" in page and "<table" in page
 
 
 @pytest.mark.slow  # about 15 s alone, 25 s on a loaded machine

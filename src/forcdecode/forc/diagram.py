@@ -229,8 +229,9 @@ def _local_fits(m, valid, ci, cj, hr, h, kind, step_r, step_h, step, min_points,
     return rho
 
 
-def plot_diagram(diagram: ForcDiagram, ax=None, title: str | None = None, levels: int = 21):
-    """FORC diagram in (H_c, H_u) (mT), contours of ρ (symmetric colour scale around 0)."""
+def plot_diagram(diagram: ForcDiagram, ax=None, title: str | None = None, levels: int = 21, vmax: float | None = None):
+    """FORC diagram in (H_c, H_u) (mT), contours of ρ (symmetric colour scale around 0, ±``vmax``
+    when given: diagrams side by side on one scale)."""
     import matplotlib.pyplot as plt
 
     if ax is None:
@@ -239,7 +240,7 @@ def plot_diagram(diagram: ForcDiagram, ax=None, title: str | None = None, levels
     finite = np.isfinite(rho) & (hc >= 0)
     if not finite.any():
         raise ValueError("no finite FORC distribution to plot")
-    vmax = np.nanmax(np.abs(rho[finite]))
+    vmax = float(vmax) if vmax else np.nanmax(np.abs(rho[finite]))
     contours = ax.tricontourf(hc[finite], hu[finite], rho[finite], levels=np.linspace(-vmax, vmax, levels),
                               cmap="RdBu_r")
     ax.set_xlabel(r"$\mu_0 H_c$ (mT)")

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
+from .report_page import diagrams_figure, write_report_page
 
 
 def _progress(text):
@@ -181,8 +182,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if domain_note is not None and not force:
         report["status"] = "out of domain"
         write_json(out / "report.json", _json_ready(report))
-        write_text(out / "report.md",
-                   _markdown_domain(path, report) + "\nNo prediction is made (`--force` analyses it anyway).\n")
+        text = _markdown_domain(path, report) + "\nNo prediction is made (`--force` analyses it anyway).\n"
+        write_text(out / "report.md", text)
+        write_report_page(out, _json_ready(report), text, figures=())
         return report
     from .physics_effects import analyse_residual, physics_candidate_families
     from .resimulate import observation_error, protocol_name, resimulate_with_spread
@@ -234,9 +236,12 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         report["measured_points"] = measured_points_residual(
             cfg, final_params, data, domain, n_profiles=measured_profiles, max_points=max_measured_points,
             max_step_T=measured_max_step_T, progress=counter("measured protocol", "profiles"))
-    write_json(out / "report.json", _json_ready(report))
     _figures(out, fields, family, resim, residual, analysis.get("arrays", {}).get("residual_after"))
-    write_text(out / "report.md", _markdown(path, report, analysis))
+    report["diagram_peaks"] = diagrams_figure(out / "diagrams.png", fields, family, resim)
+    write_json(out / "report.json", _json_ready(report))
+    text = _markdown(path, report, analysis)
+    write_text(out / "report.md", text)
+    write_report_page(out, _json_ready(report), text)
     return report
 
 
@@ -317,7 +322,8 @@ def _markdown(path, report, analysis) -> str:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
                   f"{structure['runs_z']:.1f}, lag-1 z {structure['lag1_z']:.1f} (noise σ {structure['noise_sigma']:.3g}, "
                   f"{structure['noise_source']}); rule: {structure['rule']}."]
-    lines += ["", "![families](families.png)", "", "![residual](residual.png)", ""]
+    lines += ["", "![families](families.png)", "", "![residual](residual.png)", "",
+              "FORC diagrams (measured, re-simulated, difference; one colour scale): `diagrams.png` (in report.html).", ""]
     return "\n".join(lines)
 
 
