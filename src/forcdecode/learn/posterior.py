@@ -465,9 +465,12 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     from ..core.parameters import normalize
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
+    from .ood import ood_check
+
     draws = est.sample(np.asarray(image_uint8)[None], [ms_norm], n_draws, seed=stream_seed(seed, "posterior", "predict"))[0]
     summary = summarize(draws, est.names, est.bounds)
-    result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws)}
+    result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws),
+              "ood": ood_check(est, np.asarray(image_uint8), [ms_norm])}
     for name, row in summary["parameters"].items():
         result[name] = {"value": row["median_value"], "normalized": row["median"], "mean_normalized": row["mean"],
                         "interval_68": row["value_68"], "interval_90": row["value_90"],
@@ -512,6 +515,13 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=settings, seed=seed,
                         embedding="cnn", bounds=data.bounds, log=log)
     train_s = time.perf_counter() - started
+    from .ood import fit_ood_reference, ood_check
+
+    # calibrated on validation + calibration families (held out from the flow, never test): with ~20 each
+    # the conformal p-value can reach 1/42, below the Bonferroni level 0.025 of two scores at alpha 0.05
+    est.metadata["ood"] = fit_ood_reference(est, data.images, data.ms_norm, train,
+                                            np.union1d(val, splits["calibration"]))
+    test_ood = ood_check(est, data.images[test], data.ms_norm[test])
     started = time.perf_counter()
     draws = int(settings["draws"])
     samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"))
@@ -541,11 +551,13 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
                "test_and_calibration_splits": pooled,
                "sample_id_test": [int(s) for s in data.sample_id[test]],
+               "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
+               "ood_alpha": est.metadata["ood"]["alpha"],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
     metrics["wall_s"]["total"] = train_s + calibration_s
     est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings,
              summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
-             per_parameter=metrics["per_parameter"])
+             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"])
     io.write_json(metrics_path, metrics)
     calibration_figure(metrics, figure_path)
     for name, row in metrics["per_parameter"].items():

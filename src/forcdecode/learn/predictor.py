@@ -167,4 +167,8 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float) -> list[str]:
                      f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry.get('bob_error_normalized', np.nan):>18.3f}  {UNITS.get(name, '')}")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
+    ood = result.get("ood")
+    if ood:
+        prefix = "WARNING: " if ood.get("out_of_distribution") else ""
+        lines.append(f"{prefix}looks like the training data? {ood['verdict']}")
     return lines
