@@ -13,6 +13,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
+    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
+                        help="alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
+                             "68/90 %% intervals, correlations) after an out-of-distribution check")
+    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
     parser.add_argument("--params", help="JSON file with a Hamiltonian to re-simulate (SI) instead of predicting one")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, help="known M_s (kA/m): no sweep")
     parser.add_argument("--Ms-sweep-kA-m", dest="ms_sweep", type=float, nargs=3, default=[470.0, 1400.0, 6],
@@ -64,9 +68,12 @@ def run(args) -> int:
                                 refit=[n.strip() for n in args.refit.split(",") if n.strip()] if args.refit else None,
                                 refit_budget=args.refit_budget, measured_protocol=not args.no_measured_protocol,
                                 measured_profiles=args.measured_profiles, max_measured_points=args.max_measured_points,
-                                measured_max_step_T=args.measured_max_step_mT * 1e-3)
+                                measured_max_step_T=args.measured_max_step_mT * 1e-3, estimator=args.estimator,
+                                posterior_path=args.posterior)
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
+    elif report["status"] == "out of distribution":
+        print(f"{args.file}: not decoded, {report['ood']['verdict']}; report in {args.out}")
     else:
         print(f"verdict: {report['verdict']}; effect: {report['effect']}; held-out RMS "
               f"{report['heldout_rms_before']:.4f} -> {report['heldout_rms_after']:.4f}; report in {args.out}")

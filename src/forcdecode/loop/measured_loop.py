@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import ConfigError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
 from .report_page import diagrams_figure, write_report_page
@@ -42,16 +43,19 @@ def _json_ready(obj):
 
 
 def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_progress):
-    """Predict the Hamiltonian at each M_s, re-simulate it, keep the M_s whose family is closest to
+    """Predict the Hamiltonian at each M_s (``models``: Alice's models, or a callable (image, M_s) →
+    prediction such as the posterior's), re-simulate it, keep the M_s whose family is closest to
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
     from ..learn.predictor import hamiltonian, predict_parameters
     from .resimulate import observation_error, resimulate_with_spread
 
+    predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
     for k, ms in enumerate(progress(ms_values, desc="M_s sweep", unit="values")):
-        prediction = predict_parameters(models, image, ms)
-        params = hamiltonian(prediction)
+        prediction = predict(image, ms)
+        params = hamiltonian({name: e for name, e in prediction.items()
+                              if name == "Ms" or (isinstance(e, dict) and "value" in e)})
         resim, spread = resimulate_with_spread(cfg, params, n_profiles=n_profiles)
         rms = observation_error(family, resim)["rms"]
         rows.append({"Ms": float(ms), "prediction": prediction, "params": params, "observation_rms": rms,
@@ -149,7 +153,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        ms_values_A_per_m=None, profiles: int = 20, sweep_profiles: int = 2, every_k: int = 4,
                        physics: bool = True, force: bool = False, refit=None, refit_budget: int = 20,
                        measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
-                       measured_max_step_T: float | None = MEASURED_MAX_STEP_T, log=_progress) -> dict:
+                       measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
+                       posterior_path="results/posterior/model.pt", log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -165,8 +170,11 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     profiles each). ``measured_protocol``: also re-simulate the file's own protocol
     (``measured_profiles`` profiles, at most ``max_measured_points`` points, field sub-steps of at
     most ``measured_max_step_T``) and report the residual
-    at the measured points in A·m². Raises InputFileError for an unreadable file, ModelFileError for
-    missing models."""
+    at the measured points in A·m². ``estimator``: "alice" (Alice + Bob's conformal intervals) or
+    "posterior" (the joint neural posterior at ``posterior_path``: medians re-simulated, 68/90 %
+    intervals and correlations reported, and first the out-of-distribution check of ``learn.ood``: a
+    family that does not look like the training data stops here unless ``force``). Raises
+    InputFileError for an unreadable file, ModelFileError for missing models."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
@@ -194,10 +202,32 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if params is not None:
         report.update(parameters=params, Ms_source="given (--params)")
     else:
-        from ..learn.predictor import load_models
-
-        models = load_models(models_dir)
         ms_values = list(ms_values_A_per_m if ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
+        if estimator == "posterior":
+            from ..core.parameters import normalize
+            from ..learn.ood import ood_check
+            from ..learn.posterior import PosteriorEstimator, posterior_prediction
+
+            est = PosteriorEstimator.load(posterior_path)
+            checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
+            ood = max(checks, key=lambda c: c.get("p_value", 1.0))  # the most favourable M_s
+            report["ood"] = ood
+            log(f"training-data check: {ood['verdict']}")
+            if ood.get("out_of_distribution") and not force:
+                report["status"] = "out of distribution"
+                write_json(out / "report.json", _json_ready(report))
+                text = (_markdown_domain(path, report) + f"\n**Not decoded**: {ood['verdict']}. The posterior was "
+                        "trained on families that do not look like this one (`--force` decodes it anyway).\n")
+                write_text(out / "report.md", text)
+                write_report_page(out, _json_ready(report), text, figures=())
+                return report
+            models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
+        elif estimator == "alice":
+            from ..learn.predictor import load_models
+
+            models = load_models(models_dir)
+        else:
+            raise ConfigError(f"unknown estimator {estimator!r} (alice or posterior)")
         best, sweep = predict_and_sweep(cfg, models, image, family, ms_values,
                                         sweep_profiles if len(ms_values) > 1 else profiles, log=log)
         params = best["params"]
@@ -285,9 +315,20 @@ def _markdown(path, report, analysis) -> str:
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
                   "| parameter | value | 68 % interval | 90 % interval | Bob's error (normalized) |", "|---|---|---|---|---|"]
         for name, e in prediction.items():
-            if isinstance(e, dict):
+            if isinstance(e, dict) and "value" in e:
+                bob = e.get("bob_error_normalized")
                 lines.append(f"| {name} | {e['value']:.4g} | {e['interval_68'][0]:.3g}–{e['interval_68'][1]:.3g} | "
-                             f"{e['interval_90'][0]:.3g}–{e['interval_90'][1]:.3g} | {e['bob_error_normalized']:.3f} |")
+                             f"{e['interval_90'][0]:.3g}–{e['interval_90'][1]:.3g} | "
+                             f"{'—' if bob is None else f'{bob:.3f}'} |")
+        if prediction.get("estimator") == "posterior":
+            corr = prediction["posterior_correlation"]
+            lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
+                      "Pairwise correlations of the draws (normalized parameters):", "",
+                      "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
+            for name, row in zip(corr["names"], corr["matrix"]):
+                lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
+        if report.get("ood"):
+            lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:
             lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
     lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "

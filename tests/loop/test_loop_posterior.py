@@ -1,0 +1,90 @@
+"""`forcdecode loop --estimator posterior`: a family unlike the posterior's training data is flagged and
+not decoded (unless --force); forced, the report carries the posterior medians, intervals,
+correlations and the training-data verdict."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from forcdecode.cli import main
+from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
+from forcdecode.learn.data import LearningData
+from forcdecode.learn.posterior import train_posterior
+from forcdecode.loop import resimulate
+from forcdecode.measured.writers import write_micromag_0015
+from forcdecode.micromag.build import mesh_from_config
+
+ROOT = Path(__file__).resolve().parents[2]
+NAMES = ["N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K"]
+N_FIELDS = 24
+
+
+@pytest.fixture(scope="module")
+def posterior(tmp_path_factory):
+    """A posterior trained on bar images (not FORC families) of the loop's grid size, all six parameters."""
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("post")
+    rng = np.random.default_rng(0)
+    n = 200
+    u = rng.random((n, 6))
+    images = np.zeros((n, N_FIELDS, N_FIELDS))
+    for k, row in enumerate(np.rint(u[:, 2] * (N_FIELDS - 1)).astype(int)):
+        images[k, :row + 1] = 235
+    images = (images + rng.integers(0, 20, images.shape)).astype(np.uint8)
+    ms = rng.uniform(*DEFAULT_BOUNDS["Ms"], n)
+    values = {"Ms": ms, **{name: denormalize(name, u[:, j]) for j, name in enumerate(NAMES)}}
+    data = LearningData(images=images, ms_norm=normalize("Ms", ms), values=values, sample_id=np.arange(n),
+                        bounds=dict(DEFAULT_BOUNDS), config_hash="bars", fields_T=np.linspace(-1, 1, N_FIELDS))
+    settings = {"parameters": NAMES, "width": 8, "dropout": 0.0, "epochs": 5, "patience": 3, "batch_size": 32,
+                "transforms": 1, "hidden": 8, "draws": 50}
+    train_posterior(data, settings, {"split": [0.5, 0.2, 0.2, 0.1], "protocol": "holdout"}, 3, out / "model.pt",
+                    out / "metrics.json", out / "fig.png", log=lambda *_: None)
+    return out / "model.pt"
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("film")
+    cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
+    cfg["field"]["n_fields"] = N_FIELDS
+    (tmp / "cfg.yaml").write_text(yaml.safe_dump(cfg))
+    # a square loop that saturates well inside ±1 T: in the physics domain, so only the OOD check can stop it
+    params = {"Ms": 6e5, "A_ex": 1.0e-11, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 5.0, "sigma_K": 0.1}
+    from forcdecode.loop.cli import load_config
+
+    truth = resimulate(load_config(tmp / "cfg.yaml"), params, n_profiles=1)
+    mesh = mesh_from_config(cfg)
+    scale = params["Ms"] * mesh.n_cells * mesh.cell_volume
+    fields = np.linspace(-1, 1, N_FIELDS)
+    curves = [(fields[i:], truth[i, i:] * scale) for i in range(N_FIELDS)]
+    return write_micromag_0015(tmp / "film.frc", fields, curves), tmp / "cfg.yaml"
+
+
+def test_a_family_unlike_the_training_data_is_not_decoded(posterior, measured, tmp_path, capsys):
+    path, cfg = measured
+    out = tmp_path / "loop"
+    assert main(["loop", str(path), "--out", str(out), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--profiles", "1"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "out of distribution", report.get("ood")
+    assert report["ood"]["out_of_distribution"] and "not decoded" in capsys.readouterr().out
+    assert "Not decoded" in (out / "report.md").read_text() and (out / "report.html").exists()
+
+
+def test_forced_the_report_carries_the_posterior(posterior, measured, tmp_path):
+    path, cfg = measured
+    out = tmp_path / "loop"
+    assert main(["loop", str(path), "--out", str(out), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--profiles", "1", "--no-physics",
+                 "--no-measured-protocol", "--force"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "analysed" and report["prediction"]["estimator"] == "posterior"
+    k = report["prediction"]["K_u"]
+    assert k["interval_90"][0] <= k["interval_68"][0] <= k["value"] <= k["interval_68"][1] <= k["interval_90"][1]
+    assert len(report["prediction"]["posterior_correlation"]["matrix"]) == 6
+    text = (out / "report.md").read_text()
+    assert "Pairwise correlations" in text and "Looks like the training data?" in text
