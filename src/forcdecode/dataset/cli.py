@@ -33,11 +33,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--selection", required=True)
     p.add_argument("--chunk", type=int, required=True)
     p.add_argument("--out", required=True)
-    p = sub.add_parser("merge")
-    p.add_argument("--config", required=True)
-    p.add_argument("--params", required=True)
-    p.add_argument("--screens", nargs="+", required=True)
+    p = sub.add_parser("merge", help="the workflow's chunks into dataset.h5, or (--runs) several runs' "
+                                     "dataset.h5 files into one, with provenance per sample")
+    p.add_argument("--config")
+    p.add_argument("--params")
+    p.add_argument("--screens", nargs="+")
     p.add_argument("--families", nargs="*", default=[])
+    p.add_argument("--runs", nargs="+", help="dataset.h5 files of runs of one physics config (samples.parquet beside "
+                                             "each is merged too)")
     p.add_argument("--h5", required=True)
     p.add_argument("--parquet", required=True)
     p = sub.add_parser("figure1")
@@ -52,6 +55,7 @@ def _log(text: str) -> None:
 
 
 def run(args) -> int:
+    from ..core.errors import ConfigError
     from ..core.io import read_config
     from . import stages
 
@@ -60,6 +64,13 @@ def run(args) -> int:
 
         figure1(args.dataset, args.out)
         return 0
+    if args.step == "merge" and args.runs:
+        from .merge import merge_runs
+
+        merge_runs(args.runs, args.h5, args.parquet, log=_log)
+        return 0
+    if args.step == "merge" and not (args.config and args.params and args.screens):
+        raise ConfigError("dataset merge needs --config, --params and --screens (the workflow's chunks), or --runs")
     cfg = read_config(args.config)
     if args.step == "draw":
         stages.draw_stage(cfg, args.out, log=_log)

@@ -73,3 +73,106 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
     io.write_parquet(parquet_path, table)
     passed = int((table["screen_status"] == "passed").sum())
     print(f"merged {len(ok_ids)} families; {passed}/{len(table)} samples passed screening", flush=True)
+
+
+# ---------------------------------------------------------------- several runs into one dataset
+SIZE_KEYS = ("n_samples", "chunk_size", "family_chunk_size", "results_dir", "first_sample_id", "kernel_cache_dir")
+"""Config keys that say how much was run and where, not what was simulated: runs may differ in them."""
+
+
+def physics_config(cfg: dict) -> dict:
+    """The part of a dataset config that decides what a family is (mesh, field grid, minimizer,
+    protocol, pinning, grains, screening, bounds, seed): runs merged into one dataset must agree on it."""
+    return {k: v for k, v in cfg.items() if k not in SIZE_KEYS}
+
+
+def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
+    """Merge the dataset.h5 files of several runs (and the samples.parquet beside each, when present)
+    into one, with per-sample provenance (``provenance/run`` indexes the ``runs`` attribute: path,
+    config hash, seed, package version, creation time). Runs must share the physics config (and so
+    the seed: the split is a function of (seed, sample id), and a sample keeps its split in the merged
+    dataset); a sample id present in several runs must carry the same parameters (it is then taken
+    once, from the first run). Raises DatasetError naming the runs and the difference."""
+    from ..core.errors import DatasetError
+
+    paths = [str(p) for p in dataset_paths]
+    if len(paths) < 1:
+        raise DatasetError("no run to merge")
+    runs, reference = [], None
+    images, curves, descending, params, ids, run_of = [], [], [], [], [], []
+    seen: dict[int, np.ndarray] = {}
+    fields = columns = None
+    for r, path in enumerate(paths):
+        try:
+            h5 = h5py.File(path, "r")
+        except OSError as error:
+            raise DatasetError(f"cannot open run {path}: {error}") from None
+        with h5:
+            try:
+                cfg = json.loads(h5.attrs["config_json"])
+            except KeyError:
+                raise DatasetError(f"{path} has no config provenance (not written by `forcdecode dataset merge`)") from None
+            physics = physics_config(cfg)
+            if reference is None:
+                reference, reference_path = physics, path
+                fields, columns = h5["fields_T"][:], list(h5["parameters"].attrs["columns"])
+            elif physics != reference:
+                keys = sorted(k for k in set(physics) | set(reference) if physics.get(k) != reference.get(k))
+                raise DatasetError(f"run {path} simulated other films than {reference_path}: they differ in "
+                                   f"{', '.join(keys)}; only runs of one physics config can share a dataset")
+            runs.append({"path": path, "config_hash": str(h5.attrs.get("config_hash", "")),
+                         "seed": int(h5.attrs.get("seed", cfg.get("seed", -1))),
+                         "package_version": str(h5.attrs.get("package_version", "")),
+                         "created": str(h5.attrs.get("created", "")), "n_samples": int(cfg.get("n_samples", -1))})
+            sample_ids = h5["sample_id"][:]
+            values = h5["parameters"][:]
+            for k, sid in enumerate(sample_ids):
+                sid = int(sid)
+                if sid in seen:
+                    if not np.allclose(seen[sid], values[k], rtol=1e-12, atol=0.0, equal_nan=True):
+                        raise DatasetError(f"sample {sid} of {path} has other parameters than in an earlier run: "
+                                           "two runs drew different samples under one id")
+                    continue
+                seen[sid] = values[k]
+                images.append(h5["images"][k])
+                curves.append(h5["curves_mz"][k])
+                descending.append(h5["descending_mz"][k])
+                params.append(values[k])
+                ids.append(sid)
+                run_of.append(r)
+        log(f"run {r}: {path}: {len(sample_ids)} families")
+    order = np.argsort(ids)
+    with io.atomic_path(h5_path) as tmp:
+        with h5py.File(tmp, "w") as h5:
+            h5.create_dataset("images", data=np.stack(images)[order], compression="gzip")
+            h5.create_dataset("curves_mz", data=np.stack(curves)[order], compression="gzip")
+            h5.create_dataset("descending_mz", data=np.stack(descending)[order], compression="gzip")
+            h5["sample_id"] = np.asarray(ids, dtype=np.int64)[order]
+            h5["fields_T"] = fields
+            dset = h5.create_dataset("parameters", data=np.stack(params)[order])
+            dset.attrs["columns"] = columns
+            dset.attrs["units"] = ["A/m", "J/m", "J/m^3", "J/m^2", "count (256x256x2 grid)", "deg", "fraction"]
+            h5.create_dataset("provenance/run", data=np.asarray(run_of, dtype=np.int32)[order])
+            h5.attrs["runs"] = json.dumps(runs)
+            merged_cfg = {**reference, "n_samples": max(r["n_samples"] for r in runs)}
+            h5.attrs["config_json"] = json.dumps(merged_cfg, sort_keys=True)
+            h5.attrs["config_hash"] = config_hash(physics_config(merged_cfg))
+            h5.attrs["seed"] = int(reference.get("seed", -1))
+            h5.attrs["package_version"] = __version__
+            h5.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+            h5.attrs["image_rule"] = "rows: reversal field ascending; columns: field ascending; H<H_r filled with m(H_r,H_r); uint8=round(127.5(m+1))"
+    if parquet_path is not None:
+        from pathlib import Path
+
+        tables = []
+        for r, path in enumerate(paths):
+            beside = Path(path).with_name("samples.parquet")
+            if beside.exists():
+                t = pd.read_parquet(beside)
+                t["run"] = r
+                tables.append(t)
+        if tables:
+            table = pd.concat(tables, ignore_index=True).drop_duplicates("sample_id", keep="first")
+            io.write_parquet(parquet_path, table.sort_values("sample_id").reset_index(drop=True))
+    log(f"merged {len(ids)} families from {len(paths)} runs into {h5_path}")
+    return {"n_families": len(ids), "runs": runs}
