@@ -28,12 +28,14 @@ include: "workflow/rules/report.smk"
 
 localrules:
     all,
+    families_of_chunk,
 
 
 rule all:
     default_target: True
     input:
         rules.merge.output,
+        rules.select.output,
         rules.figure1.output,
         rules.evaluate.output,
         rules.closed_loop.output,

@@ -19,8 +19,19 @@ STAGE_SECTIONS = ("learning", "loop")
 OPTION_SECTIONS = ("posterior",)
 RESULTS = config["results_dir"].rstrip("/")
 LEARN_PARAMETERS = config["learning"]["parameters"]
+# Whole screening chunks of `chunk_size` consecutive sample ids, from first_sample_id on: a chunk's
+# samples never depend on n_samples (rounded up to whole chunks), so growing n_samples (or a second
+# id range) adds chunks and reuses every file of the chunks already run.
+SIZE_KEYS = ("n_samples", "first_sample_id")
+if config["first_sample_id"] % config["chunk_size"]:
+    raise ValueError(
+        f"first_sample_id ({config['first_sample_id']}) must be a multiple of chunk_size ({config['chunk_size']})"
+    )
+FIRST_CHUNK = config["first_sample_id"] // config["chunk_size"]
 N_SCREEN_CHUNKS = -(-config["n_samples"] // config["chunk_size"])
-SCREEN_CHUNKS = [f"{RESULTS}/screen/chunk_{k:04d}.parquet" for k in range(N_SCREEN_CHUNKS)]
+CHUNKS = [f"{k:04d}" for k in range(FIRST_CHUNK, FIRST_CHUNK + N_SCREEN_CHUNKS)]
+SCREEN_CHUNKS = [f"{RESULTS}/screen/chunk_{c}.parquet" for c in CHUNKS]
+PARAM_CHUNKS = [f"{RESULTS}/params/chunk_{c}.parquet" for c in CHUNKS]
 
 # The package's command line. With --use-conda (workflow/envs/forcdecode.yaml: its dependencies)
 # it runs this checkout's source in that environment; otherwise the Python running Snakemake
@@ -34,15 +45,23 @@ FORCDECODE_1T = f"NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 {FORCDECODE}"
 CONDA_ENV = "../envs/forcdecode.yaml"
 
 
-def family_chunks(wildcards):
-    """Family chunk files, known once the screening checkpoint has run (read once)."""
-    selection = checkpoints.select.get().output[0]
-    with open(selection) as handle:
-        chunks = json.load(handle)["chunks"]
-    return [f"{RESULTS}/families/chunk_{int(k):04d}.h5" for k in sorted(chunks, key=int)]
+def chunk_family_parts(wildcards):
+    """The family job files of one screening chunk (its passing samples in parts of
+    family_chunk_size), known once that chunk's screening (a checkpoint) has run."""
+    from forcdecode.dataset.stages import family_parts
+
+    screen = checkpoints.screen.get(chunk=wildcards.chunk).output[0]
+    parts = family_parts({"family_chunk_size": config["family_chunk_size"]}, screen)
+    return [f"{RESULTS}/families/chunk_{wildcards.chunk}_{p:03d}.h5" for p in range(len(parts))]
+
+
+# one list of family files per screening chunk (families_of_chunk writes it); merge depends on these
+# statically, so a grown run schedules the new chunks' screening even when dataset.h5 exists
+FAMILY_LISTS = [f"{RESULTS}/families/chunk_{c}.json" for c in CHUNKS]
 
 
 # chunk numbers are written with four digits; a parameter is one of the learned ones
 wildcard_constraints:
     chunk=r"\d{4}",
+    part=r"\d{3}",
     parameter="|".join(re.escape(p) for p in LEARN_PARAMETERS),

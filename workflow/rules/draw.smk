@@ -6,28 +6,32 @@ rule resolve_config:
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
-        cfg=json.dumps({k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS}, sort_keys=True),
+        cfg=json.dumps(
+            {k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS},
+            sort_keys=True,
+        ),
     run:
         write_json(output[0], json.loads(params.cfg))
         Path(log[0]).write_text(f"wrote {output[0]}\n")
 
 
 rule draw:
-    """Parameter draw for every sample, from (seed, sample id)."""
+    """Parameter draw of one screening chunk's samples, from (seed, sample id)."""
     input:
         config=rules.resolve_config.output,
     output:
-        f"{RESULTS}/params.parquet",
+        f"{RESULTS}/params/chunk_{{chunk}}.parquet",
     log:
-        f"{RESULTS}/logs/draw.log",
+        f"{RESULTS}/logs/draw/chunk_{{chunk}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/draw/draw.tsv"
+        f"{RESULTS}/benchmarks/draw/chunk_{{chunk}}.tsv"
     conda:
         CONDA_ENV
     params:
         cli=FORCDECODE,
+        chunk=lambda wildcards: int(wildcards.chunk),
     shell:
-        "{params.cli} dataset draw --config {input.config} --out {output} 2> {log}"
+        "{params.cli} dataset draw --config {input.config} --chunk {params.chunk} --out {output} 2> {log}"
 
 
 rule resolve_learning:

@@ -2,9 +2,9 @@ rule merge:
     """dataset.h5 (images, raw curves, parameters, provenance) and samples.parquet (every sample)."""
     input:
         config=rules.resolve_config.output,
-        params=rules.draw.output,
+        params=PARAM_CHUNKS,
         screens=SCREEN_CHUNKS,
-        families=family_chunks,
+        families=FAMILY_LISTS,
     output:
         h5=f"{RESULTS}/dataset.h5",
         parquet=f"{RESULTS}/samples.parquet",
@@ -18,4 +18,4 @@ rule merge:
         cli=FORCDECODE,
     shell:
         "{params.cli} dataset merge --config {input.config} --params {input.params} "
-        "--screens {input.screens} --families {input.families} --h5 {output.h5} --parquet {output.parquet} 2> {log}"
+        "--screens {input.screens} --family-lists {input.families} --h5 {output.h5} --parquet {output.parquet} 2> {log}"

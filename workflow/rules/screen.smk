@@ -1,8 +1,9 @@
-rule screen:
-    """Saturate, sweep half the major loop, keep hysteretic samples (one job per chunk of samples)."""
+checkpoint screen:
+    """Saturate, sweep half the major loop, keep hysteretic samples (one job per chunk of samples). A
+    checkpoint: its passing samples decide the chunk's family jobs."""
     input:
         config=rules.resolve_config.output,
-        params=rules.draw.output,
+        params=f"{RESULTS}/params/chunk_{{chunk}}.parquet",
     output:
         f"{RESULTS}/screen/chunk_{{chunk}}.parquet",
     log:
@@ -23,8 +24,8 @@ rule screen:
         "--chunk {params.chunk} --out {output} 2> {log}"
 
 
-checkpoint select:
-    """Aggregate the screening: which samples get a FORC family, in which chunk."""
+rule select:
+    """The screening summary (pass rate, reasons); each chunk's family jobs follow from its own screen."""
     input:
         config=rules.resolve_config.output,
         screens=SCREEN_CHUNKS,

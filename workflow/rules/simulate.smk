@@ -2,14 +2,14 @@ rule simulate_family:
     """FORC families of one chunk of passing samples (failed samples are recorded, not dropped)."""
     input:
         config=rules.resolve_config.output,
-        params=rules.draw.output,
-        selection=f"{RESULTS}/screen/selection.json",
+        params=f"{RESULTS}/params/chunk_{{chunk}}.parquet",
+        screen=f"{RESULTS}/screen/chunk_{{chunk}}.parquet",
     output:
-        f"{RESULTS}/families/chunk_{{chunk}}.h5",
+        f"{RESULTS}/families/chunk_{{chunk}}_{{part}}.h5",
     log:
-        f"{RESULTS}/logs/families/chunk_{{chunk}}.log",
+        f"{RESULTS}/logs/families/chunk_{{chunk}}_{{part}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/simulate_family/chunk_{{chunk}}.tsv"
+        f"{RESULTS}/benchmarks/simulate_family/chunk_{{chunk}}_{{part}}.tsv"
     conda:
         CONDA_ENV
     threads: 1
@@ -19,6 +19,20 @@ rule simulate_family:
     params:
         cli=FORCDECODE_1T,
         chunk=lambda wildcards: int(wildcards.chunk),
+        part=lambda wildcards: int(wildcards.part),
     shell:
         "{params.cli} dataset simulate --config {input.config} --params {input.params} "
-        "--selection {input.selection} --chunk {params.chunk} --out {output} 2> {log}"
+        "--screen {input.screen} --chunk {params.chunk} --part {params.part} --out {output} 2> {log}"
+
+
+rule families_of_chunk:
+    """The family files of one screening chunk, listed once they exist (the checkpoint's aggregate)."""
+    input:
+        chunk_family_parts,
+    output:
+        f"{RESULTS}/families/chunk_{{chunk}}.json",
+    log:
+        f"{RESULTS}/logs/families/chunk_{{chunk}}_list.log",
+    run:
+        write_json(output[0], {"chunk": wildcards.chunk, "families": list(input)})
+        Path(log[0]).write_text(f"{len(input)} family files\n")

@@ -21,7 +21,17 @@ def config_hash(cfg: dict) -> str:
 
 
 def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -> None:
-    params = pd.read_parquet(params_path)
+    """The workflow's chunks (parameter draws, screens, family files) into ``dataset.h5`` (families
+    ordered by sample id, parameters SI, fields in T) and ``samples.parquet`` (every drawn sample).
+    ``config_hash`` is the hash of the physics config (``physics_config``): a grown run keeps it."""
+    paths = [params_path] if isinstance(params_path, (str, bytes)) or not hasattr(params_path, "__iter__") else list(params_path)
+    params = pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True)
+    # the workflow's config.json leaves out how many samples were drawn (so that growing a dataset
+    # reruns nothing): the dataset records the ids actually drawn, whole chunks
+    cfg = {**cfg}
+    if len(params):
+        cfg.setdefault("n_samples", int(len(params)))
+        cfg.setdefault("first_sample_id", int(params["sample_id"].min()))
     screens = pd.concat([pd.read_parquet(p) for p in screen_paths], ignore_index=True)
     table = params.merge(screens.drop(columns=[c for c in ("traceback",) if c in screens]), on="sample_id", how="left")
     family_rows, images, curves, descending, ok_ids, raw_sources = [], [], [], [], [], []
@@ -44,7 +54,7 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
     families = pd.DataFrame(family_rows, columns=["sample_id", "family_status", "family_reason", "family_s"])
     table = table.merge(families, on="sample_id", how="left")
     table["in_dataset"] = table["sample_id"].isin(ok_ids)
-    table["config_hash"] = config_hash(cfg)
+    table["config_hash"] = config_hash(physics_config(cfg))
     order = np.argsort(ok_ids)
     ok_ids = np.asarray(ok_ids, dtype=np.int64)[order]
     n_fields = cfg["field"]["n_fields"]
@@ -64,7 +74,7 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
             for path, sample_id in raw_sources:
                 with h5py.File(path, "r") as source:
                     source.copy(source[f"raw/{sample_id}"], h5, name=f"raw_curves/{sample_id}")
-            h5.attrs["config_hash"] = config_hash(cfg)
+            h5.attrs["config_hash"] = config_hash(physics_config(cfg))  # the same for a grown run
             h5.attrs["config_json"] = json.dumps(cfg, sort_keys=True)
             h5.attrs["seed"] = cfg["seed"]
             h5.attrs["package_version"] = __version__
@@ -123,7 +133,8 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
             runs.append({"path": path, "config_hash": str(h5.attrs.get("config_hash", "")),
                          "seed": int(h5.attrs.get("seed", cfg.get("seed", -1))),
                          "package_version": str(h5.attrs.get("package_version", "")),
-                         "created": str(h5.attrs.get("created", "")), "n_samples": int(cfg.get("n_samples", -1))})
+                         "created": str(h5.attrs.get("created", "")), "n_samples": int(cfg.get("n_samples", -1)),
+                         "first_sample_id": int(cfg.get("first_sample_id", 0))})
             sample_ids = h5["sample_id"][:]
             values = h5["parameters"][:]
             for k, sid in enumerate(sample_ids):
@@ -154,7 +165,9 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
             dset.attrs["units"] = ["A/m", "J/m", "J/m^3", "J/m^2", "count (256x256x2 grid)", "deg", "fraction"]
             h5.create_dataset("provenance/run", data=np.asarray(run_of, dtype=np.int32)[order])
             h5.attrs["runs"] = json.dumps(runs)
-            merged_cfg = {**reference, "n_samples": max(r["n_samples"] for r in runs)}
+            # samples drawn by all runs together: the union of their id ranges [first, first + n)
+            drawn = set().union(*(range(r["first_sample_id"], r["first_sample_id"] + max(r["n_samples"], 0)) for r in runs))
+            merged_cfg = {**reference, "n_samples": len(drawn), "first_sample_id": min(drawn, default=0)}
             h5.attrs["config_json"] = json.dumps(merged_cfg, sort_keys=True)
             h5.attrs["config_hash"] = config_hash(physics_config(merged_cfg))
             h5.attrs["seed"] = int(reference.get("seed", -1))

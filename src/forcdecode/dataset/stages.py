@@ -21,22 +21,45 @@ def _quiet(text: str) -> None:
 
 
 def chunk_ids(cfg: dict, chunk: int) -> list[int]:
-    """Sample ids of screening chunk ``chunk`` (``chunk_size`` consecutive ids)."""
+    """Sample ids of screening chunk ``chunk``: ``chunk_size`` consecutive ids from chunk · chunk_size
+    (chunk numbers are absolute: a run from ``first_sample_id`` starts at chunk first_sample_id /
+    chunk_size). A chunk does not depend on ``n_samples`` (the workflow's config.json leaves it out
+    and runs whole chunks, n_samples rounded up), so a grown dataset keeps every chunk it had, bit for
+    bit; a config that has ``n_samples`` (called by hand) clamps the last chunk to
+    [first_sample_id, first_sample_id + n_samples)."""
     size = cfg["chunk_size"]
-    return list(range(chunk * size, min((chunk + 1) * size, cfg["n_samples"])))
+    start, end = chunk * size, (chunk + 1) * size
+    if "n_samples" in cfg:
+        first = cfg.get("first_sample_id", 0)
+        start, end = max(start, first), min(end, first + cfg["n_samples"])
+    return list(range(start, end))
 
 
-def draw_stage(cfg: dict, out, log=_quiet) -> pd.DataFrame:
-    """Draw the parameters of every sample (``n_samples``) and write them (Parquet, one row each)."""
-    rows = [{"sample_id": i, **draw_parameters(cfg["seed"], i, cfg.get("bounds"))} for i in range(cfg["n_samples"])]
+def draw_stage(cfg: dict, out, log=_quiet, chunk: int | None = None) -> pd.DataFrame:
+    """Draw the parameters of the samples of screening chunk ``chunk`` (or of all ``n_samples``) and
+    write them (Parquet, one row each). Draws come from (seed, sample id) alone: chunk by chunk or all
+    at once, a sample's parameters are the same."""
+    first = cfg.get("first_sample_id", 0)
+    ids = chunk_ids(cfg, chunk) if chunk is not None else range(first, first + cfg["n_samples"])
+    rows = [{"sample_id": i, **draw_parameters(cfg["seed"], i, cfg.get("bounds"))} for i in ids]
     table = pd.DataFrame(rows)
     write_parquet(out, table)
     log(f"drew {len(rows)} samples (seed {cfg['seed']})")
     return table
 
 
-def _parameters(params_path) -> pd.DataFrame:
-    return pd.read_parquet(params_path).set_index("sample_id")
+def _parameters(params_paths) -> pd.DataFrame:
+    paths = [params_paths] if isinstance(params_paths, (str, bytes)) or not hasattr(params_paths, "__iter__") else list(params_paths)
+    return pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True).set_index("sample_id")
+
+
+def family_parts(cfg: dict, screen_path) -> list[list[int]]:
+    """The passing samples of one screening chunk (ascending ids), in parts of ``family_chunk_size``:
+    the family jobs of that chunk. Depends on that chunk's screening alone."""
+    table = pd.read_parquet(screen_path)
+    passed = sorted(int(i) for i in table.loc[table["screen_status"] == "passed", "sample_id"])
+    size = cfg["family_chunk_size"]
+    return [passed[k * size:(k + 1) * size] for k in range((len(passed) + size - 1) // size)]
 
 
 def screen_stage(cfg: dict, params_path, chunk: int, out, log=_quiet) -> pd.DataFrame:
@@ -57,32 +80,42 @@ def screen_stage(cfg: dict, params_path, chunk: int, out, log=_quiet) -> pd.Data
 
 
 def select_stage(cfg: dict, screens, out, log=_quiet) -> dict:
-    """The passing samples of every screening chunk, grouped in chunks of ``family_chunk_size``."""
+    """The screening summary: counts by outcome, the pass rate, and each screening chunk's family
+    parts (``family_parts``: the jobs its passing samples make)."""
+    from pathlib import Path
+
     table = pd.concat([pd.read_parquet(path) for path in screens], ignore_index=True)
-    passed = sorted(int(i) for i in table.loc[table["screen_status"] == "passed", "sample_id"])
-    size = cfg["family_chunk_size"]
-    chunks = {str(k): passed[k * size:(k + 1) * size] for k in range((len(passed) + size - 1) // size)}
+    passed = int((table["screen_status"] == "passed").sum())
+    parts = {Path(path).stem: family_parts(cfg, path) for path in screens}
     counts = table["screen_status"].value_counts().to_dict()
-    selection = {"chunks": chunks, "n_passed": len(passed), "n_screened": int(len(table)),
-                 "pass_rate": len(passed) / max(1, len(table)), "counts": counts}
+    selection = {"parts": parts, "n_passed": passed, "n_screened": int(len(table)),
+                 "pass_rate": passed / max(1, len(table)), "counts": counts,
+                 "n_family_jobs": int(sum(len(p) for p in parts.values()))}
     write_json(out, selection)
-    log(f"screening: {len(passed)}/{len(table)} passed ({counts}); {len(chunks)} family chunks")
+    log(f"screening: {passed}/{len(table)} passed ({counts}); {selection['n_family_jobs']} family jobs")
     return selection
 
 
-def simulate_stage(cfg: dict, params_path, selection_path, chunk: int, out, log=_quiet) -> list[dict]:
-    """Simulate the FORC families of one family chunk (``simulate.simulate``) and write them (HDF5).
-    InputFileError if the chunk is not in the selection."""
+def simulate_stage(cfg: dict, params_path, selection_path, chunk: int, out, log=_quiet, part: int | None = None) -> list[dict]:
+    """Simulate the FORC families of one family job (``simulate.simulate``) and write them (HDF5): part
+    ``part`` of screening chunk ``selection_path`` (a screen parquet, ``family_parts``), or (old layout)
+    chunk ``chunk`` of a selection.json. InputFileError if that job does not exist."""
     import h5py
 
     from .simulate import simulate
 
     params = _parameters(params_path)
-    with open(selection_path) as handle:
-        selection = json.load(handle)
-    ids = selection["chunks"].get(str(chunk))
-    if ids is None:
-        raise InputFileError(f"chunk {chunk} is not in {selection_path}")
+    if part is not None:
+        parts = family_parts(cfg, selection_path)
+        if not 0 <= part < len(parts):
+            raise InputFileError(f"part {part} is not among the {len(parts)} family parts of {selection_path}")
+        ids, chunk = parts[part], f"{chunk}.{part}"
+    else:
+        with open(selection_path) as handle:
+            selection = json.load(handle)
+        ids = selection["chunks"].get(str(chunk))
+        if ids is None:
+            raise InputFileError(f"chunk {chunk} is not in {selection_path}")
     n_fields = cfg["field"]["n_fields"]
     results = []
     for n, sample_id in enumerate(progress(ids, desc=f"family chunk {chunk}", unit="families"), 1):
