@@ -139,7 +139,8 @@ def run_jobs(cfg: dict, jobs, out_dir, workers: int = 1, say=print) -> list[dict
             continue
         film, sample_id, r, started = running.pop(pid)
         row = {"film": film, "sample_id": sample_id, "realisation": r, "exit_status": os.waitstatus_to_exitcode(status),
-               "process_wall_s": time.perf_counter() - started, "peak_rss_MiB": usage.ru_maxrss / 1024}
+               "process_wall_s": time.perf_counter() - started, "peak_rss_MiB": usage.ru_maxrss / 1024,
+               "process_cpu_s": usage.ru_utime + usage.ru_stime}
         rows.append(row)
         with open(out_dir / "costs.jsonl", "a") as f:
             f.write(json.dumps(row) + "\n")
@@ -166,6 +167,7 @@ def load(out_dir) -> dict:
             costs[(row["film"], int(row["sample_id"]), int(row["realisation"]))] = row
     for key, job in found.items():
         job["peak_rss_MiB"] = costs.get(key, {}).get("peak_rss_MiB", float("nan"))
+        job["process_cpu_s"] = costs.get(key, {}).get("process_cpu_s", float("nan"))
     return found
 
 
@@ -232,6 +234,8 @@ def summarize(out_dir, reference: str = "paper") -> dict:
                       "median_iterations": float(np.median([j["iterations"] for j in mine])),
                       "median_relaxations": float(np.median([j["relaxations"] for j in mine])),
                       "max_peak_rss_MiB": _nanmax([j["peak_rss_MiB"] for j in mine]),
+                      "median_process_cpu_s": float(np.nanmedian([j["process_cpu_s"] for j in mine]))
+                      if any(np.isfinite(j["process_cpu_s"]) for j in mine) else float("nan"),
                       "n_cells": int(mine[0]["n_cells"]), "unconverged": int(sum(j["unconverged"] for j in mine))}
     medians = {}
     keys = sorted({k for r in rows for k in r if k not in ("sample_id", "params")})
