@@ -31,17 +31,18 @@ def test_missing_models_exit_2(tmp_path, capsys):
     assert err.startswith("error: no trained model in") and "Traceback" not in err
 
 
-def test_chunk_not_in_selection_exit_2(tmp_path, capsys):
-    (tmp_path / "config.json").write_text(json.dumps({"seed": 1, "n_samples": 2, "field": {"n_fields": 4}}))
-    (tmp_path / "selection.json").write_text(json.dumps({"chunks": {"0": [0]}}))
+def test_part_not_in_chunk_exit_2(tmp_path, capsys):
+    (tmp_path / "config.json").write_text(json.dumps({"seed": 1, "family_chunk_size": 2, "field": {"n_fields": 4}}))
     import pandas as pd
 
+    pd.DataFrame({"sample_id": [0, 1], "screen_status": ["passed", "rejected"]}).to_parquet(tmp_path / "screen.parquet")
     pd.DataFrame({"sample_id": [0], "Ms": [1e6]}).to_parquet(tmp_path / "params.parquet")
     code = main(["dataset", "simulate", "--config", str(tmp_path / "config.json"), "--params",
-                 str(tmp_path / "params.parquet"), "--selection", str(tmp_path / "selection.json"), "--chunk", "5",
-                 "--out", str(tmp_path / "family.h5")])
+                 str(tmp_path / "params.parquet"), "--screen", str(tmp_path / "screen.parquet"), "--chunk", "0",
+                 "--part", "5", "--out", str(tmp_path / "family.h5")])
     assert code == 2
-    assert capsys.readouterr().err.strip() == f"error: chunk 5 is not in {tmp_path / 'selection.json'}"
+    assert capsys.readouterr().err.strip() == (f"error: part 5 is not among the 1 family parts of "
+                                               f"{tmp_path / 'screen.parquet'}")
     assert not (tmp_path / "family.h5").exists()
 
 

@@ -33,10 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("simulate")
     p.add_argument("--config", required=True)
     p.add_argument("--params", nargs="+", required=True)
-    p.add_argument("--selection", help="selection.json (with --chunk: the old layout)")
-    p.add_argument("--screen", help="a screening chunk's parquet (with --part)")
-    p.add_argument("--chunk", type=int, default=0)
-    p.add_argument("--part", type=int, help="family part of --screen")
+    p.add_argument("--screen", required=True, help="the screening chunk's parquet")
+    p.add_argument("--chunk", type=int, required=True, help="the screening chunk's number")
+    p.add_argument("--part", type=int, required=True, help="family part of that chunk (family_chunk_size samples each)")
     p.add_argument("--out", required=True)
     p = sub.add_parser("merge", help="the workflow's chunks into dataset.h5, or (--runs) several runs' "
                                      "dataset.h5 files into one, with provenance per sample")
@@ -86,14 +85,7 @@ def run(args) -> int:
     elif args.step == "select":
         stages.select_stage(cfg, args.screens, args.out, log=_log)
     elif args.step == "simulate":
-        if args.screen is not None:
-            if args.part is None:
-                raise ConfigError("dataset simulate --screen needs --part")
-            stages.simulate_stage(cfg, args.params, args.screen, args.chunk, args.out, log=_log, part=args.part)
-        elif args.selection is not None:
-            stages.simulate_stage(cfg, args.params, args.selection, args.chunk, args.out, log=_log)
-        else:
-            raise ConfigError("dataset simulate needs --screen and --part (or --selection and --chunk)")
+        stages.simulate_stage(cfg, args.params, args.screen, args.chunk, args.out, log=_log, part=args.part)
     elif args.step == "merge":
         from .merge import merge
 

@@ -5,7 +5,6 @@ Every output is written atomically; fields in T, m normalized, parameters SI (``
 
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import pandas as pd
@@ -96,26 +95,20 @@ def select_stage(cfg: dict, screens, out, log=_quiet) -> dict:
     return selection
 
 
-def simulate_stage(cfg: dict, params_path, selection_path, chunk: int, out, log=_quiet, part: int | None = None) -> list[dict]:
+def simulate_stage(cfg: dict, params_path, screen_path, chunk: int, out, log=_quiet, part: int = 0) -> list[dict]:
     """Simulate the FORC families of one family job (``simulate.simulate``) and write them (HDF5): part
-    ``part`` of screening chunk ``selection_path`` (a screen parquet, ``family_parts``), or (old layout)
-    chunk ``chunk`` of a selection.json. InputFileError if that job does not exist."""
+    ``part`` of screening chunk ``chunk`` (its screen parquet ``screen_path``, ``family_parts``).
+    InputFileError if that chunk has no such part."""
     import h5py
 
     from .simulate import simulate
 
     params = _parameters(params_path)
-    if part is not None:
-        parts = family_parts(cfg, selection_path)
-        if not 0 <= part < len(parts):
-            raise InputFileError(f"part {part} is not among the {len(parts)} family parts of {selection_path}")
-        ids, chunk = parts[part], f"{chunk}.{part}"
-    else:
-        with open(selection_path) as handle:
-            selection = json.load(handle)
-        ids = selection["chunks"].get(str(chunk))
-        if ids is None:
-            raise InputFileError(f"chunk {chunk} is not in {selection_path}")
+    parts = family_parts(cfg, screen_path)
+    if not 0 <= part < len(parts):
+        raise InputFileError(f"part {part} is not among the {len(parts)} family parts of {screen_path}")
+    ids = parts[part]
+    chunk = f"{chunk}.{part}"
     n_fields = cfg["field"]["n_fields"]
     results = []
     for n, sample_id in enumerate(progress(ids, desc=f"family chunk {chunk}", unit="families"), 1):
