@@ -5,7 +5,6 @@ Every output is written atomically; fields in T, m normalized, parameters SI (``
 
 from __future__ import annotations
 
-
 import numpy as np
 import pandas as pd
 
