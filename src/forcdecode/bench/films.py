@@ -236,6 +236,8 @@ def summarize(out_dir, reference: str = "paper") -> dict:
                       "max_peak_rss_MiB": _nanmax([j["peak_rss_MiB"] for j in mine]),
                       "median_process_cpu_s": float(np.nanmedian([j["process_cpu_s"] for j in mine]))
                       if any(np.isfinite(j["process_cpu_s"]) for j in mine) else float("nan"),
+                      "mean_process_cpu_s": float(np.nanmean([j["process_cpu_s"] for j in mine]))
+                      if all(np.isfinite(j["process_cpu_s"]) for j in mine) else float("nan"),
                       "n_cells": int(mine[0]["n_cells"]), "unconverged": int(sum(j["unconverged"] for j in mine))}
     medians = {}
     keys = sorted({k for r in rows for k in r if k not in ("sample_id", "params")})
@@ -316,9 +318,12 @@ def cost_table(summary: dict, n_families: int = 16_000, pass_rate: float = 0.2, 
     families are independent jobs)."""
     out = {}
     for film, c in summary["cost"].items():
-        family_h = c["mean_family_s"] / 3600.0
+        # CPU time where the job's was recorded (the machine may have been shared: wall ≥ CPU)
+        seconds = c.get("mean_process_cpu_s")
+        seconds = seconds if seconds is not None and np.isfinite(seconds) else c["mean_family_s"]
+        family_h = seconds / 3600.0
         core_h = n_families * family_h * (1.0 + screen_fraction / pass_rate)
-        out[film] = {"mean_family_s": c["mean_family_s"], "core_hours": core_h,
+        out[film] = {"mean_family_s": c["mean_family_s"], "mean_cpu_s_used": seconds * 1.0, "core_hours": core_h,
                      "wall_days": {str(n): core_h / n / 24.0 for n in cores}}
     return {"n_families": n_families, "pass_rate": pass_rate, "screen_fraction": screen_fraction, "films": out}
 
