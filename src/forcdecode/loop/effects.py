@@ -144,6 +144,27 @@ class Effect:
         return out
 
 
+def correct_measurement(measured, fields, order, effect: Effect, parameters: dict):
+    """The film's own family from a measurement with the measured-side ``effect`` (``parameters`` by
+    name, as fitted): the inverse of ``Effect.model``, m_film = S_−δ[(m − χ(μ0H − δ) − d_a τ) /
+    (a (1 + d_m τ))], so that the networks see the film, not the instrument. NaN where the inverse
+    field shift leaves the window."""
+    values = {**_INITIAL, **{k: float(v) for k, v in (parameters or {}).items() if k in _INITIAL}}
+    delta = values["offset_T"]
+    tau = _clock(order if order is not None else measurement_clock(len(fields)))
+    film = np.asarray(measured, dtype=float)
+    if "additive_drift" in effect.components:
+        film = film - values["additive_drift"] * tau
+    if "background" in effect.components:
+        film = film - values["chi_per_T"] * (fields[None, :] - delta)
+    film = film / values["scale"]
+    if "multiplicative_drift" in effect.components:
+        film = film / (1 + values["multiplicative_drift"] * tau)
+    if "field_offset" in effect.components:
+        film = _offset_family(film, fields, -delta)
+    return film
+
+
 def _effect(components) -> Effect:
     return Effect(effect_name(components), tuple(c for c in COMPONENTS if c in set(components)))
 
