@@ -88,3 +88,21 @@ def test_forced_the_report_carries_the_posterior(posterior, measured, tmp_path):
     assert len(report["prediction"]["posterior_correlation"]["matrix"]) == 6
     text = (out / "report.md").read_text()
     assert "Pairwise correlations" in text and "Looks like the training data?" in text
+
+
+def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_path, capsys):
+    """`forcdecode fit`: amortized draws → rounds of simulations of this film → fit.json with the
+    refined posterior at every round's budget (nested)."""
+    path, cfg = measured
+    out = tmp_path / "fit"
+    assert main(["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg),
+                 "--budget", "6", "--round-size", "3", "--out", str(out)]) == 0
+    result = json.loads((out / "fit.json").read_text())
+    assert set(result["refined_by_budget"]) == {"3", "6"} and result["sigma2"] > 0
+    final = result["refined_by_budget"]["6"]
+    assert 1.0 <= final["ess"] <= 6.0
+    for name in result["names"]:
+        lo, hi = final["parameters"][name]["interval_90"]
+        assert 0.0 <= lo <= final["parameters"][name]["median"] <= hi <= 1.0
+    assert "effective sample size" in capsys.readouterr().out
+    assert main(["fit", str(path), "--posterior", str(posterior), "--config", str(cfg), "--out", str(out)]) == 2

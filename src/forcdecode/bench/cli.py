@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "fit"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
@@ -28,6 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     films.add_argument("--workers", type=int, default=1, help="films: families simulated at once (one core each)")
     films.add_argument("--out-dir", default="results/bench/films", help="films: one HDF5 per family (resumable)")
     films.add_argument("--summarize-only", action="store_true", help="films: only summarize the families on disk")
+    fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
+    fit.add_argument("--posterior", default="results/posterior/model.pt", help="fit: the amortized posterior")
+    fit.add_argument("--families", type=int, default=5, help="fit: test families refined")
+    fit.add_argument("--budgets", type=int, nargs="+", default=[50, 200, 500], help="fit: nested budgets (simulations)")
+    fit.add_argument("--round-size", type=int, default=25, help="fit: simulations per round")
+    fit.add_argument("--fit-workers", type=int, default=2, help="fit: processes simulating in parallel")
+    fit.add_argument("--fit-dir", default="results/bench/fit", help="fit: one fit.json per family (resumable)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -53,6 +60,8 @@ def run(args) -> int:
         return _bench_learn(args, say)
     if args.target == "films":
         return _bench_films(args, say)
+    if args.target == "fit":
+        return _bench_fit(args, say)
     from . import engine
 
     if args.target == "effects":
@@ -141,4 +150,69 @@ def _bench_films(args, say) -> int:
         say(line)
     if args.json:
         print(json.dumps({k: v for k, v in summary.items() if k != "rows"}))
+    return 0
+
+
+def _bench_fit(args, say) -> int:
+    """Refined vs amortized posterior on held-out test families with known truth (nested budgets)."""
+    import numpy as np
+
+    from ..config import defaults, load_config, shipped_config
+    from ..core.errors import ConfigError
+    from ..core.io import read_json, write_json
+    from ..core.parameters import normalize
+    from ..learn.data import load_dataset
+    from ..learn.posterior import PosteriorEstimator
+    from ..learn.splits import assign_splits
+    from ..loop.fit_cli import fit_one
+
+    budgets = sorted(set(args.budgets))
+    if any(b % args.round_size for b in budgets):
+        raise ConfigError(f"--budgets {budgets} must be multiples of --round-size {args.round_size} (nested rounds)")
+    cfg = load_config(args.config or shipped_config("config"))
+    stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
+    learning = {**defaults("learning"), **stage.get("learning", {})}
+    data = load_dataset(args.dataset)
+    est = PosteriorEstimator.load(args.posterior)
+    test = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])["test"]
+    chosen = test[: args.families]
+    rows = []
+    import h5py
+
+    with h5py.File(args.dataset, "r") as h5:
+        for n, k in enumerate(chosen, 1):
+            sid = int(data.sample_id[k])
+            path = f"{args.fit_dir}/sample_{sid}.json"
+            if os.path.exists(path):
+                result = read_json(path, what="fit result")
+            else:
+                say(f"family {n}/{len(chosen)} (sample {sid}): budget {budgets[-1]}")
+                result = fit_one(cfg, est, data.images[k], h5["curves_mz"][k].astype(float), float(data.values["Ms"][k]),
+                                 budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
+                                 seed=stage["seed"], key=sid, checkpoints=tuple(budgets))
+                result["truth_normalized"] = {p: float(np.clip(normalize(p, data.values[p][k], data.bounds), 0, 1))
+                                              for p in result["names"]}
+                write_json(path, result)
+            rows.append(result)
+    names = rows[0]["names"]
+    err = lambda summary, r, p: abs(summary["parameters"][p]["median"] - r["truth_normalized"][p])  # noqa: E731
+    inside = lambda summary, r, p: (summary["parameters"][p]["interval_90"][0] <= r["truth_normalized"][p]  # noqa: E731
+                                    <= summary["parameters"][p]["interval_90"][1])
+    out = {"families": len(rows), "sample_ids": [int(data.sample_id[k]) for k in chosen], "budgets": budgets,
+           "mae_amortized": {p: float(np.mean([err(r["amortized"], r, p) for r in rows])) for p in names},
+           "mae_refined": {str(b): {p: float(np.mean([err(r["refined_by_budget"][str(b)], r, p) for r in rows]))
+                                    for p in names} for b in budgets},
+           "coverage_refined": {str(b): {p: float(np.mean([inside(r["refined_by_budget"][str(b)], r, p) for r in rows]))
+                                         for p in names} for b in budgets},
+           "coverage_amortized": {p: float(np.mean([inside(r["amortized"], r, p) for r in rows])) for p in names},
+           "ess": {str(b): float(np.mean([r["refined_by_budget"][str(b)]["ess"] for r in rows])) for b in budgets},
+           "wall_s": {str(b): float(np.mean([r["refined_by_budget"][str(b)]["wall_s"] for r in rows])) for b in budgets}}
+    say(f"{'parameter':16s} {'amortized':>10s} " + " ".join(f"{'refined ' + str(b):>12s}" for b in budgets))
+    for p in names:
+        say(f"{p:16s} {out['mae_amortized'][p]:10.3f} " + " ".join(f"{out['mae_refined'][str(b)][p]:12.3f}" for b in budgets))
+    say("coverage of the refined 90 % intervals: " + "; ".join(
+        f"{b}: " + ", ".join(f"{p} {out['coverage_refined'][str(b)][p]:.2f}" for p in names) for b in budgets))
+    say("mean wall time per family: " + ", ".join(f"{b} simulations {out['wall_s'][str(b)]:.0f} s" for b in budgets))
+    write_json(f"{args.fit_dir}/summary.json", out)
+    print(json.dumps(out))
     return 0
