@@ -55,21 +55,20 @@ def _offset_family(sim, fields, delta):
     nearest to its reported reversal field, so in H_r the shift is whole rows, round(δ/ΔH): an
     offset below half a row moves no curve to another row (exact when the curves were reversed at
     the grid fields; where the instrument's reported reversal fields sit on the grid instead, a
-    sub-row part δ·∂m/∂H_r stays in the residual). NaN where the shifted point lies outside the
-    simulated window."""
+    sub-row part δ·∂m/∂H_r stays in the residual). Beyond the simulated window the film is taken to
+    stay where the window leaves it (the edge value along a curve, the edge curve in H_r: saturated
+    ends), so the model is defined at every measured point and a candidate cannot shrink its misfit by
+    shifting points out of the comparison."""
     n = len(fields)
     step = fields[1] - fields[0]
     rows = int(np.rint(delta / step))
     out = np.full(sim.shape, np.nan)
     for i in range(n):
-        k = i - rows  # the simulated curve whose reversal field is the true one of row i
-        if not 0 <= k < n:
-            continue
+        k = min(max(i - rows, 0), n - 1)  # the simulated curve whose reversal field is the true one of row i
         curve = sim[k].copy()
         curve[:k] = curve[k]  # below the reversal point the curve holds m(H_r, H_r)
-        h = fields[i:] - delta
-        inside = (h >= fields[0] - 1e-12) & (h <= fields[-1] + 1e-12)
-        out[i, i:] = np.where(inside, np.interp(h, fields, curve), np.nan)
+        h = np.clip(fields[i:] - delta, fields[0], fields[-1])
+        out[i, i:] = np.interp(h, fields, curve)
     return np.where(np.isfinite(sim), out, np.nan)
 
 
