@@ -202,9 +202,10 @@ def _nanmax(values) -> float:
     return float(max(finite)) if finite else float("nan")
 
 
-def summarize(out_dir, reference: str = "paper") -> dict:
-    """Per Hamiltonian: each film against ``reference`` (realisation 0), against the laptop film, and
-    the realisation floor (r0 vs r1) of each film; medians per film; cost per family and per film."""
+def summarize(out_dir) -> dict:
+    """Per Hamiltonian: every pair of films (realisation 0; ``B_vs_A``, A the smaller film of
+    ``FILMS``) and the realisation floor (r0 vs r1) of each film; medians per comparison and per
+    parameter region; cost per family and per film."""
     jobs = load(out_dir)
     samples = sorted({k[1] for k in jobs})
     films = [f for f in FILMS if any(k[0] == f for k in jobs)]
@@ -220,10 +221,9 @@ def summarize(out_dir, reference: str = "paper") -> dict:
             j1 = jobs.get((film, s, 1))
             if j1 is not None:
                 row[f"floor_{film}"] = compare(j0, j1)
-            if film != "laptop" and ("laptop", s, 0) in jobs:
-                row[f"{film}_vs_laptop"] = compare(jobs[("laptop", s, 0)], j0)
-            if film != reference and (reference, s, 0) in jobs:
-                row[f"{film}_vs_{reference}"] = compare(j0, jobs[(reference, s, 0)])
+            for other in films[:films.index(film)]:  # every pair of films once, smaller film first
+                if (other, s, 0) in jobs:
+                    row[f"{film}_vs_{other}"] = compare(jobs[(other, s, 0)], j0)
         row["params"] = params
         rows.append(row)
     cost = {}
