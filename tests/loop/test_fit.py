@@ -6,6 +6,7 @@ both 90 % intervals held the truth in 57–75 % of the runs, against 81–90 % e
 sizes ~20–30. Measured, not asserted: see the closing note of stop 17.)"""
 
 import numpy as np
+import pytest
 from scipy.stats import norm
 
 from forcdecode.loop.fit import _log_jacobian, _logit, refine
@@ -71,3 +72,17 @@ def test_nested_budgets_are_prefixes():
     _, _, _, long = run(3, budget=200)
     assert np.array_equal(long["u"][:100], short["u"])
     assert long["by_budget"][100]["parameters"] == short["by_budget"][100]["parameters"]
+
+
+def test_effective_observations_of_gaussian_families():
+    """R realisations of a family carrying ν independent N(0, σ²) observations (each repeated over the
+    points it covers, as a disorder feature covers many points): σ² and ν are recovered."""
+    from forcdecode.loop.fit import effective_observations
+
+    rng = np.random.default_rng(5)
+    n, nu, sigma = 40, 12, 0.05
+    blocks = np.repeat(np.arange(nu), int(np.ceil(n * n / nu)))[: n * n].reshape(n, n)
+    fams = np.stack([sigma * rng.normal(size=nu)[blocks] for _ in range(40)])
+    s2, est = effective_observations(fams)
+    assert s2 == pytest.approx(sigma**2, rel=0.15)
+    assert 0.6 * nu < est < 1.6 * nu

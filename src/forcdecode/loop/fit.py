@@ -11,10 +11,12 @@ synthetic Gaussian likelihood in observation space:
     log L(u) = −½ · n_curves · MSE(u) / σ²,
 
 with MSE(u) the mean square difference, over every FORC point (H ≥ H_r), between the family simulated
-at u and the observed one, and σ² the variance a new disorder realisation alone causes (half the
-mean square difference of two realisations of the amortized posterior median, plus the 8-bit
-quantization step²/12): a candidate as close as the truth on new disorder scores like the truth;
-each curve counts as one independent observation (points along a curve are strongly correlated).
+at u and the observed one, σ² the variance a new disorder realisation alone causes and ν the number
+of independent observations a family carries, both measured from a few disorder realisations of the
+amortized posterior median (``effective_observations``; plus the 8-bit quantization step²/12 in σ²):
+a candidate as close as the truth on new disorder scores like the truth. (Counting every curve as
+independent, ν = 64, made the weights collapse to one particle on the laptop film: its curves share
+one disorder realisation.)
 
 Rounds of ``round_size`` simulations (fixed sizes: the state after b simulations of a longer run is
 exactly the budget-b result). Round 1 draws from q₀; round r > 1 from a defensive mixture of q₀ (20 %)
@@ -84,8 +86,26 @@ def summarize_particles(u, w, names, levels=(0.68, 0.9)) -> dict:
     return out
 
 
+def effective_observations(families) -> tuple[float, float]:
+    """(σ², ν) from R ≥ 3 disorder realisations of one Hamiltonian (families (R, n, n)): the pairwise
+    mean square differences D_ij have mean 2σ² and, if a family carried ν independent Gaussian
+    observations, relative variance 2/ν; so ν = 2 mean(D)² / var(D), clipped to [1, n_curves]. The
+    curves of a family share one disorder realisation, so ν is far below the number of curves."""
+    fams = np.asarray(families, float)
+    pairs = []
+    for i in range(len(fams)):
+        for j in range(i + 1, len(fams)):
+            ok = np.isfinite(fams[i]) & np.isfinite(fams[j])
+            pairs.append(float(np.mean((fams[i][ok] - fams[j][ok]) ** 2)))
+    pairs = np.asarray(pairs)
+    sigma2 = float(pairs.mean()) / 2
+    var = float(pairs.var(ddof=1)) if len(pairs) > 1 else 0.0
+    nu = 2 * pairs.mean() ** 2 / var if var > 0 else float(fams.shape[1])
+    return sigma2, float(np.clip(nu, 1.0, fams.shape[1]))
+
+
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
-           rng: np.random.Generator, names, checkpoints=(), progress=None) -> dict:
+           rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None) -> dict:
     """Sequential importance sampling for one observation (see the module docstring).
 
     ``proposal_draws`` (m, d): draws of the amortized posterior q₀ in u ∈ [0, 1]^d (round 1 takes the
@@ -95,7 +115,7 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
     if budget < round_size or round_size < 2:
         raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
     observed = np.asarray(observed, float)
-    n_curves = observed.shape[0]
+    n_curves = observed.shape[0] if n_effective is None else float(n_effective)
     d = proposal_draws.shape[1]
     pool = np.asarray(proposal_draws, float)
     u_all, ll_all, rounds = np.zeros((0, d)), np.zeros(0), []  # rounds: (size, mean_z, cov_z) or (size, None, None)

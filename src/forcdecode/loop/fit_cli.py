@@ -67,7 +67,7 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
     """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict."""
     from ..core.parameters import normalize
     from ..core.streams import stream_rng, stream_seed
-    from .fit import refine, simulate_on_film, summarize_particles
+    from .fit import effective_observations, refine, simulate_on_film, summarize_particles
 
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
@@ -89,15 +89,16 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
     from .posterior_predictive import draws_as_hamiltonians
 
     params = draws_as_hamiltonians(median[None], names, Ms, est.bounds)[0]
-    pair = [c for c, _ in run_tasks(cfg, [(params, key, 0), (params, key, 1)], workers)]
-    ok = np.isfinite(pair[0]) & np.isfinite(pair[1])
-    sigma2 = float(np.mean((pair[0][ok] - pair[1][ok]) ** 2)) / 2 + (2 / 255) ** 2 / 12
+    n_real = 4
+    floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
+    sigma2, nu = effective_observations(floor)
+    sigma2 += (2 / 255) ** 2 / 12
     started = time.perf_counter()
     result = refine(family, simulate, draws, logpdf, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
-                    names, checkpoints=checkpoints,
+                    names, checkpoints=checkpoints, n_effective=nu,
                     progress=(lambda d, t: log(f"simulated {d}/{t}")) if log else None)
     amortized = summarize_particles(draws, np.ones(len(draws)), names)
-    return {"names": list(names), "Ms": Ms, "sigma2": sigma2, "simulations_for_sigma2": 2,
+    return {"names": list(names), "Ms": Ms, "sigma2": sigma2, "n_effective": nu, "simulations_for_sigma2": n_real,
             "amortized": amortized, "refined_by_budget": {str(b): s for b, s in result["by_budget"].items()},
             "wall_s": time.perf_counter() - started}
 
