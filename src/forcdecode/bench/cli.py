@@ -12,6 +12,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "fit"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
+    parser.add_argument("--independent", action="store_true",
+                        help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
+                             "the Hamiltonian refitted (needs the reference extra)")
+    parser.add_argument("--effects-out", default="results/bench/effects_independent",
+                        help="effects --independent: cases.jsonl (resumable) and summary.json")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
     parser.add_argument("--skip-256", action="store_true", help="skip the 256×256×2 grid")
@@ -64,6 +69,8 @@ def run(args) -> int:
         return _bench_fit(args, say)
     from . import engine
 
+    if args.target == "effects" and args.independent:
+        return _bench_effects_independent(args, say)
     if args.target == "effects":
         from .effects import effects_confusion, n_cases, summary_lines
 
@@ -92,6 +99,30 @@ def run(args) -> int:
                                      progress=counter("family", "curves"))
     if args.json:
         print(json.dumps(report))
+    return 0
+
+
+def _bench_effects_independent(args, say) -> int:
+    from pathlib import Path
+
+    from ..core.io import write_json
+    from ..core.progress import progress
+    from .effects_independent import independent_confusion, plan, summary_lines
+
+    rows = plan()
+    out = Path(args.effects_out)
+    with progress(total=len(rows), desc="independent cases", unit="cases") as bar:
+        def done(row):
+            say(f"{row['case']} (H{row['hamiltonian']}, seed {row['seed']}): {row['verdict']}"
+                f"{'' if row['correct'] else '  [wrong]'} ({row['case_s']:.0f} s)")
+            bar.update()
+
+        result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl")
+    write_json(out / "summary.json", result)
+    for line in summary_lines(result):
+        say(line)
+    if args.json:
+        print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
     return 0
 
 

@@ -148,6 +148,29 @@ def fit_thermal(measured, base_family, fields, train, bounds=(0.0, 0.6)):
     return epsilon, error, coercivity_scaled_family(base_family, fields, epsilon)
 
 
+def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, **analysis) -> dict:
+    """The largest held-out gains (relative and in mean-square error) of every candidate over
+    ``pseudo_measurements``: families of the base model's own Hamiltonian on other disorder
+    realisations (no effect in them), analysed against ``base_family`` with the same candidates and
+    split (``analysis``: the keyword arguments of ``analyse_residual``). With ``mirror`` each
+    deviation is also taken with the opposite sign (2·base − pseudo): to first order a realisation
+    is as likely to deviate one way as the other, and a one-sided candidate (a coercivity that can
+    only shrink) must not pass because the few realisations drawn happened to deviate the other way.
+    Returns {candidate: {"relative": largest 1 − MSE_c/MSE_none, "mse": largest MSE_none − MSE_c}}."""
+    base_family = np.asarray(base_family, float)
+    pseudo = [np.asarray(p, float) for p in pseudo_measurements]
+    if mirror:
+        pseudo = pseudo + [2 * base_family - p for p in pseudo]
+    gains: dict = {}
+    for family in pseudo:
+        result = analyse_residual(family, base_family, fields, **analysis)
+        for name, record in result["candidates"].items():
+            old = gains.get(name, {"relative": -np.inf, "mse": -np.inf})
+            gains[name] = {"relative": max(old["relative"], record["relative_gain"]),
+                           "mse": max(old["mse"], record["gain_mse_mean"])}
+    return gains
+
+
 def _reduction_ci(before, after, rng, n_boot):
     """1 − RMS_after/RMS_before over held-out curves, and its paired-bootstrap 90 % interval."""
     both = np.isfinite(before) & np.isfinite(after)
@@ -170,7 +193,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
                      seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
                      thermal: bool = True, noise_sigma: float | None = None, floor_variance=None,
-                     n_profiles: int = 1) -> dict:
+                     n_profiles: int = 1, null_gain: dict | None = None,
+                     null_margin: float = 0.05) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -212,6 +236,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     enter the structure test of the chosen model's residual (``loop.structure``): ``structure``,
     and ``verdict``: the chosen effect, "none", or "unexplained structured residual" (nothing earns
     its place but the residual is structured; ``verdict_text`` says where it lives).
+
+    ``null_gain``: {candidate: {"relative": 1 − MSE_c/MSE_none, "mse": MSE_none − MSE_c}}, the largest
+    held-out gains it reached when the "measurement" was the model itself on other disorder
+    realisations (``null_gains``). A film is one realisation: a candidate that shifts or tilts the
+    family can cover the difference between two realisations of the same Hamiltonian as well as an
+    effect. With this argument a candidate is offered to the selection only if it beats the floor in
+    both senses: relative gain above the null's by ``null_margin``, and mean-square gain above the
+    null's by the factor 1 + ``null_margin`` (records: ``relative_gain``, ``gain_mse_mean``,
+    ``null_gain``, ``beats_null``).
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -259,9 +292,26 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
                                                        in (min(soft_phase_families), max(soft_phase_families)))
 
+    none_mse = float(np.nanmean(mse["none"]))
+    offered = dict(mse)
+    for name in records:
+        gain_mse = none_mse - float(np.nanmean(mse[name]))
+        records[name]["gain_mse_mean"] = gain_mse
+        records[name]["relative_gain"] = gain_mse / none_mse if none_mse > 0 else 0.0
+        if null_gain is not None and name != "none":
+            null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
+            records[name]["null_gain"] = dict(null)
+            records[name]["beats_null"] = bool(
+                records[name]["relative_gain"] > max(null["relative"], 0.0) + null_margin
+                and gain_mse > max(null["mse"], 0.0) * (1 + null_margin))
+            if not records[name]["beats_null"]:
+                offered.pop(name)
     rng = stream_rng(seed, "bootstrap", "analyse_residual")
-    chosen, scores = choose_candidate(mse, {k: v["n_parameters"] for k, v in records.items()}, rng,
+    chosen, scores = choose_candidate(offered, {k: v["n_parameters"] for k, v in records.items()}, rng,
                                       n_boot, min_relative_gain, equivalence)
+    for name in set(records) - set(offered):
+        scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
+                        "relative_gain_ci90": None, "accepted": False}
     candidates = {k: {**records[k], **scores[k]} for k in records}
     reduction, reduction_ci = _reduction_ci(mse["none"], mse[chosen], rng, n_boot)
     residual_before = measured - base_family

@@ -125,13 +125,18 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
 def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
-                       progress=None, **analysis) -> dict:
+                       null_realisations: int = 0, progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
     with ``hamiltonian`` {"prediction", "refit_without_effect", "refit_with_effect" (None unless a
     measured-side effect is chosen)}, ``refit`` (objective at the prediction and refitted, held-out
-    RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}."""
+    RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}.
+
+    ``null_realisations`` R > 0: the refitted Hamiltonian is also simulated on R other disorder
+    realisations (stream key "refit_null"), each analysed as if it were the measurement
+    (``physics_effects.null_gains``); a candidate must then beat the gain it reaches there, i.e. what a
+    different film of the same Hamiltonian alone gives it (``analyse_residual(null_gain=...)``)."""
     from .effects import EFFECTS, heldout_folds
     from .physics_effects import analyse_residual, physics_candidate_families
 
@@ -144,9 +149,17 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     candidates = {}
     if physics:
         candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, **(physics_grids or {}))
-    result = analyse_residual(measured, base, fields, every_k=every_k, cross_fit=False,
-                              seed=cfg["seed"] if seed is None else seed, noise_sigma=noise_sigma,
-                              n_profiles=n_profiles, **candidates, **analysis)
+    options = dict(every_k=every_k, cross_fit=False, seed=cfg["seed"] if seed is None else seed,
+                   n_profiles=n_profiles, **candidates, **analysis)
+    null = None
+    if null_realisations > 0:
+        from .physics_effects import null_gains
+        from .resimulate import resimulate as _resimulate
+
+        pseudo = [_resimulate(cfg, refit["params"], n_profiles=1, key="refit_null", first_profile=r)
+                  for r in range(null_realisations)]
+        null = null_gains(pseudo, base, fields, **options)
+    result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, **options)
     with_effect = None
     if result["kind"] == "measured":
         joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
@@ -162,7 +175,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                      "refit_with_effect": with_effect},
         refit={"names": list(names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
                "training_mse_prediction": refit["objective_at_prediction"], "training_mse_refit": refit["objective"],
-               "heldout_rms_prediction": held_rms, "relative_bounds": relative_bounds, "n_profiles": n_profiles},
+               "heldout_rms_prediction": held_rms, "relative_bounds": relative_bounds, "n_profiles": n_profiles,
+               "null_realisations": null_realisations, "null_gain": null},
         split={"train": list(map(int, train)), "held": list(map(int, held))})
     return result
 

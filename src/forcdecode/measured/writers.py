@@ -81,3 +81,50 @@ def write_micromag_0015(path, reversal_fields_T, curves, calibration_moments_Am2
     with atomic_path(path) as tmp:
         tmp.write_bytes(("\r\n".join(lines) + "\r\n").encode("latin-1"))
     return path
+
+
+def write_lakeshore_csv(path, reversal_fields_T, curves, calibration_moments_Am2=None, calibration_field_T=None,
+                        sample_name: str = "forcdecode simulation", averaging_s: float = 0.1, pause_s: float = 1.0,
+                        sweep_rate_T_per_s: float = 0.05) -> Path:
+    """The native CSV of the Lake Shore 8600 VSM (the layout ``measured.lakeshore`` reads, latin-1,
+    CRLF): header sections, START/FINISH TIME, then segments 0, 2, ... the calibration points and
+    1, 3, ... the curves (highest reversal field first), fields in T, moments in A·m², time stamps
+    from the sweep (``pause_s`` at each calibration and reversal field, ``averaging_s`` per point,
+    ``sweep_rate_T_per_s`` between fields). Arguments as ``write_micromag_0015``."""
+    from datetime import datetime, timedelta
+
+    order = np.argsort(reversal_fields_T)[::-1]
+    curves = [(np.asarray(curves[k][0], float), np.asarray(curves[k][1], float)) for k in order]
+    h_cal = float(calibration_field_T if calibration_field_T is not None else max(f.max() for f, _ in curves))
+    if calibration_moments_Am2 is None:
+        cal = [curves[0][1][np.argmax(curves[0][0])]] * len(curves)
+    else:
+        cal = list(np.asarray(calibration_moments_Am2, float)[order])
+    rows, t, segment = [], 0.0, 0
+    for (fields, moments), m_cal in zip(curves, cal):
+        rows.append(f"1,0,{segment},{h_cal!r},{float(m_cal)!r},{t:.3f},GOOD,GOOD")
+        rows.append("")
+        t += pause_s + abs(h_cal - fields[0]) / sweep_rate_T_per_s + pause_s
+        for i, (h, m) in enumerate(zip(fields, moments)):
+            t += (abs(h - fields[i - 1]) / sweep_rate_T_per_s if i else 0.0) + averaging_s
+            rows.append(f"1,0,{segment + 1},{float(h)!r},{float(m)!r},{t:.3f},GOOD,GOOD")
+        rows.append("")
+        segment += 2
+    start = datetime(2026, 1, 1, 9, 0, 0)
+    finish = start + timedelta(seconds=t)
+
+    def stamp(d):
+        return d.strftime("%m/%d/%Y %I:%M:%S.") + f"{d.microsecond // 1000:03d} " + d.strftime("%p")
+
+    lines = ["#RUN ON SOFTWARE VERSION:", "1.3", "#SAMPLE SETTINGS", f"ID: {sample_name}",
+             "#FORC MEASUREMENT", "#ACQUISITION SETUP", f"Saturation field: {h_cal:g} T", "FORC type: Classic",
+             f"Pause at calibration field: {pause_s:g} s", f"Number of FORCs: {len(curves)}",
+             f"Pause at reversal fields: {pause_s:g} s", f"Averaging time: {averaging_s:g} s",
+             f"START TIME: {stamp(start)}", f"FINISH TIME: {stamp(finish)}", "#DATA: 1",
+             "##DATA TABLE Moment (m) [A\u00b7m\u00b2] vs Field (\u00b50H) [T]",
+             "Step,Iteration,Segment,Field (\u00b50H) [T],Moment (m) [A\u00b7m\u00b2],Time Stamp [s],Field Status,"
+             "Moment (m) Status"] + rows
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(("\r\n".join(lines) + "\r\n").encode("latin-1"))
+    return path

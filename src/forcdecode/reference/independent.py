@@ -1,0 +1,321 @@
+"""Independent "measurements": FORC families computed by magnum.np, on another grid and another
+disorder model than ours, recorded by an instrument model written apart from the loop's candidates,
+and saved in real instrument formats. The test data of the residual analysis
+(``forcdecode bench effects --independent``) must not be made by the model under test: nothing here
+imports our engine (``micromag``), our protocols (``forc``) or the loop's effect formulas.
+
+Sample (``IndependentFilm``): ``nx`` × ``ny`` × 1 cells of ``cell_nm`` (default 20 × 20 cells of
+2.5 nm, 4 nm thick: another discretization and another box than the fitting film), periodic in-plane
+(magnum.np pseudo-PBC with ``pbc_images`` images: its missing far images are a demag error of
+≈ √2 t / (π (P + ½) L), part of what makes it another code). Disorder: ``n_grains`` columnar grains from
+a periodic nearest-seed tessellation drawn here; per grain K_u·(1 + Δ) with Δ of standard deviation
+σ_K, Gaussian as ours or **uniform** (a disorder model ours does not have), and the easy axis tilted by |θ| with θ ~ N(0, σ_θ) at uniform azimuth.
+No pinning cells (the fitting film of the bench has none either).
+
+Physics of the sample (magnum.np terms): exchange, uniaxial anisotropy, interfacial DMI, demag,
+Zeeman, optionally a second-order anisotropy −K_2 (u·m)⁴ (``UniaxialAnisotropyField2``), a bias
+field B_bias ẑ felt by the film, the applied field tilted by ψ from the normal (the instrument then
+records ⟨m⟩·ĥ, ĥ the field direction), and a second, soft phase (a fraction f of the moment from a film
+of the same parameters and disorder model with K_u,soft) that does not interact with the first.
+
+Protocol (quasi-static, magnum.np's ``MinimizerBB`` at every field, torque below ``torque_tol_T``):
+saturate at the top field, descend through the reversal fields keeping each state, then for each
+reversal field from the highest sweep up through the curve's field points; steps larger than
+``max_step_T`` are made in equal sub-steps. Where a curve reaches a field of the curve reversed just
+above it with the same state (max cell |Δm| < ``same_state_tol``) the rest of it is that curve's (the
+state then follows the same path): exact where the protocol's fields coincide (``measurement_protocol``).
+
+Instrument (``InstrumentModel``), applied to the moment M_film·⟨m⟩·ĥ at the field the sample feels,
+each point at its time t (s) on the measurement's own clock (``averaging_s`` per point, ``pause_s``
+at each calibration and reversal, ``sweep_rate_T_per_s`` between points):
+
+    reported field  = B_true + offset
+    recorded moment = gain(t)·M_film·⟨m⟩·ĥ + χ·M_film·B_reported + M_film·[drift_add(t) + σ ε]
+                      + M_film·A_L·L(B_reported/B_L)         (a saturating paramagnet, outside the library)
+
+with gain(t) = scale·(1 + g·(1 − e^{−t/t_g})/(1 − e^{−T/t_g})) (an exponential warm-up, not the loop's linear
+clock), drift_add(t) = d·(t/T)^{1.5} and the Langevin L(x) = coth x − 1/x; optionally a first-order
+lag of the recorded moment (a lock-in time constant ``lag_points`` in averaging times, outside the
+library). Calibration points (at the top field before each curve) are written with the same gain and
+drift as the data (a real instrument's drift is seen by them), unless ``calibration_sees_drift`` is
+False. Noise σ in units of the film moment.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+MU0 = 4e-7 * math.pi
+
+
+@dataclass(frozen=True)
+class IndependentFilm:
+    """Grid and disorder model of the independent sample (see the module docstring)."""
+
+    nx: int = 20
+    ny: int = 20
+    cell_nm: float = 2.5
+    thickness_nm: float = 4.0
+    n_grains: int = 24
+    pbc_images: int = 4
+    torque_tol_T: float = 1e-3
+    max_iterations: int = 20000
+    max_step_T: float = 0.05
+    same_state_tol: float = 0.02
+    anisotropy_distribution: str = "gaussian"
+
+    @property
+    def moment_Am2(self) -> float:
+        """Film volume (m³); times M_s the saturation moment (A·m²)."""
+        return self.nx * self.ny * (self.cell_nm * 1e-9) ** 2 * self.thickness_nm * 1e-9
+
+
+def independent_disorder(film: IndependentFilm, sigma_K: float, sigma_theta_deg: float, rng: np.random.Generator):
+    """Per-cell anisotropy factor (1 + Δ) and easy axis, shape (ny, nx) and (3, 1, ny, nx): periodic
+    nearest-seed grains, Δ of standard deviation σ_K, Gaussian or uniform on [−√3 σ_K, √3 σ_K]
+    (``film.anisotropy_distribution``; clipped at −0.95), axis tilted by |N(0, σ_θ)|."""
+    n = film.n_grains
+    seeds = rng.uniform(0.0, 1.0, size=(n, 2)) * (film.nx, film.ny)
+    y, x = np.mgrid[0:film.ny, 0:film.nx] + 0.5
+    dx = np.abs(x[..., None] - seeds[:, 0])
+    dy = np.abs(y[..., None] - seeds[:, 1])
+    dx = np.minimum(dx, film.nx - dx)
+    dy = np.minimum(dy, film.ny - dy)
+    grain = np.argmin(dx**2 + dy**2, axis=-1)
+    if film.anisotropy_distribution == "uniform":
+        delta = rng.uniform(-math.sqrt(3.0), math.sqrt(3.0), size=n) * sigma_K
+    elif film.anisotropy_distribution == "gaussian":
+        delta = rng.normal(0.0, 1.0, size=n) * sigma_K
+    else:
+        raise ValueError(f"unknown anisotropy distribution {film.anisotropy_distribution!r} (gaussian or uniform)")
+    delta = np.clip(delta, -0.95, None)
+    theta = np.abs(rng.normal(0.0, math.radians(sigma_theta_deg), size=n))
+    phi = rng.uniform(0.0, 2 * math.pi, size=n)
+    axes = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    return 1.0 + delta[grain], axes[:, grain][:, None, :, :]
+
+
+@dataclass
+class SampleFamily:
+    """⟨m⟩·ĥ at every point of the protocol (``curves[k]`` aligned with ``curve_fields_T[k]``, the
+    fields the sample felt), the reversal fields, and the cost."""
+
+    reversal_fields_T: np.ndarray
+    curve_fields_T: list
+    curves: list
+    stats: dict = field(default_factory=dict)
+
+
+def _steps(start: float, stop: float, max_step: float) -> np.ndarray:
+    n = max(1, int(math.ceil(abs(stop - start) / max_step - 1e-9)))
+    return np.linspace(start, stop, n + 1)[1:]
+
+
+def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: IndependentFilm = IndependentFilm(),
+                    seed: int = 0, K_2: float = 0.0, B_bias_T: float = 0.0, tilt_deg: float = 0.0,
+                    K_u: float | None = None, cache_dir=None, progress=None) -> SampleFamily:
+    """The FORC family of ``params`` (SI: Ms, A_ex, K_u, D, sigma_K, sigma_theta_deg) on the sample
+    ``film``, computed by magnum.np (module docstring). ``reversal_fields_T``: the curves' reversal
+    fields; ``curve_fields_T[k]``: the fields of curve k from its reversal field upward (the field the
+    sample feels, before any instrument offset). ``seed``: the disorder realisation. ``K_u``
+    overrides params["K_u"] (a soft phase). Raises RuntimeError when a relaxation does not converge."""
+    from .magnumnp_film import MagnumFilm
+
+    rng = np.random.default_rng([int(seed), 9001])  # our streams are not used: another code, another draw
+    factor, axis = independent_disorder(film, float(params["sigma_K"]), float(params["sigma_theta_deg"]), rng)
+    K_u = float(params["K_u"] if K_u is None else K_u)
+    d = film.cell_nm * 1e-9
+    sample = MagnumFilm(film.nx, film.ny, 1, d, d, film.thickness_nm * 1e-9, float(params["Ms"]), float(params["A_ex"]),
+                        K_u=(K_u * factor)[None], easy_axis=axis, D=float(params["D"]), pbc_images=film.pbc_images,
+                        cache_dir=cache_dir, alpha=1.0)
+    if K_2:
+        _add_second_order_anisotropy(sample, K_2)
+    psi = math.radians(tilt_deg)
+    direction = np.array([math.sin(psi), 0.0, math.cos(psi)])
+    bias = np.array([0.0, 0.0, float(B_bias_T)])
+    stats = {"relaxations": 0, "iterations_bound": 0, "wall_s": 0.0}
+    start = time.perf_counter()
+
+    def relax(m, B):
+        m = sample.minimize(m, B_ext_T=B * direction + bias, torque_tol_T=film.torque_tol_T,
+                            max_iterations=film.max_iterations)
+        if not sample.last_minimize_converged:
+            raise RuntimeError(f"magnum.np relaxation did not converge at {B:+.4f} T within {film.max_iterations} "
+                               "iterations")
+        stats["relaxations"] += 1
+        return m
+
+    def project(m):
+        return float(np.tensordot(direction, m.reshape(3, -1).mean(axis=1), axes=1))
+
+    reversal = np.asarray(reversal_fields_T, float)
+    order = np.argsort(reversal)[::-1]
+    top = max(float(np.max(np.concatenate([np.atleast_1d(f) for f in curve_fields_T]))), float(reversal.max()))
+    m = np.zeros((3, 1, film.ny, film.nx))
+    m[2] = 1.0
+    m = relax(m, top)
+    B, kept = top, {}
+    for k in order:  # the descending major loop, keeping the state at each reversal field
+        for b in _steps(B, float(reversal[k]), film.max_step_T):
+            m = relax(m, float(b))
+        B = float(reversal[k])
+        kept[k] = m.copy()
+    curves = [None] * len(reversal)
+    visited = {}  # (curve, field rounded to 1e-9 T) -> (state, value), for the shortcut below
+    stats["points_copied"] = 0
+    for done, k in enumerate(order):
+        m, B, values = kept[k], float(reversal[k]), []
+        fields = np.asarray(curve_fields_T[k], float)
+        higher = order[done - 1] if done else None  # the curve reversed just above this one
+        for j, h in enumerate(fields):
+            if h != B:
+                for b in _steps(B, float(h), film.max_step_T):
+                    m = relax(m, float(b))
+                B = float(h)
+            values.append(project(m))
+            visited[(k, round(B, 9))] = m
+            twin = visited.get((higher, round(B, 9))) if higher is not None else None
+            if twin is not None and float(np.abs(twin - m).max()) < film.same_state_tol:
+                # the state equals the higher curve's at this field: the rest of the curve is that curve's
+                rest = fields[j + 1:]
+                higher_fields = np.asarray(curve_fields_T[higher], float)
+                values.extend(np.interp(rest, higher_fields, curves[higher]))
+                stats["points_copied"] += rest.size
+                break
+        curves[k] = np.asarray(values)
+        if progress is not None:
+            progress(done + 1, len(order))
+    stats["wall_s"] = time.perf_counter() - start
+    return SampleFamily(reversal, [np.asarray(f, float) for f in curve_fields_T], curves, stats)
+
+
+def _add_second_order_anisotropy(sample, K_2: float) -> None:
+    """Add magnum.np's ``UniaxialAnisotropyField2`` (−K_2 (u·m)⁴, the grains' axes) to a ``MagnumFilm``."""
+    mnp = sample._mnp
+    state = sample._state
+    state.material["Ku2"] = float(K_2)
+    sample._fields["anisotropy2"] = [mnp.UniaxialAnisotropyField2()]
+    sample.terms = sample.terms + ("anisotropy2",)
+
+
+def mix_phases(main: SampleFamily, soft: SampleFamily, fraction: float) -> SampleFamily:
+    """(1 − f)·main + f·soft, point by point (two non-interacting phases measured together)."""
+    curves = [(1 - fraction) * a + fraction * b for a, b in zip(main.curves, soft.curves)]
+    return replace(main, curves=curves, stats={**main.stats, "soft_phase": soft.stats})
+
+
+def measurement_protocol(n_curves: int = 24, B_max_T: float = 1.0, shift: float = 0.37) -> tuple[np.ndarray, list]:
+    """A FORC protocol off the fitting grid (``n_curves`` fields over ±``B_max_T``): reversal fields
+    on the lattice of spacing Δ = 2 B_max/n_curves shifted by ``shift``·Δ, field points every Δ/2 from
+    the reversal field up to the lattice point at or below ``B_max_T`` (all curves share field points,
+    so a curve can continue as the one above it)."""
+    spacing = 2 * B_max_T / n_curves
+    reversal = -B_max_T + (np.arange(n_curves) + shift) * spacing
+    top = reversal[-1] + np.floor((B_max_T - reversal[-1]) / (spacing / 2) + 1e-9) * spacing / 2
+    curves = [h + np.arange(int(np.rint((top - h) / (spacing / 2))) + 1) * spacing / 2 for h in reversal]
+    return reversal, curves
+
+
+@dataclass(frozen=True)
+class InstrumentModel:
+    """The instrument of the module docstring (all defaults: an ideal magnetometer with noise σ)."""
+
+    noise: float = 0.002
+    scale: float = 1.0
+    chi_per_T: float = 0.0
+    field_offset_T: float = 0.0
+    gain_drift: float = 0.0
+    gain_drift_time_s: float = 600.0
+    additive_drift: float = 0.0
+    langevin_amplitude: float = 0.0
+    langevin_field_T: float = 0.1
+    lag_points: float = 0.0
+    averaging_s: float = 0.1
+    pause_s: float = 1.0
+    sweep_rate_T_per_s: float = 0.05
+    calibration_sees_drift: bool = True
+
+
+def _langevin(x):
+    x = np.asarray(x, float)
+    small = np.abs(x) < 1e-4
+    safe = np.where(small, 1.0, x)
+    return np.where(small, x / 3.0, 1.0 / np.tanh(safe) - 1.0 / safe)
+
+
+def record(family: SampleFamily, moment_Am2: float, instrument: InstrumentModel, rng: np.random.Generator):
+    """What the instrument writes: (reported reversal fields, [(reported fields, moments A·m²)],
+    calibration moments, calibration field), curves in the order of ``family`` and measured from the
+    highest reversal field down, on the clock of the module docstring."""
+    ins = instrument
+    order = np.argsort(family.reversal_fields_T)[::-1]
+    top = max(float(f.max()) for f in family.curve_fields_T)
+    times, t = {}, 0.0
+    for k in order:  # the clock: pause at calibration, ramp down to H_r, pause, then the points
+        f = family.curve_fields_T[k]
+        t += ins.pause_s + abs(top - f[0]) / ins.sweep_rate_T_per_s + ins.pause_s
+        steps = np.abs(np.diff(f, prepend=f[0])) / ins.sweep_rate_T_per_s + ins.averaging_s
+        cal_time = t - abs(top - f[0]) / ins.sweep_rate_T_per_s - ins.pause_s
+        times[k] = (cal_time, t + np.cumsum(steps))
+        t = times[k][1][-1]
+    total = t
+
+    def gain(time_s):
+        if ins.gain_drift == 0.0:
+            return ins.scale * np.ones_like(np.asarray(time_s, float))
+        g = (1 - np.exp(-np.asarray(time_s, float) / ins.gain_drift_time_s)) / (1 - math.exp(-total / ins.gain_drift_time_s))
+        return ins.scale * (1 + ins.gain_drift * g)
+
+    def drift(time_s):
+        return ins.additive_drift * (np.asarray(time_s, float) / total) ** 1.5
+
+    reported_reversal = family.reversal_fields_T + ins.field_offset_T
+    curves, calibration = [None] * len(order), [None] * len(order)
+    for k in order:
+        cal_time, time_s = times[k]
+        true_m = family.curves[k]
+        reported = family.curve_fields_T[k] + ins.field_offset_T
+        value = gain(time_s) * true_m + ins.chi_per_T * reported + drift(time_s)
+        if ins.langevin_amplitude:
+            value = value + ins.langevin_amplitude * _langevin(reported / ins.langevin_field_T)
+        if ins.lag_points > 0:  # first-order lag of the detector along the sweep (restarts at each reversal)
+            a = math.exp(-1.0 / ins.lag_points)
+            lagged = np.empty_like(value)
+            lagged[0] = value[0]
+            for i in range(1, value.size):
+                lagged[i] = a * lagged[i - 1] + (1 - a) * value[i]
+            value = lagged
+        curves[k] = (reported, moment_Am2 * (value + ins.noise * rng.normal(size=value.size)))
+        reported_top = top + ins.field_offset_T
+        cal_at = cal_time if ins.calibration_sees_drift else 0.0  # a saturated film at the top field
+        m_cal = float(gain(cal_at)) + ins.chi_per_T * reported_top + float(drift(cal_at))
+        if ins.langevin_amplitude:
+            m_cal += ins.langevin_amplitude * float(_langevin(reported_top / ins.langevin_field_T))
+        calibration[k] = moment_Am2 * (m_cal + ins.noise * rng.normal())
+    return reported_reversal, curves, np.asarray(calibration), top + ins.field_offset_T
+
+
+def write_measurement(path, family: SampleFamily, moment_Am2: float, instrument: InstrumentModel, seed: int,
+                      fmt: str = "micromag0015") -> Path:
+    """Record ``family`` with ``instrument`` (noise from ``seed``) and write it as a MicroMag 0015
+    ("micromag0015") or a Lake Shore 8600 CSV ("lakeshore_csv") file; returns the path."""
+    from ..measured.writers import write_lakeshore_csv, write_micromag_0015
+
+    rng = np.random.default_rng([int(seed), 4242])
+    reversal, curves, calibration, h_cal = record(family, moment_Am2, instrument, rng)
+    if fmt == "micromag0015":
+        return write_micromag_0015(path, reversal, curves, calibration_moments_Am2=calibration,
+                                   calibration_field_T=h_cal, sample_name="magnum.np independent sample")
+    if fmt == "lakeshore_csv":
+        return write_lakeshore_csv(path, reversal, curves, calibration_moments_Am2=calibration,
+                                   calibration_field_T=h_cal, sample_name="magnum.np independent sample")
+    raise ValueError(f"unknown format {fmt!r} (micromag0015 or lakeshore_csv)")
+
+
+__all__ = ["IndependentFilm", "InstrumentModel", "SampleFamily", "independent_disorder", "magnumnp_family",
+           "measurement_protocol", "mix_phases", "record", "write_measurement"]
