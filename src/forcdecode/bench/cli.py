@@ -16,7 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
                              "the Hamiltonian refitted (needs the reference extra)")
     parser.add_argument("--effects-out", default="results/bench/effects_independent",
-                        help="effects --independent: cases.jsonl (resumable) and summary.json")
+                        help="effects --independent: cases.jsonl (resumable), summary.json and the instrument files")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
     parser.add_argument("--skip-256", action="store_true", help="skip the 256×256×2 grid")
@@ -117,7 +117,8 @@ def _bench_effects_independent(args, say) -> int:
                 f"{'' if row['correct'] else '  [wrong]'} ({row['case_s']:.0f} s)")
             bar.update()
 
-        result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl")
+        result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
+                                       files_dir=out / "files")
     write_json(out / "summary.json", result)
     for line in summary_lines(result):
         say(line)

@@ -104,16 +104,61 @@ def effective_observations(families) -> tuple[float, float]:
     return sigma2, float(np.clip(nu, 1.0, fams.shape[1]))
 
 
+def _log_weights(loglik, log_q, beta: float) -> np.ndarray:
+    """log p(u) L(u)^β / q_mix(u) (uniform prior: constant); a failed simulation (log L = −∞) weighs 0."""
+    return np.where(np.isfinite(loglik) & np.isfinite(log_q), beta * np.where(np.isfinite(loglik), loglik, 0.0) - log_q,
+                    -np.inf)
+
+
+def _normalized(logw) -> np.ndarray:
+    if not np.isfinite(logw).any():
+        return np.full(len(logw), 1.0 / len(logw))
+    w = np.exp(logw - logw.max())
+    return w / w.sum()
+
+
+def _ess(logw) -> float:
+    return float(1.0 / np.sum(_normalized(logw) ** 2))
+
+
+def next_beta(loglik, log_q, beta_prev: float, target_ess: float, steps: int = 30) -> float:
+    """The adaptive inverse temperature: the largest β ∈ [β_prev, 1] at which the weights p L^β / q_mix
+    keep an ESS ≥ ``target_ess`` (1 if β = 1 does; β_prev if none does: the next proposal, fitted at
+    β_prev, must first cover the current tempered target). The ESS need not be monotone in β (at β → 0
+    the target is the prior, which a narrow proposal covers badly), so a geometric grid of β − β_prev
+    brackets the last crossing before bisection refines it."""
+    grid = beta_prev + (1.0 - beta_prev) * np.concatenate([[0.0], np.geomspace(1e-6, 1.0, 61)])
+    ok = [i for i, g in enumerate(grid) if _ess(_log_weights(loglik, log_q, g)) >= target_ess]
+    if not ok:
+        return beta_prev
+    if ok[-1] == len(grid) - 1:
+        return 1.0
+    lo, hi = grid[ok[-1]], grid[ok[-1] + 1]
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _ess(_log_weights(loglik, log_q, mid)) >= target_ess else (lo, mid)
+    return float(lo)
+
+
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
-           rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None) -> dict:
-    """Sequential importance sampling for one observation (see the module docstring).
+           rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None, *,
+           tempering: bool = True, target_ess_fraction: float = 0.3) -> dict:
+    """Tempered population Monte Carlo for one observation (see the module docstring).
 
     ``proposal_draws`` (m, d): draws of the amortized posterior q₀ in u ∈ [0, 1]^d (round 1 takes the
     first ``round_size``; the mixture reuses the rest); ``proposal_logpdf(u (k, d)) → (k,)`` its log
     density. ``checkpoints``: budgets (multiples of ``round_size``) at which the posterior summary is
-    also returned (``by_budget``). Returns particles, weights, the summary and ``by_budget``."""
+    also returned (``by_budget``). ``tempering``: after each round, β is raised (never lowered) to the
+    largest value at which the ESS of all particles so far stays ≥ ``target_ess_fraction`` × their
+    number (β = 1 at once if it allows); the next proposal and the summaries use the weights at that β.
+    ``tempering=False``: β = 1 throughout (plain PMC). Returns particles, weights (at the final β), the
+    summary and ``by_budget`` (each summary with its ``beta`` and ``tempered``), ``betas`` and ``ess``
+    per round, and ``reached_full_likelihood`` (final β = 1: otherwise the posterior is tempered, wider
+    than the target)."""
     if budget < round_size or round_size < 2:
         raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
+    if not 0.0 < target_ess_fraction < 1.0:
+        raise ConfigError(f"target_ess_fraction ({target_ess_fraction}) must lie in (0, 1)")
     observed = np.asarray(observed, float)
     n_curves = observed.shape[0] if n_effective is None else float(n_effective)
     d = proposal_draws.shape[1]
@@ -121,7 +166,7 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
     u_all, ll_all, rounds = np.zeros((0, d)), np.zeros(0), []  # rounds: (size, mean_z, cov_z) or (size, None, None)
     by_budget, started = {}, time.perf_counter()
     n_rounds = budget // round_size
-    cursor = 0
+    cursor, beta, betas, ess_rounds, log_q = 0, 0.0, [], [], np.zeros(0)
 
     def log_mixture(u):
         """log Σ_r (N_r/N) q_r(u) over the rounds so far (q₀ for round 1 and the defensive part)."""
@@ -138,22 +183,13 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
                 terms.append(np.log(size / total) + np.logaddexp(np.log(DEFENSIVE) + q0, np.log(1 - DEFENSIVE) + gauss))
         return np.logaddexp.reduce(np.stack(terms), axis=0)
 
-    def weights():
-        with np.errstate(invalid="ignore"):
-            logw = ll_all - log_mixture(u_all)  # uniform prior on the box: constant
-        logw = np.where(np.isfinite(logw), logw, -np.inf)
-        if not np.isfinite(logw).any():
-            return np.ones(len(logw))
-        return np.exp(logw - logw.max())
-
     for r in range(n_rounds):
         if r == 0:
             take = pool[cursor:cursor + round_size]
             cursor += round_size
             rounds.append((round_size, None, None))
         else:
-            w = weights()
-            w = w / w.sum()
+            w = _normalized(logw)
             z = _logit(u_all)
             mean = w @ z
             centred = z - mean
@@ -171,16 +207,25 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
         families = simulate(take)
         u_all = np.concatenate([u_all, take])
         ll_all = np.concatenate([ll_all, synthetic_loglik(families, observed, sigma2, n_curves)])
+        with np.errstate(invalid="ignore"):
+            log_q = log_mixture(u_all)
+        beta = next_beta(ll_all, log_q, beta, target_ess_fraction * round_size) if tempering else 1.0
+        logw = _log_weights(ll_all, log_q, beta)
+        betas.append(beta)
+        ess_rounds.append(_ess(logw))
         spent = (r + 1) * round_size
         if progress is not None:
             progress(spent, n_rounds * round_size)
         if spent in checkpoints or spent == n_rounds * round_size:
-            summary = summarize_particles(u_all, weights(), names)
-            summary["wall_s"] = time.perf_counter() - started
+            summary = summarize_particles(u_all, _normalized(logw), names)
+            summary.update(beta=beta, tempered=beta < 1.0, wall_s=time.perf_counter() - started)
+            if beta < 1.0:
+                summary["note"] = (f"tempered posterior (likelihood to the power beta = {beta:.3f} < 1): wider than "
+                                   "the target; a larger budget is needed to reach the full likelihood")
             by_budget[spent] = summary
-    w = weights()
-    return {"u": u_all, "loglik": ll_all, "weights": w / w.sum(), "summary": by_budget[max(by_budget)],
-            "by_budget": by_budget, "sigma2": sigma2, "n_curves": n_curves}
+    return {"u": u_all, "loglik": ll_all, "weights": _normalized(logw),
+            "summary": by_budget[max(by_budget)], "by_budget": by_budget, "sigma2": sigma2, "n_curves": n_curves,
+            "betas": betas, "ess": ess_rounds, "reached_full_likelihood": beta == 1.0}
 
 
 def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: int = 1):

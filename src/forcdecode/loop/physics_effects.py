@@ -148,7 +148,8 @@ def fit_thermal(measured, base_family, fields, train, bounds=(0.0, 0.6)):
     return epsilon, error, coercivity_scaled_family(base_family, fields, epsilon)
 
 
-def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, **analysis) -> dict:
+def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, noise_sigma: float | None = None,
+               seed: int = 0, **analysis) -> dict:
     """The largest held-out gains (relative and in mean-square error) of every candidate over
     ``pseudo_measurements``: families of the base model's own Hamiltonian on other disorder
     realisations (no effect in them), analysed against ``base_family`` with the same candidates and
@@ -156,14 +157,19 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, **
     deviation is also taken with the opposite sign (2·base − pseudo): to first order a realisation
     is as likely to deviate one way as the other, and a one-sided candidate (a coercivity that can
     only shrink) must not pass because the few realisations drawn happened to deviate the other way.
-    Returns {candidate: {"relative": largest 1 − MSE_c/MSE_none, "mse": largest MSE_none − MSE_c}}."""
+    ``noise_sigma`` (m units): the measurement's noise, added to every pseudo-measurement (stream
+    ``null_noise`` of ``seed``); without it two near-identical realisations leave a residual of almost
+    nothing, and a relative gain over it means nothing. Returns {candidate: {"relative": largest 1 − MSE_c/MSE_none, "mse": largest MSE_none − MSE_c}}."""
     base_family = np.asarray(base_family, float)
     pseudo = [np.asarray(p, float) for p in pseudo_measurements]
     if mirror:
         pseudo = pseudo + [2 * base_family - p for p in pseudo]
+    if noise_sigma:
+        rng = stream_rng(seed, "null_noise", "null_gains")
+        pseudo = [p + float(noise_sigma) * rng.normal(size=p.shape) for p in pseudo]
     gains: dict = {}
     for family in pseudo:
-        result = analyse_residual(family, base_family, fields, **analysis)
+        result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
         for name, record in result["candidates"].items():
             old = gains.get(name, {"relative": -np.inf, "mse": -np.inf})
             gains[name] = {"relative": max(old["relative"], record["relative_gain"]),

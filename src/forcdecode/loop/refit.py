@@ -158,7 +158,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
 
         pseudo = [_resimulate(cfg, refit["params"], n_profiles=1, key="refit_null", first_profile=r)
                   for r in range(null_realisations)]
-        null = null_gains(pseudo, base, fields, **options)
+        null = null_gains(pseudo, base, fields, noise_sigma=noise_sigma,
+                          **{k: v for k, v in options.items() if k != "seed"}, seed=options["seed"])
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, **options)
     with_effect = None
     if result["kind"] == "measured":
