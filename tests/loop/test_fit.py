@@ -1,14 +1,15 @@
-"""Refinement by sequential importance sampling on a synthetic problem whose posterior is known on a
+"""Refinement by tempered population Monte Carlo on a synthetic problem whose posterior is known on a
 grid: a biased, broad "amortized" proposal; the refined median is the exact posterior median within
 a stated tolerance (0.02) and the error drops to under half the proposal's; the nested budgets are
-exact prefixes of a longer run. (Interval coverage is NOT yet nominal: over 60 repeats at budget 200
-both 90 % intervals held the truth in 57–75 % of the runs, against 81–90 % expected; effective sample
-sizes ~20–30. Measured, not asserted: see the closing note of stop 17.)"""
+exact prefixes of a longer run; with a proposal so far off that plain importance weights collapse
+(ESS 1.0) the tempered run keeps its ESS and finds the exact median; the 90 % intervals cover at the
+nominal rate over 100 repeats (without tempering they did not: 83 % and 72 %)."""
 
 import numpy as np
 import pytest
 from scipy.stats import norm
 
+from forcdecode.core.errors import ConfigError
 from forcdecode.loop.fit import _log_jacobian, _logit, refine
 
 K = np.arange(1, 21)
@@ -47,12 +48,13 @@ def grid_posterior(observed):
     return np.array(medians)
 
 
-def run(seed, budget=200):
+def run(seed, budget=200, bias=0.6, **options):
     rng = np.random.default_rng(seed)
     truth = rng.uniform(0.2, 0.8, 2)
     observed = forward(truth)[0] + SIGMA * rng.normal(size=(20, 1))
-    draws, logpdf = proposal(truth, rng)
-    result = refine(observed, forward, draws, logpdf, SIGMA**2, budget, 25, rng, ("a", "b"), checkpoints=(50, 100))
+    draws, logpdf = proposal(truth, rng, bias=bias)
+    result = refine(observed, forward, draws, logpdf, SIGMA**2, budget, 25, rng, ("a", "b"), checkpoints=(50, 100),
+                    **options)
     return truth, observed, draws, result
 
 
@@ -72,6 +74,7 @@ def test_nested_budgets_are_prefixes():
     _, _, _, long = run(3, budget=200)
     assert np.array_equal(long["u"][:100], short["u"])
     assert long["by_budget"][100]["parameters"] == short["by_budget"][100]["parameters"]
+    assert long["betas"][:4] == short["betas"]
 
 
 def test_effective_observations_of_gaussian_families():
@@ -86,3 +89,62 @@ def test_effective_observations_of_gaussian_families():
     s2, est = effective_observations(fams)
     assert s2 == pytest.approx(sigma**2, rel=0.15)
     assert 0.6 * nu < est < 1.6 * nu
+
+
+def plain_ess(truth, observed, draws, bias):
+    """ESS of the untempered importance weights L / q₀ of ``draws`` (drawn from q₀)."""
+    logw = -0.5 * ((forward(draws) - observed[None]) ** 2).sum(axis=(1, 2)) / SIGMA**2
+    logw -= proposal(truth, np.random.default_rng(0), n=1, bias=bias)[1](draws)
+    w = np.exp(logw - logw.max())
+    return w.sum() ** 2 / (w**2).sum()
+
+
+def test_tempering_survives_a_proposal_far_from_the_truth():
+    """A proposal 2 logits off (seeds 0–9, budget 400): the plain weights of round 1 collapse to one
+    particle (ESS < 1.5 of 25; the untempered run stays at ESS 1.0 in every round and misses the exact
+    median by up to 0.41 over seeds 0–39). Tempered: ESS ≥ 1.5 in every round (the target is 0.3 × 25
+    = 7.5; it dips below when a new round finds tempered mass the earlier ones missed, and β then
+    waits: measured ≥ 1.9 over seeds 0–39, ≥ 3 in every round of 38 of them), ≥ 40 at the end
+    (measured ≥ 57), β = 1 reached, and the exact median within 0.02 (measured ≤ 0.009)."""
+    for seed in range(10):
+        truth, observed, draws, result = run(seed, budget=400, bias=2.0)
+        exact = grid_posterior(observed)
+        refined = np.array([result["summary"]["parameters"][n]["median"] for n in ("a", "b")])
+        plain = plain_ess(truth, observed, draws[:25], 2.0)
+        print(f"seed {seed}: plain ESS {plain:.2f}; tempered ESS {np.round(result['ess'], 1).tolist()}, "
+              f"betas {np.round(result['betas'], 3).tolist()}, |refined - exact| {np.abs(refined - exact).max():.4f}")
+        assert plain < 1.5
+        assert min(result["ess"]) >= 1.5 and result["ess"][-1] >= 40
+        assert result["reached_full_likelihood"]
+        assert np.abs(refined - exact).max() < 0.02
+
+
+def test_tempered_intervals_cover_at_the_nominal_rate():
+    """100 repeats at budget 200: each parameter's 90 % interval holds the truth in 83–97 of them (the
+    99 % band of Binomial(100, 0.9) is 83–96). Measured: a 87, b 89 (exact grid posterior: 89, 93;
+    without tempering 83, 72); β = 1 reached in 99 of 100 runs, so the rate is not tempering's widening."""
+    inside, reached = np.zeros(2), 0
+    for seed in range(100):
+        truth, _, _, result = run(seed)
+        for j, name in enumerate(("a", "b")):
+            lo, hi = result["summary"]["parameters"][name]["interval_90"]
+            inside[j] += lo <= truth[j] <= hi
+        reached += result["reached_full_likelihood"]
+    print(f"coverage {inside / 100}, beta = 1 reached in {reached} of 100")
+    assert np.all((inside >= 83) & (inside <= 97))
+    assert reached >= 95
+
+
+def test_beta_schedule_is_monotone_reaches_one_and_a_tempered_result_says_so():
+    _, _, _, result = run(0, budget=400)
+    betas = result["betas"]
+    assert len(betas) == 16 and np.all(np.diff(betas) >= 0) and betas[0] < 1 and betas[-1] == 1.0
+    assert result["reached_full_likelihood"] and not result["summary"]["tempered"] and "note" not in result["summary"]
+    _, _, _, short = run(0, budget=50, bias=2.0)  # two rounds from a far proposal: still tempered
+    assert not short["reached_full_likelihood"] and short["summary"]["tempered"] and short["summary"]["beta"] < 1
+    assert "tempered posterior" in short["summary"]["note"]
+    _, _, _, plain = run(0, budget=100, tempering=False)
+    assert plain["betas"] == [1.0] * 4
+    for bad in ({"target_ess_fraction": 0.0}, {"target_ess_fraction": 1.5}, {"path": "likelihood"}):
+        with pytest.raises(ConfigError):
+            run(0, budget=50, **bad)

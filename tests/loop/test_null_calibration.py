@@ -35,8 +35,19 @@ def test_realisation_difference_is_not_named_an_effect_once_calibrated():
 def test_an_effect_well_above_the_floor_is_still_named():
     fields, base = family(0.3)
     measured = realisation(10) + 0.15 * fields[None, :]  # a substrate background of 15 % per tesla
-    gains = null_gains([realisation(s) for s in (1, 2, 3)], base, fields, thermal=True)
+    gains = null_gains([realisation(s) for s in (1, 2, 3)], base, fields, thermal=True, noise_sigma=0.002, seed=4)
     result = analyse_residual(measured, base, fields, thermal=True, null_gain=gains)
     assert result["chosen"].startswith("background")
     assert result["candidates"][result["chosen"]]["beats_null"]
     assert result["heldout_rms_after"] < 0.6 * result["heldout_rms_before"]
+
+
+def test_noise_makes_the_null_of_identical_films_harmless():
+    """Two realisations that agree exactly leave no residual: without the measurement's noise every
+    candidate's relative gain over it is arbitrary, and a real effect could be blocked."""
+    fields, base = family(0.3)
+    gains = null_gains([base.copy()], base, fields, thermal=False, noise_sigma=0.003, seed=1)
+    assert max(g["relative"] for g in gains.values()) < 0.2
+    measured = base + 0.1 * fields[None, :] + 0.003 * np.random.default_rng(5).normal(size=base.shape)
+    result = analyse_residual(measured, base, fields, thermal=False, null_gain=gains)
+    assert result["chosen"] == "background"

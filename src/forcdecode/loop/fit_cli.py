@@ -100,6 +100,8 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
     amortized = summarize_particles(draws, np.ones(len(draws)), names)
     return {"names": list(names), "Ms": Ms, "sigma2": sigma2, "n_effective": nu, "simulations_for_sigma2": n_real,
             "amortized": amortized, "refined_by_budget": {str(b): s for b, s in result["by_budget"].items()},
+            "betas": result["betas"], "ess_per_round": result["ess"],
+            "reached_full_likelihood": result["reached_full_likelihood"],
             "wall_s": time.perf_counter() - started}
 
 
@@ -127,4 +129,6 @@ def run(args) -> int:
         a, r = result["amortized"]["parameters"][name], final["parameters"][name]
         print(f"{name:16s} {a['median']:17.3f} {r['median']:15.3f}  [{r['interval_90'][0]:.3f}, {r['interval_90'][1]:.3f}]")
     print(f"effective sample size {final['ess']:.1f} of {args.budget} simulations; {result['wall_s']:.0f} s")
+    if final.get("tempered"):
+        print(f"warning: {final['note']}")
     return 0
