@@ -9,7 +9,7 @@ Langevin paramagnet, detector lag) and written as MicroMag 0015 and Lake Shore 8
 Fitting model: our engine on the laptop film (64 × 64 cells of 2 nm, Gaussian grain anisotropy, 24
 grid fields over ±1 T), started from a Hamiltonian that is off (the truth with K_u × 1.08,
 A_ex × 0.85, D × 1.2: a network's typical error), refitted on training curves without the candidate
-(``loop.refit.analyse_with_refit``, K_u and A_ex free), then every candidate (measured-side and
+(``loop.refit.analyse_with_refit``, K_u, A_ex and D free), then every candidate (measured-side and
 physics-side, re-simulated around the refit) judged on held-out curves. Effect sizes lie off the
 candidate grids. Cases: each library effect alone, two combinations, controls without an effect
 (three disorder realisations × two Hamiltonians, and a gain drift the calibration points see, which
@@ -55,10 +55,12 @@ SAMPLE = dict(nx=58, ny=58, cell_nm=2.2, n_grains=254)
 """The magnum.np sample: 127.6 nm box of 2.2 nm cells (ours: 128 nm of 2 nm), grains ≈ 8 nm as the
 fitting film's, drawn by another tessellation."""
 
-REFIT = ("K_u", "A_ex", "sigma_K")
-REFIT_BOUNDS = 0.5
-"""Refitted parameters, each within ×(1 ± 0.5) of the handed Hamiltonian: another code's film of the same
-Hamiltonian switches at other fields (measured: K_u refitted to the +30 % bound with ±0.3)."""
+REFIT = ("K_u", "A_ex", "D")
+REFIT_BOUNDS = 0.3
+"""Refitted parameters, each within ×(1 ± 0.3) of the handed Hamiltonian (24 re-simulations, pattern
+search). Measured on the H0 sample without an effect: the handed Hamiltonian misses it by 0.151 RMS,
+the truth on our film by 0.037 (our own realisation floor: 0.039), the refit of (K_u, A_ex, D) by 0.032
+on held-out curves; refitting (K_u, A_ex, σ_K) instead left the D error in and stayed at 0.11."""
 
 # name -> (physics of the magnum.np sample, instrument settings); sizes off the candidate grids
 CASES = {
@@ -127,7 +129,7 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
     return rows
 
 
-def run_case(row: dict, work_dir, cache_dir=None, budget: int = 18, noise: float = 0.002,
+def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
              null_realisations: int = 2) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
     measured rule, Hamiltonian refitted, candidates judged. Returns the JSON-ready row."""
@@ -175,7 +177,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 18, noise: float
                            for k, v in result["candidates"].items()}}
 
 
-def independent_confusion(rows=None, cache_dir=None, budget: int = 18, progress=None, done=None,
+def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,
                           out_jsonl=None, files_dir=None) -> dict:
     """Run the planned cases (``done``: rows already run are kept; ``out_jsonl``: each finished case is
     appended there and the ones already in it are not run again, so a killed run resumes; ``files_dir``:
