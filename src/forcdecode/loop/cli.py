@@ -31,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
                                                           "before the effect selection, comma-separated (e.g. K_u,A_ex)")
     parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
+    parser.add_argument("--null-realisations", type=int, default=2,
+                        help="with --refit: other disorder realisations of the refitted Hamiltonian; an effect must "
+                             "gain more than it gains on them (the realisation floor; 0: off)")
+    parser.add_argument("--fixed-point", action="store_true",
+                        help="needs --refit (and a prediction, not --params): after a measured-side effect is chosen, "
+                             "predict the Hamiltonian again from the family with the effect removed and iterate to a "
+                             "fixed point (loop.fixed_point)")
     parser.add_argument("--no-measured-protocol", action="store_true",
                         help="skip the re-simulation of the file's own protocol (residual at the measured points)")
     parser.add_argument("--measured-profiles", type=int, default=2,
@@ -66,10 +73,11 @@ def run(args) -> int:
                                 sweep_profiles=args.sweep_profiles, every_k=args.every_k,
                                 physics=not args.no_physics, force=args.force,
                                 refit=[n.strip() for n in args.refit.split(",") if n.strip()] if args.refit else None,
-                                refit_budget=args.refit_budget, measured_protocol=not args.no_measured_protocol,
+                                refit_budget=args.refit_budget, null_realisations=args.null_realisations,
+                                measured_protocol=not args.no_measured_protocol,
                                 measured_profiles=args.measured_profiles, max_measured_points=args.max_measured_points,
                                 measured_max_step_T=args.measured_max_step_mT * 1e-3, estimator=args.estimator,
-                                posterior_path=args.posterior)
+                                posterior_path=args.posterior, fixed_point=args.fixed_point)
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":

@@ -42,20 +42,37 @@ def _json_ready(obj):
     return obj
 
 
+def _hamiltonian_of(prediction: dict) -> dict:
+    """The simulator's parameter dict (SI) of a prediction (``predict_parameters`` format)."""
+    from ..learn.predictor import hamiltonian
+
+    return hamiltonian({name: e for name, e in prediction.items()
+                        if name == "Ms" or (isinstance(e, dict) and "value" in e)})
+
+
+def family_predictor(models, Ms_A_per_m: float):
+    """family → Hamiltonian (SI): the prediction path of ``predict_and_sweep`` at one M_s applied to
+    the networks' image of a grid family (``loop.fixed_point.image_of_family``)."""
+    from ..learn.predictor import predict_parameters
+    from .fixed_point import image_of_family
+
+    predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
+    return lambda family: _hamiltonian_of(predict(image_of_family(family), Ms_A_per_m))
+
+
 def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_progress):
     """Predict the Hamiltonian at each M_s (``models``: Alice's models, or a callable (image, M_s) →
     prediction such as the posterior's), re-simulate it, keep the M_s whose family is closest to
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
-    from ..learn.predictor import hamiltonian, predict_parameters
+    from ..learn.predictor import predict_parameters
     from .resimulate import observation_error, resimulate_with_spread
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
     for k, ms in enumerate(progress(ms_values, desc="M_s sweep", unit="values")):
         prediction = predict(image, ms)
-        params = hamiltonian({name: e for name, e in prediction.items()
-                              if name == "Ms" or (isinstance(e, dict) and "value" in e)})
+        params = _hamiltonian_of(prediction)
         resim, spread = resimulate_with_spread(cfg, params, n_profiles=n_profiles)
         rms = observation_error(family, resim)["rms"]
         rows.append({"Ms": float(ms), "prediction": prediction, "params": params, "observation_rms": rms,
@@ -154,7 +171,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        physics: bool = True, force: bool = False, refit=None, refit_budget: int = 20,
                        measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
-                       posterior_path="results/posterior/model.pt", log=_progress) -> dict:
+                       posterior_path="results/posterior/model.pt", fixed_point: bool = False,
+                       null_realisations: int = 2, log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -173,11 +191,22 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     at the measured points in A·m². ``estimator``: "alice" (Alice + Bob's conformal intervals) or
     "posterior" (the joint neural posterior at ``posterior_path``: medians re-simulated, 68/90 %
     intervals and correlations reported, and first the out-of-distribution check of ``learn.ood``: a
-    family that does not look like the training data stops here unless ``force``). Raises
-    InputFileError for an unreadable file, ModelFileError for missing models."""
+    family that does not look like the training data stops here unless ``force``). ``fixed_point``
+    (needs ``refit`` and a prediction, not ``params``): after a measured-side effect is chosen,
+    predict again at the chosen M_s from the family with the effect removed and repeat to a fixed
+    point (``loop.fixed_point.predict_correct_iterate``; report key ``fixed_point``). Raises
+    InputFileError for an unreadable file, ModelFileError for missing models, ConfigError for
+    ``fixed_point`` without ``refit`` or with ``params``. ``null_realisations`` (with ``refit``): other
+    disorder realisations of the refitted Hamiltonian whose gains a candidate must beat (the
+    realisation floor, ``loop.refit.analyse_with_refit``; 0: off)."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
+    if fixed_point and not refit:
+        raise ConfigError("the fixed-point iteration needs a Hamiltonian refit (refit names, --refit)")
+    if fixed_point and params is not None:
+        raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
+                          "networks, not a given Hamiltonian (--params)")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     data = read_forc(path)
@@ -199,6 +228,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
 
     fields = np.linspace(-B_max, B_max, n)
     resim = None  # the final re-simulation, unless the prediction step already made it
+    predictor = None  # family -> Hamiltonian at the chosen M_s (fixed_point)
     if params is not None:
         report.update(parameters=params, Ms_source="given (--params)")
     else:
@@ -231,6 +261,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         best, sweep = predict_and_sweep(cfg, models, image, family, ms_values,
                                         sweep_profiles if len(ms_values) > 1 else profiles, log=log)
         params = best["params"]
+        if fixed_point:
+            predictor = family_predictor(models, best["Ms"])
         report.update(parameters=params, prediction=best["prediction"], Ms_chosen_A_per_m=best["Ms"],
                       Ms_source="given" if len(ms_values) == 1 else "swept",
                       Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
@@ -242,10 +274,23 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     error = observation_error(family, resim)
     noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
     final_params = params
-    if refit:
+    if refit and fixed_point:
+        from .fixed_point import predict_correct_iterate
+
+        analysis = predict_correct_iterate(cfg, predictor, family, fields, names=tuple(refit), budget=refit_budget,
+                                           noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
+                                           physics=physics, log=log, null_realisations=null_realisations,
+                                           progress=counter("Hamiltonian refit", "re-simulations"))
+        report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
+        analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
+        final_params = analysis["hamiltonian"]["refit_without_effect"]
+        report["hamiltonian"] = analysis["hamiltonian"]
+        report["refit"] = analysis["refit"]
+    elif refit:
         from .refit import analyse_with_refit
 
         analysis = analyse_with_refit(cfg, params, family, fields, names=tuple(refit), every_k=every_k,
+                                      null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
                                       noise_sigma=noise, progress=counter("Hamiltonian refit", "re-simulations"))
         final_params = analysis["hamiltonian"]["refit_without_effect"]
@@ -350,6 +395,15 @@ def _markdown(path, report, analysis) -> str:
             lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
                          f"{with_effect.get(name, float('nan')):.4g} |")
         lines.append("")
+    fixed = report.get("fixed_point")
+    if fixed:
+        steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"
+                                                             for n in report["refit"]["names"])
+                          for it in fixed["iterations"])
+        lines += [f"Fixed point of (Hamiltonian, measured-side effect), predicted again from the family with the effect "
+                  f"removed: {'converged' if fixed['converged'] else 'NOT converged'} after {fixed['n_iterations']} "
+                  f"iteration(s) (tolerance {100 * fixed['tolerance']:.0f} %; per iteration effect, prediction → "
+                  f"refitted: {steps}).", ""]
     lines += [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
               f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
               f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
