@@ -88,3 +88,17 @@ def test_a_misaligned_field_is_named_by_the_tilt_candidate(film):
     control = analyse_residual(film.sample(), film.base, film.fields, seed=2, noise_sigma=NOISE, n_profiles=2,
                                **film.candidates)
     assert control["chosen"] == "none"
+
+
+def test_refitted_null_is_a_lower_floor_than_the_unrefitted_one(film):
+    """The refit fits part of a film's own disorder realisation: the same effect-free films, refitted
+    from the same start, leave candidates less to gain than unrefitted ones (``null_refit``)."""
+    measured = film.sample()
+    start = {**PREDICTION, "K_u": 1.1 * PREDICTION["K_u"]}
+    gains = {}
+    for refit_null in (False, True):
+        result = analyse_with_refit(film.cfg, start, measured, film.fields, names=("K_u",), budget=10, physics=False,
+                                    null_realisations=1, null_refit=refit_null, noise_sigma=NOISE, thermal=False)
+        gains[refit_null] = result["refit"]["null_gain"]
+    best = {r: max(g["mse"] for g in gains[r].values()) for r in gains}
+    assert best[True] < 0.5 * best[False], best  # measured: field_offset 0.026 unrefitted, ~0 refitted
