@@ -409,9 +409,18 @@ def _markdown(path, report, analysis) -> str:
               f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
               f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
               f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
-              "| candidate | held-out RMS | accepted |", "|---|---|---|"]
+              "| candidate | held-out RMS | relative gain | gain on effect-free films (floor) | beats the floor | accepted |",
+              "|---|---|---|---|---|---|"]
     for name, c in sorted(analysis["candidates"].items(), key=lambda kv: kv[1]["heldout_rms"]):
-        lines.append(f"| {name} | {c['heldout_rms']:.4f} | {c.get('accepted', '')} |")
+        null = c.get("null_gain")
+        floor = "—" if null is None else f"{null['relative']:.2f}"
+        lines.append(f"| {name} | {c['heldout_rms']:.4f} | {c.get('relative_gain', float('nan')):.2f} | "
+                     f"{floor} | {c.get('beats_null', '—')} | "
+                     f"{c.get('accepted', '')} |")
+    if any("null_gain" in c for c in analysis["candidates"].values()):
+        lines += ["", "Floor: the refitted Hamiltonian simulated on other disorder realisations (mirrored, with the "
+                  "measurement's noise) and analysed as if measured; a candidate must gain more here than there, "
+                  "relatively and in mean-square error (`loop.refit.analyse_with_refit`)."]
     structure = analysis.get("structure", {})
     if "chi2_ratio" in structure:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
