@@ -233,7 +233,7 @@ def summary_lines(result: dict) -> list[str]:
              f"{_pct(result['correct_fraction'])}, false attributions on controls {_pct(result['false_attribution_controls'])}, "
              f"forced attributions outside the library {_pct(result['false_attribution_outside_library'])}, median "
              f"held-out RMS after/before where an effect is chosen {_num(result['median_heldout_ratio_where_chosen'])}",
-             "", "case".ljust(34) + "H  seed  verdict".ljust(45) + "held-out before → after   K_u, A_ex refit error"]
+             "", "case".ljust(34) + "H  seed  verdict".ljust(45) + "held-out before → after   K_u, A_ex, D refit error"]
     for r in result["cases"]:
         refit = ", ".join(f"{v:+.1%}" for v in r["refit_relative_error"].values())
         lines.append(r["case"][:33].ljust(34) + f"{r['hamiltonian']}  {r['seed']}     " + r["verdict"][:34].ljust(36)
