@@ -17,6 +17,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the Hamiltonian refitted (needs the reference extra)")
     parser.add_argument("--effects-out", default="results/bench/effects_independent",
                         help="effects --independent: cases.jsonl (resumable), summary.json and the instrument files")
+    parser.add_argument("--cases", nargs="+", help="effects --independent: run only these cases (names as in the table)")
+    parser.add_argument("--patches", type=int, default=1,
+                        help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
+    parser.add_argument("--model-profiles", type=int, default=1,
+                        help="effects --independent: disorder profiles averaged in each re-simulation of the model")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
     parser.add_argument("--skip-256", action="store_true", help="skip the 256×256×2 grid")
@@ -105,11 +110,17 @@ def run(args) -> int:
 def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
+    from ..core.errors import ConfigError
     from ..core.io import write_json
     from ..core.progress import progress
     from .effects_independent import independent_confusion, plan, summary_lines
 
     rows = plan()
+    if args.cases:
+        unknown = set(args.cases) - {r["case"] for r in rows}
+        if unknown:
+            raise ConfigError(f"--cases: unknown {sorted(unknown)}; known: {sorted({r['case'] for r in rows})}")
+        rows = [r for r in rows if r["case"] in args.cases]
     out = Path(args.effects_out)
     with progress(total=len(rows), desc="independent cases", unit="cases") as bar:
         def done(row):
@@ -118,7 +129,7 @@ def _bench_effects_independent(args, say) -> int:
             bar.update()
 
         result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
-                                       files_dir=out / "files")
+                                       files_dir=out / "files", patches=args.patches, profiles=args.model_profiles)
     write_json(out / "summary.json", result)
     for line in summary_lines(result):
         say(line)

@@ -99,8 +99,16 @@ def is_correct(name: str, verdict: str, chosen: str) -> bool:
     return chosen == name or any({name, chosen} <= group for group in SAME_OBSERVABLE)
 
 
-def _sample(params, physics, seed, cache_dir, protocol, film):
-    from ..reference.independent import magnumnp_family, mix_phases
+def _sample(params, physics, seed, cache_dir, protocol, film, patches: int = 1):
+    """The magnum.np sample; with ``patches`` > 1 the mean of that many independent patches (disorder
+    seeds seed, seed + 100, ...): a macroscopic film averages many patches."""
+    from ..reference.independent import SampleFamily, magnumnp_family, mix_phases
+
+    if patches > 1:
+        parts = [_sample(params, physics, seed + 100 * k, cache_dir, protocol, film) for k in range(patches)]
+        return SampleFamily(parts[0].reversal_fields_T, parts[0].curve_fields_T,
+                            [np.mean([p.curves[i] for p in parts], axis=0) for i in range(len(parts[0].curves))],
+                            {"patches": [p.stats for p in parts]})
 
     physics = dict(physics)
     if "K_u_soft_over_K_u" in physics:
@@ -130,9 +138,11 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
 
 
 def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
-             null_realisations: int = 2) -> dict:
+             null_realisations: int = 2, patches: int = 1, profiles: int = 1) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
-    measured rule, Hamiltonian refitted, candidates judged. Returns the JSON-ready row."""
+    measured rule, Hamiltonian refitted, candidates judged. ``patches``: magnum.np patches averaged in
+    the sample; ``profiles``: disorder profiles averaged in every re-simulation of the model (the
+    realisation floor falls as 1/√n on each side). Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.refit import analyse_with_refit
     from ..measured import read_forc
@@ -144,7 +154,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     physics = dict(physics)
     film = IndependentFilm(**SAMPLE, anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
     start = time.perf_counter()
-    sample = _sample(truth, physics, seed, cache_dir, measurement_protocol(CONFIG["field"]["n_fields"]), film)
+    sample = _sample(truth, physics, seed, cache_dir, measurement_protocol(CONFIG["field"]["n_fields"]), film,
+                     patches=patches)
     sample_s = time.perf_counter() - start
     fmt = ["micromag0015", "lakeshore_csv"][(sum(map(ord, name)) + h + seed) % 2]
     stem = "".join(c if c.isalnum() else "_" for c in name).strip("_")
@@ -159,10 +170,10 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     prediction = {**truth, **{k: truth[k] * f for k, f in PREDICTION_ERROR.items()}}
     fields = np.linspace(-B_max, B_max, n)
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
-                                relative_bounds=REFIT_BOUNDS,
+                                relative_bounds=REFIT_BOUNDS, n_profiles=profiles,
                                 noise_sigma=noise, null_realisations=null_realisations)
     refit = result["hamiltonian"]["refit_without_effect"]
-    return {**row, "kind": case_kind(name), "file": str(path), "format": data.format, "in_domain": note is None,
+    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path), "format": data.format, "in_domain": note is None,
             "chosen": result["chosen"], "verdict": result["verdict"], "correct": is_correct(name, result["verdict"],
                                                                                           result["chosen"]),
             "parameters": result["parameters"], "heldout_rms_before": result["heldout_rms_before"],
@@ -178,7 +189,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
 
 
 def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,
-                          out_jsonl=None, files_dir=None) -> dict:
+                          out_jsonl=None, files_dir=None, patches: int = 1, profiles: int = 1) -> dict:
     """Run the planned cases (``done``: rows already run are kept; ``out_jsonl``: each finished case is
     appended there and the ones already in it are not run again, so a killed run resumes; ``files_dir``:
     the instrument files are kept there, one per case, for ``forcdecode loop``);
@@ -196,7 +207,8 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
         for row in rows:
             if (row["case"], row["hamiltonian"], row["seed"]) in seen:
                 continue
-            finished.append(run_case(row, where, cache_dir=cache_dir, budget=budget))
+            finished.append(run_case(row, where, cache_dir=cache_dir, budget=budget, patches=patches,
+                                     profiles=profiles))
             if out_jsonl is not None:
                 Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
                 with open(out_jsonl, "a") as f:
