@@ -21,18 +21,26 @@ def _number(x: float) -> str:
     return f"{x:+.6E}"
 
 
-def write_micromag_0015(path, reversal_fields_T, curves, calibration_moments_Am2=None, calibration_field_T=None,
-                        sample_name: str = "forcdecode simulation") -> Path:
-    """``curves``: per reversal field, (field_T, moment_Am2) arrays from H_r upward. Fields in T,
-    moments in A·m² (Hybrid SI). ``calibration_moments_Am2``: one per curve (default: the same value
-    for every curve, the top point of the highest curve: a measurement without drift)."""
-    order = np.argsort(reversal_fields_T)[::-1]  # decreasing reversal field, as measured
+def _in_measured_order(reversal_fields_T, curves, calibration_moments_Am2, calibration_field_T):
+    """Curves as measured (decreasing reversal field), their calibration moments (default: the top
+    point of the highest curve for every curve, a measurement without drift) and the calibration field
+    (default: the largest field)."""
+    order = np.argsort(reversal_fields_T)[::-1]
     curves = [(np.asarray(curves[k][0], float), np.asarray(curves[k][1], float)) for k in order]
     h_cal = float(calibration_field_T if calibration_field_T is not None else max(f.max() for f, _ in curves))
     if calibration_moments_Am2 is None:
         cal = [curves[0][1][np.argmax(curves[0][0])]] * len(curves)
     else:
         cal = list(np.asarray(calibration_moments_Am2, float)[order])
+    return curves, cal, h_cal
+
+
+def write_micromag_0015(path, reversal_fields_T, curves, calibration_moments_Am2=None, calibration_field_T=None,
+                        sample_name: str = "forcdecode simulation") -> Path:
+    """``curves``: per reversal field, (field_T, moment_Am2) arrays from H_r upward. Fields in T,
+    moments in A·m² (Hybrid SI). ``calibration_moments_Am2``: one per curve (default: the same value
+    for every curve, the top point of the highest curve: a measurement without drift)."""
+    curves, cal, h_cal = _in_measured_order(reversal_fields_T, curves, calibration_moments_Am2, calibration_field_T)
     n_data = sum(len(f) for f, _ in curves) + len(curves)
     header = [
         "MicroMag 2900/3900 Data File (Series 0015)",
@@ -93,13 +101,7 @@ def write_lakeshore_csv(path, reversal_fields_T, curves, calibration_moments_Am2
     ``sweep_rate_T_per_s`` between fields). Arguments as ``write_micromag_0015``."""
     from datetime import datetime, timedelta
 
-    order = np.argsort(reversal_fields_T)[::-1]
-    curves = [(np.asarray(curves[k][0], float), np.asarray(curves[k][1], float)) for k in order]
-    h_cal = float(calibration_field_T if calibration_field_T is not None else max(f.max() for f, _ in curves))
-    if calibration_moments_Am2 is None:
-        cal = [curves[0][1][np.argmax(curves[0][0])]] * len(curves)
-    else:
-        cal = list(np.asarray(calibration_moments_Am2, float)[order])
+    curves, cal, h_cal = _in_measured_order(reversal_fields_T, curves, calibration_moments_Am2, calibration_field_T)
     rows, t, segment = [], 0.0, 0
     for (fields, moments), m_cal in zip(curves, cal):
         rows.append(f"1,0,{segment},{h_cal!r},{float(m_cal)!r},{t:.3f},GOOD,GOOD")
