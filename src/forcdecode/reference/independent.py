@@ -36,9 +36,10 @@ at each calibration and reversal, ``sweep_rate_T_per_s`` between points):
 with gain(t) = scale·(1 + g·(1 − e^{−t/t_g})/(1 − e^{−T/t_g})) (an exponential warm-up, not the loop's linear
 clock), drift_add(t) = d·(t/T)^{1.5} and the Langevin L(x) = coth x − 1/x; optionally a first-order
 lag of the recorded moment (a lock-in time constant ``lag_points`` in averaging times, outside the
-library). Calibration points (at the top field before each curve) are written with the same gain and
-drift as the data (a real instrument's drift is seen by them), unless ``calibration_sees_drift`` is
-False. Noise σ in units of the film moment.
+library). Calibration points (at the top field before each curve) do not see the drift by default (an
+undeclared drift, e.g. of the sample's temperature: the reader's calibration-based correction cannot
+remove it); with ``calibration_sees_drift`` they carry the same gain and drift as the data, and the
+reader's drift correction removes a gain drift. Noise σ in units of the film moment.
 """
 
 from __future__ import annotations
@@ -238,7 +239,7 @@ class InstrumentModel:
     averaging_s: float = 0.1
     pause_s: float = 1.0
     sweep_rate_T_per_s: float = 0.05
-    calibration_sees_drift: bool = True
+    calibration_sees_drift: bool = False
 
 
 def _langevin(x):
