@@ -54,6 +54,19 @@ def test_background_offset_and_gain_drift_follow_their_formulas():
     assert 1.0 < g0 < 1.0 + 0.04 * 0.2
 
 
+def test_patches_average_and_phases_mix_point_by_point():
+    from forcdecode.reference.independent import average_families, mix_phases
+
+    a = _toy_family()
+    b = SampleFamily(a.reversal_fields_T, a.curve_fields_T, [0.5 * c - 0.1 for c in a.curves], {"id": "b"})
+    mean = average_families([a, b, b])
+    mixed = mix_phases(a, b, 0.25)
+    for ca, cb, cm, cx in zip(a.curves, b.curves, mean.curves, mixed.curves):
+        np.testing.assert_allclose(cm, (ca + 2 * cb) / 3, rtol=1e-14)
+        np.testing.assert_allclose(cx, 0.75 * ca + 0.25 * cb, rtol=1e-14)
+    assert mixed.stats["soft_phase"] == {"id": "b"} and len(mean.stats["parts"]) == 3
+
+
 def test_langevin_and_detector_lag_against_closed_forms():
     x = np.array([1e-6, 1e-3, 0.5, 2.0, 50.0])
     expected = [1e-6 / 3, 1e-3 / 3 - 1e-9 / 45, 1 / math.tanh(0.5) - 2.0, 1 / math.tanh(2.0) - 0.5, 1 - 1 / 50.0]

@@ -102,13 +102,11 @@ def is_correct(name: str, verdict: str, chosen: str) -> bool:
 def _sample(params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """The magnum.np sample; with ``patches`` > 1 the mean of that many independent patches (disorder
     seeds seed, seed + 100, ...): a macroscopic film averages many patches."""
-    from ..reference.independent import SampleFamily, magnumnp_family, mix_phases
+    from ..reference.independent import average_families, magnumnp_family, mix_phases
 
     if patches > 1:
-        parts = [_sample(params, physics, seed + 100 * k, cache_dir, protocol, film) for k in range(patches)]
-        return SampleFamily(parts[0].reversal_fields_T, parts[0].curve_fields_T,
-                            [np.mean([p.curves[i] for p in parts], axis=0) for i in range(len(parts[0].curves))],
-                            {"patches": [p.stats for p in parts]})
+        return average_families([_sample(params, physics, seed + 100 * k, cache_dir, protocol, film)
+                                 for k in range(patches)])
 
     physics = dict(physics)
     if "K_u_soft_over_K_u" in physics:
@@ -173,9 +171,9 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles,
                                 noise_sigma=noise, null_realisations=null_realisations)
     refit = result["hamiltonian"]["refit_without_effect"]
-    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path), "format": data.format, "in_domain": note is None,
-            "chosen": result["chosen"], "verdict": result["verdict"], "correct": is_correct(name, result["verdict"],
-                                                                                          result["chosen"]),
+    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path),
+            "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
+            "correct": is_correct(name, result["verdict"], result["chosen"]),
             "parameters": result["parameters"], "heldout_rms_before": result["heldout_rms_before"],
             "heldout_rms_after": result["heldout_rms_after"],
             "heldout_ratio": result["heldout_rms_after"] / result["heldout_rms_before"]

@@ -283,9 +283,6 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                            progress=counter("Hamiltonian refit", "re-simulations"))
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
-        final_params = analysis["hamiltonian"]["refit_without_effect"]
-        report["hamiltonian"] = analysis["hamiltonian"]
-        report["refit"] = analysis["refit"]
     elif refit:
         from .refit import analyse_with_refit
 
@@ -293,6 +290,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                       null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
                                       noise_sigma=noise, progress=counter("Hamiltonian refit", "re-simulations"))
+    if refit:
         final_params = analysis["hamiltonian"]["refit_without_effect"]
         report["hamiltonian"] = analysis["hamiltonian"]
         report["refit"] = analysis["refit"]

@@ -170,11 +170,18 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     gains: dict = {}
     for family in pseudo:
         result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
-        for name, record in result["candidates"].items():
-            old = gains.get(name, {"relative": -np.inf, "mse": -np.inf})
-            gains[name] = {"relative": max(old["relative"], record["relative_gain"]),
-                           "mse": max(old["mse"], record["gain_mse_mean"])}
+        gains = merge_null_gains(gains, {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"]}
+                                         for name, record in result["candidates"].items()})
     return gains
+
+
+def merge_null_gains(a: dict, b: dict) -> dict:
+    """Per candidate, the larger of two null gains (relative and mean-square, each on its own)."""
+    out = dict(a)
+    for name, g in b.items():
+        old = out.get(name, {"relative": -np.inf, "mse": -np.inf})
+        out[name] = {"relative": max(old["relative"], g["relative"]), "mse": max(old["mse"], g["mse"])}
+    return out
 
 
 def _reduction_ci(before, after, rng, n_boot):

@@ -144,7 +144,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     it reaches there, i.e. what a different film of the same Hamiltonian alone gives it
     (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations."""
     from .effects import EFFECTS, heldout_folds
-    from .physics_effects import analyse_residual, physics_candidate_families
+    from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
+    from .resimulate import resimulate
 
     measured = np.asarray(measured, float)
     fields = np.asarray(fields, float)
@@ -159,24 +160,19 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                    n_profiles=n_profiles, **candidates, **analysis)
     null = None
     if null_realisations > 0:
-        from .physics_effects import null_gains
-        from .resimulate import resimulate as _resimulate
-
         null = {}
         for r in range(null_realisations):
-            # another film of the refitted Hamiltonian, put through the same pipeline: refitted from the
-            # same start on the same curves, so its residual is the floor *after* a refit, as the real one is
-            pseudo = _resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
-                                 first_profile=r * n_profiles)
+            # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
+            # on the same curves (its residual is then the floor after a refit), else against ``base``
+            pseudo = resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
+                                first_profile=r * n_profiles)
             pseudo_base = base
             if null_refit:
                 pseudo_base = refit_hamiltonian(cfg, params, pseudo, train, names=names, relative_bounds=relative_bounds,
                                                 n_profiles=n_profiles, budget=budget)["family"]
-            gains = null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
-                               **{k: v for k, v in options.items() if k != "seed"}, seed=options["seed"] + r)
-            for name, g in gains.items():
-                old = null.get(name, {"relative": -np.inf, "mse": -np.inf})
-                null[name] = {"relative": max(old["relative"], g["relative"]), "mse": max(old["mse"], g["mse"])}
+            null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
+                                                     **{k: v for k, v in options.items() if k != "seed"},
+                                                     seed=options["seed"] + r))
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, **options)
     with_effect = None
     if result["kind"] == "measured":
@@ -184,8 +180,6 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                   n_profiles=n_profiles, budget=budget, effect=EFFECTS[result["chosen"]], fields=fields)
         with_effect = {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
                        "objective": joint["objective"]}
-    from .resimulate import resimulate
-
     prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
     held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
     result.update(

@@ -139,7 +139,7 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
     psi = math.radians(tilt_deg)
     direction = np.array([math.sin(psi), 0.0, math.cos(psi)])
     bias = np.array([0.0, 0.0, float(B_bias_T)])
-    stats = {"relaxations": 0, "iterations_bound": 0, "wall_s": 0.0}
+    stats = {"relaxations": 0, "points_copied": 0, "wall_s": 0.0}
     start = time.perf_counter()
 
     def relax(m, B):
@@ -167,20 +167,19 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
         B = float(reversal[k])
         kept[k] = m.copy()
     curves = [None] * len(reversal)
-    visited = {}  # (curve, field rounded to 1e-9 T) -> (state, value), for the shortcut below
-    stats["points_copied"] = 0
+    above = {}  # states of the curve reversed just above this one, by field (rounded to 1e-9 T)
     for done, k in enumerate(order):
-        m, B, values = kept[k], float(reversal[k]), []
+        m, B, values, here = kept[k], float(reversal[k]), [], {}
         fields = np.asarray(curve_fields_T[k], float)
-        higher = order[done - 1] if done else None  # the curve reversed just above this one
+        higher = order[done - 1] if done else None
         for j, h in enumerate(fields):
             if h != B:
                 for b in _steps(B, float(h), film.max_step_T):
                     m = relax(m, float(b))
                 B = float(h)
             values.append(project(m))
-            visited[(k, round(B, 9))] = m
-            twin = visited.get((higher, round(B, 9))) if higher is not None else None
+            here[round(B, 9)] = m
+            twin = above.get(round(B, 9))
             if twin is not None and float(np.abs(twin - m).max()) < film.same_state_tol:
                 # the state equals the higher curve's at this field: the rest of the curve is that curve's
                 rest = fields[j + 1:]
@@ -189,6 +188,7 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
                 stats["points_copied"] += rest.size
                 break
         curves[k] = np.asarray(values)
+        above = here
         if progress is not None:
             progress(done + 1, len(order))
     stats["wall_s"] = time.perf_counter() - start
@@ -204,10 +204,19 @@ def _add_second_order_anisotropy(sample, K_2: float) -> None:
     sample.terms = sample.terms + ("anisotropy2",)
 
 
+def average_families(families, weights=None, stats=None) -> SampleFamily:
+    """Σ w_i·family_i point by point (weights default equal): non-interacting phases or patches
+    measured together. The families must share the protocol; ``stats`` of the result (default: the
+    parts' stats)."""
+    weights = np.full(len(families), 1.0 / len(families)) if weights is None else np.asarray(weights, float)
+    first = families[0]
+    curves = [sum(w * f.curves[i] for w, f in zip(weights, families)) for i in range(len(first.curves))]
+    return replace(first, curves=curves, stats={"parts": [f.stats for f in families]} if stats is None else stats)
+
+
 def mix_phases(main: SampleFamily, soft: SampleFamily, fraction: float) -> SampleFamily:
     """(1 − f)·main + f·soft, point by point (two non-interacting phases measured together)."""
-    curves = [(1 - fraction) * a + fraction * b for a, b in zip(main.curves, soft.curves)]
-    return replace(main, curves=curves, stats={**main.stats, "soft_phase": soft.stats})
+    return average_families([main, soft], [1 - fraction, fraction], stats={**main.stats, "soft_phase": soft.stats})
 
 
 def measurement_protocol(n_curves: int = 24, B_max_T: float = 1.0, shift: float = 0.37) -> tuple[np.ndarray, list]:
@@ -318,5 +327,6 @@ def write_measurement(path, family: SampleFamily, moment_Am2: float, instrument:
     raise ValueError(f"unknown format {fmt!r} (micromag0015 or lakeshore_csv)")
 
 
-__all__ = ["IndependentFilm", "InstrumentModel", "SampleFamily", "independent_disorder", "magnumnp_family",
+__all__ = ["IndependentFilm", "InstrumentModel", "SampleFamily", "average_families", "independent_disorder",
+           "magnumnp_family",
            "measurement_protocol", "mix_phases", "record", "write_measurement"]
