@@ -47,3 +47,11 @@ def test_one_control_case_end_to_end(tmp_path):
     assert row["kind"] == "control" and row["in_domain"] is not None
     assert (tmp_path / "none_H0_s1.frc").exists() or (tmp_path / "none_H0_s1.csv").exists()
     assert row["heldout_rms_before"] < row["heldout_rms_prediction"]  # the refit moved towards the sample
+
+
+@pytest.mark.parametrize("argv,message", [(["--patches", "0"], "--patches"), (["--cases", "nonsense"], "unknown")])
+def test_bad_options_are_clear_errors(argv, message, capsys):
+    from forcdecode.cli import main
+
+    assert main(["bench", "effects", "--independent", *argv]) == 2
+    assert message in capsys.readouterr().err

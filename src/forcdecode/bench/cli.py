@@ -115,6 +115,8 @@ def _bench_effects_independent(args, say) -> int:
     from ..core.progress import progress
     from .effects_independent import independent_confusion, plan, summary_lines
 
+    if args.patches < 1 or args.model_profiles < 1:
+        raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     rows = plan()
     if args.cases:
         unknown = set(args.cases) - {r["case"] for r in rows}
