@@ -158,11 +158,15 @@ def slurm_cluster():
     if reason:
         pytest.fail(f"FORCDECODE_SLURM_TEST=1 but this machine cannot run the Slurm test: {reason}", pytrace=False)
     t0 = time.monotonic()
+    # without the thread caps other tests leave in the environment (nproc obeys OMP_NUM_THREADS:
+    # a 1-CPU node then refuses the 2-thread rules)
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT")}
     proc = subprocess.run(
         ["bash", str(SETUP_SCRIPT), "start"],
         capture_output=True,
         text=True,
         timeout=SETUP_TIMEOUT_S,
+        env=env,
     )
     elapsed = time.monotonic() - t0
     print(f"\n[slurm setup: {elapsed:.1f} s]\n{proc.stderr}{proc.stdout}")

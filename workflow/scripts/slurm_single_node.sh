@@ -152,7 +152,8 @@ fi
 # --- 2. configuration ---------------------------------------------------------------------------
 t_start=$SECONDS
 HOST="$(hostname -s 2>/dev/null || hostname)"
-CPUS="$(nproc)"
+# nproc obeys OMP_NUM_THREADS/OMP_THREAD_LIMIT (a test run sets OMP_NUM_THREADS=1): count the CPUs without them
+CPUS="$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)"
 mem_total_mb=$(( $(awk '/^MemTotal:/ {print $2}' /proc/meminfo) / 1024 ))
 default_mem=$(( mem_total_mb * 9 / 10 ))
 (( default_mem > 8000 )) && default_mem=8000
