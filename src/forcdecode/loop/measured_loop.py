@@ -273,6 +273,14 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                                progress=counter("re-simulation", "profiles"))
     error = observation_error(family, resim)
     noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
+    # the model-free evidence a field-shift candidate needs: is the measured major loop symmetric?
+    shift = None
+    if noise:
+        from .signatures import field_shift_of_curves
+
+        shift = field_shift_of_curves([(c.reversal_field_T, c.field_T, c.moment_Am2 - domain.moment_offset_Am2)
+                                       for c in data.curves], moment_saturation, noise)
+        report["field_shift"] = shift
     final_params = params
     if refit and fixed_point:
         from .fixed_point import predict_correct_iterate
@@ -280,7 +288,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         analysis = predict_correct_iterate(cfg, predictor, family, fields, names=tuple(refit), budget=refit_budget,
                                            noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
                                            physics=physics, log=log, null_realisations=null_realisations,
-                                           progress=counter("Hamiltonian refit", "re-simulations"))
+                                           field_shift=shift, progress=counter("Hamiltonian refit", "re-simulations"))
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
     elif refit:
@@ -289,7 +297,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         analysis = analyse_with_refit(cfg, params, family, fields, names=tuple(refit), every_k=every_k,
                                       null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
-                                      noise_sigma=noise, progress=counter("Hamiltonian refit", "re-simulations"))
+                                      noise_sigma=noise, field_shift=shift,
+                                      progress=counter("Hamiltonian refit", "re-simulations"))
     if refit:
         final_params = analysis["hamiltonian"]["refit_without_effect"]
         report["hamiltonian"] = analysis["hamiltonian"]
@@ -298,7 +307,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
                       if physics else {})
         analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
-                                    floor_variance=spread, n_profiles=profiles, **candidates)
+                                    floor_variance=spread, n_profiles=profiles, field_shift=shift, **candidates)
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
                   per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],
@@ -419,6 +428,13 @@ def _markdown(path, report, analysis) -> str:
         lines += ["", "Floor: the refitted Hamiltonian simulated on other disorder realisations (mirrored, with the "
                   "measurement's noise) and analysed as if measured; a candidate must gain more here than there, "
                   "relatively and in mean-square error (`loop.refit.analyse_with_refit`)."]
+    shift = analysis.get("field_shift")
+    if shift and shift.get("offset_T") is not None:
+        lines += ["", f"Symmetry of the major loop (model-free evidence for a field shift, `loop.signatures`): centre "
+                  f"{1e3 * shift['offset_T']:+.1f} ± {1e3 * shift['se_T']:.1f} mT ({shift['z']:.1f} se, χ² over "
+                  f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}): "
+                  + ("a shift; field-shift candidates are judged without the realisation floor."
+                     if shift["significant"] else "no shift; field-shift candidates (offset, bias) are not offered.")]
     structure = analysis.get("structure", {})
     if "chi2_ratio" in structure:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "

@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.streams import stream_rng
+from .signatures import shift_agreement, shifts_field
 from .effects import (EFFECTS, _grid_resolution, _per_curve_mse, choose_candidate, fit_effect, fit_grid_effect,
                       heldout_folds, heldout_mse, measurement_clock)
 
@@ -207,7 +208,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
                      thermal: bool = True, noise_sigma: float | None = None, floor_variance=None,
                      n_profiles: int = 1, null_gain: dict | None = None,
-                     null_margin: float = 0.05) -> dict:
+                     null_margin: float = 0.05, field_shift: dict | None = None) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -258,6 +259,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     both senses: relative gain above the null's by ``null_margin``, and mean-square gain above the
     null's by the factor 1 + ``null_margin`` (records: ``relative_gain``, ``gain_mse_mean``,
     ``null_gain``, ``beats_null``).
+
+    ``field_shift``: the model-free inversion-symmetry test of the measured major loop
+    (``signatures.field_shift``). With it, a candidate that shifts the loop along the field
+    (field_offset, bias_field, their combinations) is offered only if the loop shift its fitted
+    size implies agrees with the measured one (``signatures.shift_agreement``: within 3 combined
+    standard errors); when the measured shift is significant it is offered without the
+    realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
+    the data show by themselves is not the difference between two films (records:
+    ``shift_evidence``). It still has to beat "none" on held-out curves.
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -311,6 +321,14 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         gain_mse = none_mse - float(np.nanmean(mse[name]))
         records[name]["gain_mse_mean"] = gain_mse
         records[name]["relative_gain"] = gain_mse / none_mse if none_mse > 0 else 0.0
+        if field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None:
+            check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"])
+            records[name]["shift_evidence"] = check
+            if not check["agrees"]:
+                offered.pop(name)  # the data's own symmetry says the loop is not shifted by that much
+                continue
+            if field_shift["significant"]:
+                continue  # a shift the data show by themselves: no realisation floor
         if null_gain is not None and name != "none":
             null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
             records[name]["null_gain"] = dict(null)
@@ -341,7 +359,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         verdict = chosen
         verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
                                              if structure["structured"] else "")
-    return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure,
+    return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure, "field_shift": field_shift,
         "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
         "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
         "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),

@@ -125,7 +125,8 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
 def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
-                       null_realisations: int = 0, null_refit: bool = False, progress=None, **analysis) -> dict:
+                       null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
+                       progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
@@ -142,7 +143,10 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     ``tests/loop/test_fixed_point.py``) and analysed as if it were the measurement (``physics_effects.null_gains``,
     the physics-side candidate families of the real refit reused); a candidate must then beat the gain
     it reaches there, i.e. what a different film of the same Hamiltonian alone gives it
-    (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations."""
+    (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations.
+
+    ``field_shift``: the measured loop's inversion-symmetry test (``signatures.field_shift``), the
+    evidence a field-shift candidate needs (``analyse_residual``); the null films do not get it."""
     from .effects import EFFECTS, heldout_folds
     from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
     from .resimulate import resimulate
@@ -173,7 +177,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
             null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r))
-    result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, **options)
+    result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
+                              **options)
     with_effect = None
     if result["kind"] == "measured":
         joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,

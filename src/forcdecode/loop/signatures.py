@@ -1,0 +1,200 @@
+"""Model-free evidence for a field shift: the inversion symmetry of the major loop.
+
+A film without a bias field has a Hamiltonian symmetric under (m, B) → (−m, −B) (Zeeman, exchange,
+uniaxial anisotropy, DMI, demagnetization and the frozen disorder all are), so its ascending major
+branch is the mirror of its descending one: a(B) = −d(−B). Odd instrument terms (a linear or Langevin
+background, a scale, a detector lag that widens the loop) keep the symmetry; a field offset b of the
+magnet (or a bias field of the film: the same observable) breaks it as a pure horizontal shift,
+a(B) = −d(−B + 2b). The test does not need the re-simulation, so a model that is a different film
+(another disorder realisation, another code) cannot fake it. A field-shift candidate must agree
+with it (``shift_agreement``) before it may explain a residual, and a significant shift spares it
+the realisation floor (``physics_effects.analyse_residual``, ``field_shift=``).
+
+Estimate. For levels m_L inside both branches, the field B_d(−m_L) where the descending branch
+crosses −m_L and B_a(m_L) where the ascending one crosses m_L (linear interpolation between the
+measured points); each level gives a centre c_L = (B_a(m_L) + B_d(−m_L))/2, which is b for a
+shifted loop and 0 for a symmetric one. Uncertainty of one crossing (T): the noise √2 σ (m units)
+over the local slope, and the interpolation: |m''|(x − x₀)(x₁ − x)/2 over the slope, the error of
+linear interpolation with the curvature m'' taken as the larger second difference at the interval's
+ends, or Δ/√12 where that error at the interval's middle would exceed half of it (the branch is not
+resolved: a step anywhere in an interval of width Δ; also at the branch's ends). The levels share intervals, so their
+errors are treated as fully correlated: the reported standard error is the mean of the levels'.
+A field shift is claimed when |b| / se > ``Z_SHIFT`` and the levels agree with one constant shift
+(χ² of c_L about their mean, with the per-level errors, below its 99 % point): a vertical
+asymmetry (an additive drift) moves the centres by v / slope, different at every level. A vertical
+asymmetry is also measured where it shows directly: at the saturated ends the two branches must be
+mirror images too, a(B) + d(−B) = 0 at the ``N_END`` outermost points of each end; if either end's
+mean differs from 0 by more than ``Z_SHIFT`` standard errors (σ√(2/N_END)) plus the slope of the
+branches times the lattice mismatch, the asymmetry is not a pure field shift and no shift is claimed
+(a gain or additive drift, not a field offset).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+Z_SHIFT = 3.0
+"""A field shift is claimed at |offset| > 3 standard errors."""
+
+LEVELS = (-0.6, -0.4, -0.2, 0.0, 0.2, 0.4, 0.6)
+"""Levels of normalized m at which the two branches' crossings are compared."""
+
+N_END = 3
+"""Outermost points per end of the ascending branch used for the vertical-asymmetry check."""
+
+_CHI2_99 = {1: 6.63, 2: 9.21, 3: 11.34, 4: 13.28, 5: 15.09, 6: 16.81}
+"""99 % points of χ² with k degrees of freedom (levels − 1)."""
+
+
+def _curvature(fields, values, i):
+    """|m''| (1/T²) at point i from its neighbours (non-uniform second difference), or None at an end."""
+    if i <= 0 or i >= len(fields) - 1 or not np.all(np.isfinite(values[i - 1:i + 2])):
+        return None
+    h0, h1 = fields[i] - fields[i - 1], fields[i + 1] - fields[i]
+    return abs(2.0 * ((values[i + 1] - values[i]) / h1 - (values[i] - values[i - 1]) / h0) / (h0 + h1))
+
+
+def _crossing(fields, values, level, rising: bool, sigma: float):
+    """First crossing of ``level`` along the branch (``fields`` in traversal order): (field T,
+    uncertainty T) or None if the branch never crosses it."""
+    for i in range(len(fields) - 1):
+        y0, y1 = values[i], values[i + 1]
+        if not (np.isfinite(y0) and np.isfinite(y1)):
+            continue
+        crosses = (y0 < level <= y1) if rising else (y0 > level >= y1)
+        if not crosses:
+            continue
+        x0, x1 = fields[i], fields[i + 1]
+        slope = (y1 - y0) / (x1 - x0)
+        x = x0 + (level - y0) / slope
+        width = abs(x1 - x0)
+        step_bound = width / np.sqrt(12.0)  # a step anywhere in the interval
+        curvatures = [c for c in (_curvature(fields, values, i), _curvature(fields, values, i + 1)) if c is not None]
+        u_interp = step_bound
+        if len(curvatures) == 2 and max(curvatures) * width**2 / 8.0 / abs(slope) < 0.5 * step_bound:
+            # a resolved smooth branch: linear interpolation errs by |m''| (x − x0)(x1 − x) / 2 in m
+            u_interp = max(curvatures) * abs((x - x0) * (x1 - x)) / 2.0 / abs(slope)
+        u_noise = np.sqrt(2.0) * sigma / abs(slope)
+        return float(x), float(np.hypot(u_interp, u_noise))
+    return None
+
+
+def major_branches(curves, moment: float):
+    """(descending, ascending) major branches from FORC curves [(reversal field T, fields T, moments)]:
+    the descending branch is the reversal points (first point of every curve), highest field first;
+    the ascending branch is the curve of the lowest reversal field. Moments divided by ``moment``."""
+    curves = sorted(curves, key=lambda c: c[0])
+    reversal = np.array([c[0] for c in curves], float)
+    first = np.array([np.asarray(c[2], float)[0] for c in curves]) / moment
+    descending = (reversal[::-1], first[::-1])
+    ascending = (np.asarray(curves[0][1], float), np.asarray(curves[0][2], float) / moment)
+    return descending, ascending
+
+
+def _vertical_asymmetry(d_fields, d_m, a_fields, a_m, sigma):
+    """a(B) + d(−B) at the N_END outermost points of each end of the ascending branch (d interpolated):
+    {"top", "bottom", "se", "significant"}."""
+    order = np.argsort(d_fields)
+    dx, dy = d_fields[order], d_m[order]
+    ok = np.isfinite(dy)
+    dx, dy = dx[ok], dy[ok]
+    ends = {}
+    tolerance = 0.0
+    for name, idx in (("bottom", np.arange(N_END)), ("top", np.arange(len(a_fields) - N_END, len(a_fields)))):
+        B = a_fields[idx]
+        ends[name] = float(np.mean(a_m[idx] + np.interp(-B, dx, dy)))
+        # the lattices differ: the branch's own slope there times the largest field mismatch
+        slope = abs(np.polyfit(B, a_m[idx], 1)[0]) if len(B) > 1 else 0.0
+        tolerance = max(tolerance, slope * float(np.max(np.abs(np.diff(dx)))) / 2.0)
+    se = float(sigma * np.sqrt(2.0 / N_END))
+    significant = any(abs(v) > Z_SHIFT * se + tolerance for v in ends.values())
+    return {**ends, "se": se, "tolerance": tolerance, "significant": bool(significant)}
+
+
+def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dict:
+    """Inversion-symmetry test of the major loop (module docstring).
+
+    ``descending``/``ascending``: (fields T, m) in traversal order (fields falling / rising), m
+    normalized to saturation; ``noise_sigma``: noise of one point in m units. Returns
+    {"offset_T", "se_T", "z", "levels", "centres_T", "errors_T", "chi2", "chi2_limit", "consistent",
+    "significant", "rule"}; with fewer than two usable levels ``offset_T`` is None and nothing is
+    significant."""
+    d_fields, d_m = map(np.asarray, descending)
+    a_fields, a_m = map(np.asarray, ascending)
+    used, centres, errors = [], [], []
+    for level in levels:
+        a = _crossing(a_fields, a_m, level, True, noise_sigma)
+        d = _crossing(d_fields, d_m, -level, False, noise_sigma)
+        if a is None or d is None:
+            continue
+        used.append(float(level))
+        centres.append(0.5 * (a[0] + d[0]))
+        errors.append(0.5 * float(np.hypot(a[1], d[1])))
+    rule = (f"|offset| > {Z_SHIFT:g} se (errors fully correlated between levels), the levels consistent "
+            "with one shift (χ² below its 99 % point) and the saturated ends mirror images")
+    if len(used) < 2:
+        return {"offset_T": None, "se_T": None, "z": None, "levels": used, "centres_T": centres, "errors_T": errors,
+                "chi2": None, "chi2_limit": None, "vertical": None, "consistent": False, "significant": False,
+                "rule": rule}
+    vertical = _vertical_asymmetry(d_fields, d_m, a_fields, a_m, noise_sigma)
+    centres_arr, errors_arr = np.array(centres), np.maximum(np.array(errors), 1e-9)
+    weights = 1.0 / errors_arr**2
+    offset = float(np.sum(weights * centres_arr) / np.sum(weights))
+    se = float(np.mean(errors_arr))
+    chi2 = float(np.sum(((centres_arr - offset) / errors_arr) ** 2))
+    limit = _CHI2_99.get(len(used) - 1, float(len(used) - 1 + 3.0 * np.sqrt(2.0 * (len(used) - 1))))
+    z = abs(offset) / se
+    consistent = chi2 <= limit and not vertical["significant"]
+    return {"offset_T": offset, "se_T": se, "z": float(z), "levels": used, "centres_T": centres,
+            "errors_T": errors, "chi2": chi2, "chi2_limit": limit, "vertical": vertical, "consistent": bool(consistent),
+            "significant": bool(z > Z_SHIFT and consistent), "rule": rule}
+
+
+def field_shift_of_curves(curves, moment: float, noise_sigma: float) -> dict:
+    """``field_shift`` of measured FORC curves [(reversal field T, fields T, moments A·m²)]."""
+    return field_shift(*major_branches(curves, moment), noise_sigma)
+
+
+def grid_branches(family, fields):
+    """(descending, ascending) major branches of a family on the grid (rows H_r = ``fields``, m from
+    the diagonal and from the first row)."""
+    family = np.asarray(family, float)
+    fields = np.asarray(fields, float)
+    return (fields[::-1], np.diag(family)[::-1]), (fields, family[0])
+
+
+def candidate_shift(parameters: dict, uncertainties: dict | None = None):
+    """(shift T, 1σ T) of the major loop that a candidate's fitted parameters imply: a field offset
+    ``offset_T`` moves the measured loop by +offset_T, a bias field ``B_bias_T`` of the film by −B_bias_T
+    (it adds to the applied field); None if the candidate has neither."""
+    uncertainties = uncertainties or {}
+    if "offset_T" in parameters:
+        return float(parameters["offset_T"]), float(uncertainties.get("offset_T", 0.0) or 0.0)
+    if "B_bias_T" in parameters:
+        return -float(parameters["B_bias_T"]), float(uncertainties.get("B_bias_T", 0.0) or 0.0)
+    return None
+
+
+def shift_agreement(measured_shift: dict, parameters: dict, uncertainties: dict | None = None) -> dict:
+    """Does the loop shift a candidate's fitted parameters imply (``candidate_shift``) agree with the
+    measured one within ``Z_SHIFT`` combined standard errors? {"candidate_shift_T", "difference_z",
+    "agrees"} (agrees when either side has no shift to compare)."""
+    implied = candidate_shift(parameters, uncertainties)
+    if implied is None or measured_shift.get("offset_T") is None:
+        return {"candidate_shift_T": None if implied is None else implied[0], "difference_z": None, "agrees": True}
+    combined = float(np.hypot(measured_shift["se_T"], implied[1]))
+    z = abs(measured_shift["offset_T"] - implied[0]) / max(combined, 1e-12)
+    return {"candidate_shift_T": implied[0], "difference_z": float(z), "agrees": bool(z <= Z_SHIFT)}
+
+
+SHIFT_CANDIDATES = ("field_offset", "bias_field")
+"""Candidate components that shift the loop along the field: they need the shift's evidence."""
+
+
+def shifts_field(name: str) -> bool:
+    """Does candidate ``name`` (a single effect or a '+' combination) shift the loop along the field?"""
+    return any(part in SHIFT_CANDIDATES for part in name.split("+"))
+
+
+__all__ = ["LEVELS", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "field_shift", "field_shift_of_curves", "grid_branches",
+           "candidate_shift", "major_branches", "shift_agreement", "shifts_field"]
