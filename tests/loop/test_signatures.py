@@ -122,3 +122,60 @@ def test_a_candidate_whose_shift_the_loop_does_not_show_is_refused():
     assert shift_agreement(shifted, {"offset_T": 0.03}, {"offset_T": 0.002})["agrees"]
     assert not shift_agreement(shifted, {"B_bias_T": 0.03})["agrees"]  # a bias moves the loop the other way
     assert shift_agreement(symmetric, {"chi_per_T": 0.1})["agrees"]  # nothing to compare
+
+
+# ------------------------------------------------------------------ drift evidence
+def measured_curves(gain=0.0, additive=0.0, chi=0.0, noise=0.002, seed=0, n=24):
+    """FORC curves of a symmetric tanh film (coercivity 0.3 T, width 0.1 T) in MicroMag order (highest
+    reversal field first), with a gain or additive drift linear in the clock and a background."""
+    rng = np.random.default_rng(seed)
+    reversal = -1 + (np.arange(n) + 0.37) * (2.0 / n)
+    order = np.argsort(-reversal)
+    curves = []
+    for k, i in enumerate(order):
+        hr = reversal[i]
+        fields = hr + np.arange(int((0.99 - hr) / (1.0 / n)) + 1) * (1.0 / n)
+        down = 0.5 * (1 - np.tanh((hr + 0.3) / 0.1))
+        m = down * np.tanh((fields - 0.3) / 0.1) + (1 - down)
+        t = (k + np.linspace(0, 1, fields.size)) / n
+        measured = (1 + gain * t) * m + additive * t + chi * fields + noise * rng.normal(size=fields.size)
+        curves.append((hr, fields, measured, None))
+    return curves
+
+
+def test_drift_evidence_tells_additive_from_gain_and_ignores_odd_terms():
+    from forcdecode.loop.signatures import drift_agreement, drift_evidence
+
+    clean = drift_evidence(measured_curves(chi=0.06), 1.0, 0.002)
+    gain = drift_evidence(measured_curves(gain=0.05), 1.0, 0.002)
+    additive = drift_evidence(measured_curves(additive=0.045), 1.0, 0.002)
+    assert not clean["significant"] and not clean["additive"] and clean["mirror_curves"] >= 2
+    assert gain["significant"] and abs(gain["trend"] - 0.05) < 0.01 and not gain["additive"]
+    assert additive["significant"] and additive["additive"]
+    assert drift_agreement(clean, "background") is None
+    assert drift_agreement(clean, "background+additive_drift") is False
+    assert drift_agreement(gain, "multiplicative_drift") is True and drift_agreement(gain, "additive_drift") is False
+    assert drift_agreement(additive, "additive_drift") is True and drift_agreement(additive, "multiplicative_drift") is False
+
+
+def test_no_drift_evidence_in_noise_alone():
+    from forcdecode.loop.signatures import drift_evidence
+
+    claims = [drift_evidence(measured_curves(seed=s), 1.0, 0.002) for s in range(30)]
+    assert sum(c["significant"] for c in claims) <= 1 and sum(c["additive"] for c in claims) <= 1
+
+
+def test_drift_candidates_need_the_drift_evidence():
+    fields, base = family(0.3)
+    measured = realisation(10)
+    none = {"significant": False, "mirror_sum": None, "additive": False}
+    result = analyse_residual(measured, base, fields, thermal=False, drift=none)
+    drifting = [k for k in result["candidates"] if "drift" in k]
+    assert drifting
+    for name in drifting:
+        assert result["candidates"][name]["drift_evidence"] is False and not result["candidates"][name]["accepted"]
+    assert "drift" not in result["chosen"]
+    gain = {"significant": True, "mirror_sum": 0.0, "additive": False}
+    result = analyse_residual(measured, base, fields, thermal=False, drift=gain)
+    assert result["candidates"]["multiplicative_drift"]["drift_evidence"] is True
+    assert result["candidates"]["additive_drift"]["drift_evidence"] is False

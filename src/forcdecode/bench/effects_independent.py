@@ -143,7 +143,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     realisation floor falls as 1/√n on each side). Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.refit import analyse_with_refit
-    from ..loop.signatures import field_shift_of_curves
+    from ..loop.signatures import drift_evidence_of, field_shift_of_curves
     from ..measured import read_forc
     from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
 
@@ -169,9 +169,10 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     prediction = {**truth, **{k: truth[k] * f for k, f in PREDICTION_ERROR.items()}}
     fields = np.linspace(-B_max, B_max, n)
     shift = field_shift_of_curves([(c.reversal_field_T, c.field_T, c.moment_Am2) for c in data.curves], moment, noise)
+    drift = drift_evidence_of(data, moment, noise)
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,
-                                null_realisations=null_realisations, field_shift=shift)
+                                null_realisations=null_realisations, field_shift=shift, drift=drift)
     refit = result["hamiltonian"]["refit_without_effect"]
     return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
@@ -184,6 +185,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "refit_relative_error": {k: refit[k] / truth[k] - 1 for k in REFIT},
             "prediction_relative_error": {k: prediction[k] / truth[k] - 1 for k in REFIT},
             "field_shift": {k: shift[k] for k in ("offset_T", "se_T", "z", "chi2", "consistent", "significant")},
+            "drift": drift,
             "sample_s": sample_s, "case_s": time.perf_counter() - start,
             "candidates": {k: {"heldout_rms": v["heldout_rms"], "accepted": v["accepted"]}
                            for k, v in result["candidates"].items()}}

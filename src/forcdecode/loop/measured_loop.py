@@ -274,13 +274,14 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     error = observation_error(family, resim)
     noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
     # the model-free evidence a field-shift candidate needs: is the measured major loop symmetric?
-    shift = None
+    shift = drift = None
     if noise:
-        from .signatures import field_shift_of_curves
+        from .signatures import drift_evidence_of, field_shift_of_curves
 
         shift = field_shift_of_curves([(c.reversal_field_T, c.field_T, c.moment_Am2 - domain.moment_offset_Am2)
                                        for c in data.curves], moment_saturation, noise)
-        report["field_shift"] = shift
+        drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
+        report["field_shift"], report["drift_evidence"] = shift, drift
     final_params = params
     if refit and fixed_point:
         from .fixed_point import predict_correct_iterate
@@ -288,7 +289,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         analysis = predict_correct_iterate(cfg, predictor, family, fields, names=tuple(refit), budget=refit_budget,
                                            noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
                                            physics=physics, log=log, null_realisations=null_realisations,
-                                           field_shift=shift, progress=counter("Hamiltonian refit", "re-simulations"))
+                                           field_shift=shift, drift=drift,
+                                           progress=counter("Hamiltonian refit", "re-simulations"))
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
     elif refit:
@@ -297,7 +299,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         analysis = analyse_with_refit(cfg, params, family, fields, names=tuple(refit), every_k=every_k,
                                       null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
-                                      noise_sigma=noise, field_shift=shift,
+                                      noise_sigma=noise, field_shift=shift, drift=drift,
                                       progress=counter("Hamiltonian refit", "re-simulations"))
     if refit:
         final_params = analysis["hamiltonian"]["refit_without_effect"]
@@ -307,7 +309,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
                       if physics else {})
         analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
-                                    floor_variance=spread, n_profiles=profiles, field_shift=shift, **candidates)
+                                    floor_variance=spread, n_profiles=profiles, field_shift=shift, drift=drift,
+                                    **candidates)
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
                   per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],
@@ -434,7 +437,15 @@ def _markdown(path, report, analysis) -> str:
                   f"{1e3 * shift['offset_T']:+.1f} ± {1e3 * shift['se_T']:.1f} mT ({shift['z']:.1f} se, χ² over "
                   f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}): "
                   + ("a shift; field-shift candidates are judged without the realisation floor."
-                     if shift["significant"] else "no shift; field-shift candidates (offset, bias) are not offered.")]
+                     if shift["significant"] else "no shift; field-shift candidates must agree with that.")]
+    drift = analysis.get("drift")
+    if drift and drift.get("trend") is not None:
+        lines += ["", f"Drift evidence (model-free, `loop.signatures.drift_evidence`): end moments in positive saturation "
+                  f"change by {drift['trend']:+.4f} over the run ({drift['z']:.1f} se)"
+                  + (f"; mirror sum m(B_r) + m(−B_r) in saturation {drift['mirror_sum']:+.4f} ± {drift['mirror_se']:.4f} "
+                     f"over {drift['mirror_curves']} curves ({'additive' if drift['additive'] else 'not additive'})"
+                     if drift.get("mirror_sum") is not None else "")
+                  + ("." if drift["significant"] else "; no drift: drift candidates are not offered.")]
     structure = analysis.get("structure", {})
     if "chi2_ratio" in structure:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.streams import stream_rng
-from .signatures import shift_agreement, shifts_field
+from .signatures import drift_agreement, shift_agreement, shifts_field
 from .effects import (EFFECTS, _grid_resolution, _per_curve_mse, choose_candidate, fit_effect, fit_grid_effect,
                       heldout_folds, heldout_mse, measurement_clock)
 
@@ -208,7 +208,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
                      thermal: bool = True, noise_sigma: float | None = None, floor_variance=None,
                      n_profiles: int = 1, null_gain: dict | None = None,
-                     null_margin: float = 0.05, field_shift: dict | None = None) -> dict:
+                     null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -268,6 +268,12 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
     the data show by themselves is not the difference between two films (records:
     ``shift_evidence``). It still has to beat "none" on held-out curves.
+
+    ``drift``: the model-free drift evidence of the measurement (``signatures.drift_evidence``: the
+    end moments in positive saturation against the clock, and the mirror sums that tell an additive
+    drift from a gain drift). A candidate with a drift component is offered only if the evidence
+    supports that kind of drift (``signatures.drift_agreement``), and then without the realisation
+    floor, for the same reason (records: ``drift_evidence``).
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -329,6 +335,12 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                 continue
             if field_shift["significant"]:
                 continue  # a shift the data show by themselves: no realisation floor
+        drift_ok = drift_agreement(drift, name) if drift is not None else None
+        if drift_ok is not None:
+            records[name]["drift_evidence"] = drift_ok
+            if not drift_ok:
+                offered.pop(name, None)  # the saturated end points do not drift that way
+            continue
         if null_gain is not None and name != "none":
             null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
             records[name]["null_gain"] = dict(null)
@@ -360,6 +372,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
                                              if structure["structured"] else "")
     return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure, "field_shift": field_shift,
+        "drift": drift,
         "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
         "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
         "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),

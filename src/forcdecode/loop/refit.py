@@ -126,7 +126,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
                        null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
-                       progress=None, **analysis) -> dict:
+                       drift: dict | None = None, progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
@@ -145,8 +145,9 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     it reaches there, i.e. what a different film of the same Hamiltonian alone gives it
     (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations.
 
-    ``field_shift``: the measured loop's inversion-symmetry test (``signatures.field_shift``), the
-    evidence a field-shift candidate needs (``analyse_residual``); the null films do not get it."""
+    ``field_shift``, ``drift``: the measurement's model-free evidence for a field shift and for a
+    drift (``signatures``), which field-shift and drift candidates need (``analyse_residual``); the
+    null films do not get it."""
     from .effects import EFFECTS, heldout_folds
     from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
     from .resimulate import resimulate
@@ -178,7 +179,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r))
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
-                              **options)
+                              drift=drift, **options)
     with_effect = None
     if result["kind"] == "measured":
         joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,

@@ -187,6 +187,94 @@ def shift_agreement(measured_shift: dict, parameters: dict, uncertainties: dict 
     return {"candidate_shift_T": implied[0], "difference_z": float(z), "agrees": bool(z <= Z_SHIFT)}
 
 
+def _measured_order(curves):
+    """Curves in the order they were measured: by the time of their first point where every curve
+    has one, else highest reversal field first (the MicroMag and Lake Shore order)."""
+    if all(len(c) > 3 and c[3] is not None for c in curves):
+        return sorted(curves, key=lambda c: float(np.asarray(c[3], float)[0]))
+    return sorted(curves, key=lambda c: -c[0])
+
+
+def drift_evidence(curves, moment: float, noise_sigma: float) -> dict:
+    """Model-free evidence for a drift of the magnetometer during the run.
+
+    Every curve ends in positive saturation at (nearly) the same field, where the film's state is the
+    same whatever its history: the end moments m_k(B_top) (interpolated at the lowest last field of
+    all curves) must not change with the measurement clock t_k ∈ [0, 1]. A linear fit gives the trend
+    (m units over the run) and its error σ·√((AᵀA)⁻¹₁₁); ``significant`` at |z| > ``Z_SHIFT``.
+
+    Additive or multiplicative? On a curve whose reversal point lies in negative saturation (the
+    flat low end of the descending branch: consecutive reversal points within 3√2 σ, and
+    B_r ≤ −``MIRROR_FRACTION`` B_top so that the mirror point is saturated too), the moments at
+    B_r and at −B_r on the same curve are mirror states measured a curve-time apart: their sum
+    S = m(B_r) + m(−B_r) cancels every odd term (background, Langevin term) and a gain (−g + g) but
+    doubles an additive drift (2a). ``additive``: |mean S| > ``Z_SHIFT`` standard errors (σ√(2/n)).
+    Curves are [(reversal field T, fields T, moments A·m², times s or None)]."""
+    ordered = _measured_order(curves)
+    n = len(ordered)
+    out = {"trend": None, "se": None, "z": None, "significant": False, "mirror_sum": None, "mirror_se": None,
+           "mirror_curves": 0, "additive": False}
+    if n < 3:
+        return out
+    top = min(float(np.asarray(c[1], float)[-1]) for c in ordered)
+    ends = np.array([np.interp(top, np.asarray(c[1], float), np.asarray(c[2], float) / moment) for c in ordered])
+    clock = np.arange(n) / (n - 1)
+    design = np.vstack([np.ones(n), clock]).T
+    coef = np.linalg.lstsq(design, ends, rcond=None)[0]
+    se = float(noise_sigma * np.sqrt(np.linalg.inv(design.T @ design)[1, 1]))
+    z = float(coef[1] / se) if se > 0 else 0.0
+    out.update(trend=float(coef[1]), se=se, z=z, significant=bool(abs(z) > Z_SHIFT))
+    # negative saturation: the flat low end of the descending branch
+    by_field = sorted(ordered, key=lambda c: c[0])
+    reversal_m = np.array([float(np.asarray(c[2], float)[0]) / moment for c in by_field])
+    flat = 3.0 * np.sqrt(2.0) * noise_sigma
+    k = 1
+    while k < n and abs(reversal_m[k] - reversal_m[k - 1]) < flat:
+        k += 1
+    sums = []
+    for c in by_field[:k] if k > 1 else []:
+        fields, m = np.asarray(c[1], float), np.asarray(c[2], float) / moment
+        if c[0] <= -MIRROR_FRACTION * top and fields[-1] >= -c[0]:
+            sums.append(m[0] + np.interp(-c[0], fields, m))
+    if sums:
+        mirror = float(np.mean(sums))
+        mirror_se = float(noise_sigma * np.sqrt(2.0 / len(sums)))
+        out.update(mirror_sum=mirror, mirror_se=mirror_se, mirror_curves=len(sums),
+                   additive=bool(abs(mirror) > Z_SHIFT * mirror_se))
+    return out
+
+
+def drift_evidence_of(data, moment: float, noise_sigma: float, moment_offset: float = 0.0) -> dict:
+    """``drift_evidence`` of a ``ForcMeasurement`` (moments less ``moment_offset``)."""
+    return drift_evidence([(c.reversal_field_T, c.field_T, c.moment_Am2 - moment_offset, c.time_s) for c in data.curves],
+                          moment, noise_sigma)
+
+
+DRIFT_COMPONENTS = ("additive_drift", "multiplicative_drift")
+
+MIRROR_FRACTION = 0.8
+"""Mirror sums use curves reversed at or below −0.8 B_top only: there both the reversal point and its
+mirror on the curve (on the ascending branch) lie in saturation for a loop that closes below 0.8 B_top."""
+
+
+def drift_agreement(evidence: dict, name: str) -> bool | None:
+    """May candidate ``name`` explain a residual, given the drift evidence? None: it has no drift
+    component. A drift component needs a significant end-moment trend; an additive one also a
+    non-zero mirror sum, a multiplicative one a zero mirror sum (where the sum could be measured)."""
+    parts = name.split("+")
+    if not any(p in DRIFT_COMPONENTS for p in parts):
+        return None
+    if not evidence.get("significant"):
+        return False
+    if evidence.get("mirror_sum") is None:
+        return True
+    if "additive_drift" in parts and not evidence["additive"]:
+        return False
+    if "multiplicative_drift" in parts and "additive_drift" not in parts and evidence["additive"]:
+        return False
+    return True
+
+
 SHIFT_CANDIDATES = ("field_offset", "bias_field")
 """Candidate components that shift the loop along the field: they need the shift's evidence."""
 
@@ -196,5 +284,6 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["LEVELS", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "field_shift", "field_shift_of_curves", "grid_branches",
-           "candidate_shift", "major_branches", "shift_agreement", "shifts_field"]
+__all__ = ["DRIFT_COMPONENTS", "LEVELS", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "field_shift", "field_shift_of_curves", "grid_branches",
+           "candidate_shift", "drift_agreement", "drift_evidence", "drift_evidence_of", "major_branches",
+           "shift_agreement", "shifts_field"]
