@@ -437,7 +437,7 @@ def _markdown(path, report, analysis) -> str:
                   f"{1e3 * shift['offset_T']:+.1f} ± {1e3 * shift['se_T']:.1f} mT ({shift['z']:.1f} se, χ² over "
                   f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}): "
                   + ("a shift; field-shift candidates are judged without the realisation floor."
-                     if shift["significant"] else "no shift; field-shift candidates must agree with that.")]
+                     if shift["significant"] else "no shift shown: field-shift candidates (offset, bias) are not offered.")]
     drift = analysis.get("drift")
     if drift and drift.get("trend") is not None:
         lines += ["", f"Drift evidence (model-free, `loop.signatures.drift_evidence`): end moments in positive saturation "

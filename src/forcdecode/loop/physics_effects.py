@@ -262,9 +262,9 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
 
     ``field_shift``: the model-free inversion-symmetry test of the measured major loop
     (``signatures.field_shift``). With it, a candidate that shifts the loop along the field
-    (field_offset, bias_field, their combinations) is offered only if the loop shift its fitted
-    size implies agrees with the measured one (``signatures.shift_agreement``: within 3 combined
-    standard errors); when the measured shift is significant it is offered without the
+    (field_offset, bias_field, their combinations) is offered only if the measured loop shows a
+    shift (``significant``) and the shift its fitted size implies agrees with it
+    (``signatures.shift_agreement``: within 3 combined standard errors), and then without the
     realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
     the data show by themselves is not the difference between two films (records:
     ``shift_evidence``). It still has to beat "none" on held-out curves.
@@ -330,11 +330,11 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         if field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None:
             check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"])
             records[name]["shift_evidence"] = check
-            if not check["agrees"]:
-                offered.pop(name)  # the data's own symmetry says the loop is not shifted by that much
-                continue
-            if field_shift["significant"]:
-                continue  # a shift the data show by themselves: no realisation floor
+            if not (field_shift["significant"] and check["agrees"]):
+                # the loop's own symmetry shows no shift, or not this one: a fitted shift would cover
+                # the difference between the model's film and the sample, not an effect
+                offered.pop(name)
+            continue  # a shift the data show by themselves: no realisation floor
         drift_ok = drift_agreement(drift, name) if drift is not None else None
         if drift_ok is not None:
             records[name]["drift_evidence"] = drift_ok

@@ -6,9 +6,10 @@ branch is the mirror of its descending one: a(B) = −d(−B). Odd instrument te
 background, a scale, a detector lag that widens the loop) keep the symmetry; a field offset b of the
 magnet (or a bias field of the film: the same observable) breaks it as a pure horizontal shift,
 a(B) = −d(−B + 2b). The test does not need the re-simulation, so a model that is a different film
-(another disorder realisation, another code) cannot fake it. A field-shift candidate must agree
-with it (``shift_agreement``) before it may explain a residual, and a significant shift spares it
-the realisation floor (``physics_effects.analyse_residual``, ``field_shift=``).
+(another disorder realisation, another code) cannot fake it. A field-shift candidate may explain
+a residual only where the test finds a shift and the candidate's size agrees with it
+(``shift_agreement``); it is then spared the realisation floor (``physics_effects.analyse_residual``,
+``field_shift=``).
 
 Estimate. For levels m_L inside both branches, the field B_d(−m_L) where the descending branch
 crosses −m_L and B_a(m_L) where the ascending one crosses m_L (linear interpolation between the
