@@ -17,8 +17,9 @@ measured points); each level gives a centre c_L = (B_a(m_L) + B_d(−m_L))/2, wh
 shifted loop and 0 for a symmetric one. Uncertainty of one crossing (T): the noise √2 σ (m units)
 over the local slope, and the interpolation: |m''|(x − x₀)(x₁ − x)/2 over the slope, the error of
 linear interpolation with the curvature m'' taken as the larger second difference at the interval's
-ends, or Δ/√12 where that error at the interval's middle would exceed half of it (the branch is not
-resolved: a step anywhere in an interval of width Δ; also at the branch's ends). The levels share intervals, so their
+ends, or Δ/√12 where that error at the interval's middle would exceed a quarter of it (the branch is
+not resolved: a step anywhere in an interval of width Δ — a pure step gives Δ/8 there, above the
+quarter, Δ/13.9; also at the branch's ends). The levels share intervals, so their
 errors are treated as fully correlated: the reported standard error is the mean of the levels'.
 A field shift is claimed when |b| / se > ``Z_SHIFT`` and the levels agree with one constant shift
 (χ² of c_L about their mean, with the per-level errors, below its 99 % point): a vertical
@@ -72,7 +73,7 @@ def _crossing(fields, values, level, rising: bool, sigma: float):
         step_bound = width / np.sqrt(12.0)  # a step anywhere in the interval
         curvatures = [c for c in (_curvature(fields, values, i), _curvature(fields, values, i + 1)) if c is not None]
         u_interp = step_bound
-        if len(curvatures) == 2 and max(curvatures) * width**2 / 8.0 / abs(slope) < 0.5 * step_bound:
+        if len(curvatures) == 2 and max(curvatures) * width**2 / 8.0 / abs(slope) < 0.25 * step_bound:
             # a resolved smooth branch: linear interpolation errs by |m''| (x − x0)(x1 − x) / 2 in m
             u_interp = max(curvatures) * abs((x - x0) * (x1 - x)) / 2.0 / abs(slope)
         u_noise = np.sqrt(2.0) * sigma / abs(slope)
