@@ -97,7 +97,12 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert report["Ms_source"] == "swept" and [r["Ms"] for r in report["Ms_sweep"]] == [5e5, 1.1e6]
     assert report["Ms_chosen_A_per_m"] in (5e5, 1.1e6) and set(report["prediction"]) >= {"K_u", "D", "N_pin", "A_ex"}
     assert report["observation_rms"] >= 0 and len(report["per_curve_rms"]) == 16
-    assert "background" in report["effect"]
+    # the loop normalizes by the file's own saturated branches, which absorbs most of a linear background,
+    # and on this 16-field film the re-simulation misses by ~0.18 RMS: a background or its scale-like
+    # remainder is named, never a drift or an offset the file does not show (before the model-free
+    # evidence, background+additive_drift was chosen here without any drift in the file)
+    assert report["effect"] in ("background", "scale")
+    assert report["drift_evidence"]["significant"] is False and report["field_shift"]["significant"] is False
     # runtime per job: one benchmark table per job of every computing rule
     assert {p.name for p in (out / "benchmarks").iterdir()} == BENCHMARKED
     assert len(list((out / "benchmarks" / "screen").glob("chunk_*.tsv"))) == 5  # 40 samples, 8 per chunk

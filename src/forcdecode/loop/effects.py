@@ -18,8 +18,9 @@ where another component already carries a scale: background+additive_drift, fiel
 Selection: fit every candidate on all curves but every k-th, score it on the held-out curves (mean
 square misfit per curve; optionally cross-fitted, every curve held out once). Stepwise in the number
 of fitted parameters, starting from the base model (``none``, m = m_sim): at each level the
-candidate with the lowest held-out error replaces the current choice only if it beats it by more
-than its own noise: held-out mean-square error lower by more than ``equivalence`` (5 %) and the 5 %
+candidate with the lowest held-out error among those that beat the current choice replaces it (a
+tie in the mean does not hide a candidate whose gain is consistent behind a noisier one); beating
+means by more than its own noise: held-out mean-square error lower by more than ``equivalence`` (5 %) and the 5 %
 bound of a paired bootstrap over held-out curves of the relative reduction of that error above
 ``min_relative_gain`` (5 %). A combination must therefore earn the parameters it adds over the
 best simpler candidate; a single effect stays named as the single effect.
@@ -286,7 +287,8 @@ def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2
 
     ``heldout_mse[name]``: per-held-out-curve mean-square misfit (aligned arrays; ``"none"`` is the
     base model). Stepwise from ``none``: at each number of fitted parameters, in increasing order,
-    the candidate with the lowest held-out error replaces the current choice if it ``_beats`` it.
+    the candidate with the lowest held-out error among those that ``_beats`` the current choice
+    replaces it.
     Returns (chosen name, {name: {"heldout_rms", "gain_mse", "gain_ci90", "relative_gain_ci90",
     "accepted"}}): the mean per-curve gain over ``none`` in mean-square error, its paired-bootstrap
     90 % interval, that of the relative gain, and whether the candidate alone would beat ``none``."""
@@ -305,9 +307,13 @@ def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2
     mean_mse = {k: float(np.nanmean(v)) for k, v in heldout_mse.items()}
     chosen = "none"
     for level in sorted({n_parameters[k] for k in heldout_mse} - {0}):
-        challenger = min((k for k in heldout_mse if n_parameters[k] == level), key=mean_mse.get)
-        if _beats(heldout_mse[challenger], heldout_mse[chosen], rng, n_boot, min_relative_gain, equivalence):
-            chosen = challenger
+        # the lowest held-out error among this level's candidates that beat the current choice: a
+        # candidate whose mean ties the best but whose gain is consistent is not hidden behind a
+        # noisier one
+        for challenger in sorted((k for k in heldout_mse if n_parameters[k] == level), key=mean_mse.get):
+            if _beats(heldout_mse[challenger], heldout_mse[chosen], rng, n_boot, min_relative_gain, equivalence):
+                chosen = challenger
+                break
     return chosen, scores
 
 
