@@ -119,3 +119,20 @@ def test_undeclared_second_order_anisotropy_is_found_by_resimulation(truth):
         assert result["heldout_rms_after"] < 0.5 * result["heldout_rms_before"]
     else:
         assert result["chosen"] == "none"
+
+
+def test_a_consistent_candidate_is_not_hidden_behind_a_noisier_tie():
+    """Stepwise selection: the best mean at a level fails the bootstrap (its gain lives on a few
+    curves), a candidate with the same mean gain on every curve passes: it is chosen, not "none"."""
+    from forcdecode.core.streams import stream_rng
+    from forcdecode.loop.effects import choose_candidate
+
+    none = np.ones(24)
+    none[:2] = 10.0  # two curves carry most of the base model's error
+    noisy = np.full(24, 1.05)
+    noisy[:2] = 0.0  # fixes those two, a little worse everywhere else: its gain rests on two curves
+    consistent = 0.56 * none  # 44 % less on every curve
+    chosen, scores = choose_candidate({"none": none, "noisy": noisy, "consistent": consistent},
+                                      {"none": 0, "noisy": 1, "consistent": 1}, stream_rng(1, "bootstrap", "t"), 2000)
+    assert np.mean(noisy) < np.mean(consistent)
+    assert chosen == "consistent"

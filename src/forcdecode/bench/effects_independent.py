@@ -143,7 +143,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     realisation floor falls as 1/√n on each side). Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.refit import analyse_with_refit
-    from ..loop.signatures import drift_evidence_of, field_shift_of_curves
+    from ..loop.signatures import drift_evidence_of, field_shift_of
     from ..measured import read_forc
     from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
 
@@ -168,7 +168,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                      [(c.field_T, c.moment_Am2) for c in data.curves], moment, B_max, n)
     prediction = {**truth, **{k: truth[k] * f for k, f in PREDICTION_ERROR.items()}}
     fields = np.linspace(-B_max, B_max, n)
-    shift = field_shift_of_curves([(c.reversal_field_T, c.field_T, c.moment_Am2) for c in data.curves], moment, noise)
+    shift = field_shift_of(data, moment, noise)
     drift = drift_evidence_of(data, moment, noise)
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,

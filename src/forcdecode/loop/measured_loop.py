@@ -273,13 +273,13 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                                progress=counter("re-simulation", "profiles"))
     error = observation_error(family, resim)
     noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
-    # the model-free evidence a field-shift candidate needs: is the measured major loop symmetric?
+    # the model-free evidence field-shift and drift candidates need: is the major loop symmetric, do
+    # the saturated end points drift?
     shift = drift = None
     if noise:
-        from .signatures import drift_evidence_of, field_shift_of_curves
+        from .signatures import drift_evidence_of, field_shift_of
 
-        shift = field_shift_of_curves([(c.reversal_field_T, c.field_T, c.moment_Am2 - domain.moment_offset_Am2)
-                                       for c in data.curves], moment_saturation, noise)
+        shift = field_shift_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         report["field_shift"], report["drift_evidence"] = shift, drift
     final_params = params

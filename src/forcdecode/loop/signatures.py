@@ -1,4 +1,5 @@
-"""Model-free evidence for a field shift: the inversion symmetry of the major loop.
+"""Model-free evidence for instrument effects: a field shift (the inversion symmetry of the major
+loop, ``field_shift``) and a drift (the end moments in saturation, ``drift_evidence``).
 
 A film without a bias field has a Hamiltonian symmetric under (m, B) → (−m, −B) (Zeeman, exchange,
 uniaxial anisotropy, DMI, demagnetization and the frozen disorder all are), so its ascending major
@@ -43,6 +44,10 @@ LEVELS = (-0.6, -0.4, -0.2, 0.0, 0.2, 0.4, 0.6)
 
 N_END = 3
 """Outermost points per end of the ascending branch used for the vertical-asymmetry check."""
+
+MIRROR_FRACTION = 0.8
+"""Mirror sums use curves reversed at or below −0.8 B_top only: there both the reversal point and its
+mirror on the curve (on the ascending branch) lie in saturation for a loop that closes below 0.8 B_top."""
 
 _CHI2_99 = {1: 6.63, 2: 9.21, 3: 11.34, 4: 13.28, 5: 15.09, 6: 16.81}
 """99 % points of χ² with k degrees of freedom (levels − 1)."""
@@ -152,17 +157,10 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
             "significant": bool(z > Z_SHIFT and consistent), "rule": rule}
 
 
-def field_shift_of_curves(curves, moment: float, noise_sigma: float) -> dict:
-    """``field_shift`` of measured FORC curves [(reversal field T, fields T, moments A·m²)]."""
+def field_shift_of(data, moment: float, noise_sigma: float, moment_offset: float = 0.0) -> dict:
+    """``field_shift`` of a ``ForcMeasurement`` (moments less ``moment_offset``, over ``moment``)."""
+    curves = [(c.reversal_field_T, c.field_T, c.moment_Am2 - moment_offset) for c in data.curves]
     return field_shift(*major_branches(curves, moment), noise_sigma)
-
-
-def grid_branches(family, fields):
-    """(descending, ascending) major branches of a family on the grid (rows H_r = ``fields``, m from
-    the diagonal and from the first row)."""
-    family = np.asarray(family, float)
-    fields = np.asarray(fields, float)
-    return (fields[::-1], np.diag(family)[::-1]), (fields, family[0])
 
 
 def candidate_shift(parameters: dict, uncertainties: dict | None = None):
@@ -254,10 +252,6 @@ def drift_evidence_of(data, moment: float, noise_sigma: float, moment_offset: fl
 
 DRIFT_COMPONENTS = ("additive_drift", "multiplicative_drift")
 
-MIRROR_FRACTION = 0.8
-"""Mirror sums use curves reversed at or below −0.8 B_top only: there both the reversal point and its
-mirror on the curve (on the ascending branch) lie in saturation for a loop that closes below 0.8 B_top."""
-
 
 def drift_agreement(evidence: dict, name: str) -> bool | None:
     """May candidate ``name`` explain a residual, given the drift evidence? None: it has no drift
@@ -286,6 +280,6 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["DRIFT_COMPONENTS", "LEVELS", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "field_shift", "field_shift_of_curves", "grid_branches",
-           "candidate_shift", "drift_agreement", "drift_evidence", "drift_evidence_of", "major_branches",
+__all__ = ["DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "candidate_shift",
+           "drift_agreement", "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "major_branches",
            "shift_agreement", "shifts_field"]
