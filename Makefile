@@ -8,7 +8,7 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 CORES  ?= 2
 
-.PHONY: install install-test run test test-all lint report bench clean
+.PHONY: install install-test run test test-all lint report bench clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -46,3 +46,8 @@ bench: install-test
 
 clean:
 	rm -rf results/* .snakemake
+
+# numba caches compiled kernels beside the sources and recompiles a function when ITS file changes,
+# not when a kernel it calls (in another file) does: after editing src/forcdecode/micromag, run this
+clean-cache:
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -13,7 +13,9 @@ With ``max_step_T`` a step larger than it is made in equal sub-steps.
 Shared work (as ``quasistatic_family``): where a curve reaches a field within ``field_tol_T`` of an
 already simulated curve's reversal field with a state equal to that curve's starting state (max cell
 |Δm| < ``same_state_tol``), its remaining points are that curve's values at the same fields (linear
-interpolation between them; exact where the fields coincide, as on a grid). With the defaults and
+interpolation between them; exact where the fields coincide, as on a grid); with ``merge_curves``
+also where it meets, at a field within ``field_tol_T``, the state of any curve simulated before it
+(``forc.protocol.StateMemory``), its remaining points are that curve's from there on. With the defaults and
 the grid protocol (reversal fields = grid, curve k = grid[k:]) the numbers are those of
 ``quasistatic_family``. Time (averaging, pauses, rate) does not enter a quasi-static protocol.
 """
@@ -26,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..micromag.film import Film, SimulationError
+from .protocol import StateMemory
 
 Z = (0.0, 0.0, 1.0)
 
@@ -66,7 +69,8 @@ def _steps(start, stop, max_step):
 def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curve_fields_T, *,
                              direction=Z, saturation_field_T: float | None = None, torque_tol_T: float = 1e-3,
                              max_iterations: int = 20_000, same_state_tol: float = 0.02, field_tol_T: float = 1e-12,
-                             max_step_T: float | None = None, progress=None) -> ProtocolFamily:
+                             max_step_T: float | None = None, merge_curves: bool = True,
+                             merge_memory_MB: float = 256.0, progress=None) -> ProtocolFamily:
     """Simulate the protocol of the module docstring. ``reversal_fields_T``: one per curve (any
     order); ``curve_fields_T``: per curve, its fields (T) in measurement order. ``m0`` is not modified.
     Raises SimulationError on a non-finite magnetization, ValueError on a malformed protocol."""
@@ -78,7 +82,9 @@ def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curv
         raise ValueError("every curve needs at least one field")
     start = time.perf_counter()
     _, vector, record = _projector(direction)
-    stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0}
+    stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0, "curves_merged": 0}
+    memory = StateMemory(merge_memory_MB * 2**20) if merge_curves and same_state_tol > 0 else None
+    quantum = max(float(field_tol_T), 1e-12)  # fields within field_tol_T fall into neighbouring bins
 
     def relax(m, B):
         result = film.minimize(m, vector(B), torque_tol_T=torque_tol_T, max_iterations=max_iterations)
@@ -132,6 +138,25 @@ def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curv
                 break
             if copied:
                 break
+            if memory is not None:
+                rest, bin_ = fields[p:], int(round(B / quantum))
+
+                def joins(token, rest=rest, B=B, k=k):
+                    other, p_other, B_other = token
+                    tail = curve_fields[other][p_other:]
+                    return (other != k and abs(B_other - B) <= field_tol_T and rest.min() >= tail.min() - field_tol_T
+                            and rest.max() <= tail.max() + field_tol_T)
+
+                twin = memory.find((bin_, bin_ - 1, bin_ + 1), m, same_state_tol, accept=joins)
+                if twin is not None:
+                    other, p_other, _ = twin
+                    tail, tail_values = curve_fields[other][p_other:], out[other][p_other:]
+                    order = np.argsort(tail, kind="stable")
+                    values[p:] = np.interp(rest, tail[order], tail_values[order])
+                    stats["curves_shortened"] += 1
+                    stats["curves_merged"] += 1
+                    break
+                memory.add(bin_, k, m, token=(k, p, B))
             values[p] = record(m)
         if not np.all(np.isfinite(values)):
             raise SimulationError(f"non-finite magnetization on the curve reversed at {H_r:+.4f} T")

@@ -7,10 +7,18 @@ for each reversal field H_r (a grid point) start from the kept descending state 
 criterion). The magnetization recorded is the film average ⟨m_z⟩ (pinning cells included, as an
 instrument sees them).
 
-Work is shared: a curve that reaches a state equal (max cell |Δm| < ``same_state_tol``) to the
-descending state at the same field continues exactly as the FORC that reverses there, which is
-already known, so the rest is copied. Above the nucleation field this ends a curve one step after it
-starts, and a curve that has rejoined saturation costs nothing more.
+Work is shared. The relaxation is deterministic: two sweeps that hold the same state at the same
+field and then visit the same fields reach the same states. So a curve that reaches a state equal
+(max cell |Δm| < ``same_state_tol``) to one already known at that field continues as the curve that
+holds it, and its remainder is copied:
+- the descending state at that field (the start of the FORC reversed there): above the nucleation
+  field this ends a curve one step after it starts, and a curve that has rejoined saturation costs
+  nothing more;
+- (``merge_curves``) the state of any FORC computed before it at that field (curves are computed
+  from the highest reversal field down): two curves whose reversals differ only in domains that the
+  rising field has wiped out again merge long before saturation (return-point memory). Those states
+  are kept in float32 (the test is at 0.02), within ``merge_memory_MB``; beyond it the curves farthest
+  from the current one are forgotten first.
 """
 
 from __future__ import annotations
@@ -130,14 +138,60 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
     return descending, states, m
 
 
+class StateMemory:
+    """States that FORCs already reached, filed by field (float32), to find a curve to merge into.
+
+    ``add(key, curve, m, token)`` files the state ``m`` of curve ``curve`` under ``key`` (a grid
+    index, or a quantized field); ``find(keys, m, tol, accept)`` returns the ``token`` of a state filed
+    under one of ``keys`` within ``tol`` (max cell |Δm|) of ``m`` (and that ``accept(token)`` takes),
+    or None. A stored state whose ⟨m_z⟩ differs by ``tol`` or more cannot match (|Δ⟨m_z⟩| ≤
+    max |Δm_z|) and is skipped without the cell-wise test. At most ``budget_bytes`` are kept; when
+    full, the states of the curve filed first (the farthest from the current one: curves are computed
+    from the highest reversal field down) are dropped.
+    """
+
+    def __init__(self, budget_bytes: float):
+        self.budget_bytes = float(budget_bytes)
+        self.filed: dict = {}
+        self.curves: dict = {}  # curve -> keys, in the order curves were first filed
+        self.nbytes = 0
+
+    def add(self, key, curve, m: np.ndarray, token=None):
+        state = m.astype(np.float32)
+        if state.nbytes > self.budget_bytes:
+            return
+        while self.nbytes + state.nbytes > self.budget_bytes and self.curves:
+            self._forget(next(iter(self.curves)))
+        self.filed.setdefault(key, []).append((curve, curve if token is None else token, float(m[2].mean()), state))
+        self.curves.setdefault(curve, []).append(key)
+        self.nbytes += state.nbytes
+
+    def _forget(self, curve):
+        for key in set(self.curves.pop(curve)):
+            self.nbytes -= sum(entry[3].nbytes for entry in self.filed[key] if entry[0] == curve)
+            self.filed[key] = [entry for entry in self.filed[key] if entry[0] != curve]
+
+    def find(self, keys, m: np.ndarray, tol: float, accept=None):
+        mz = float(m[2].mean())
+        for key in keys:
+            for _, token, stored_mz, state in self.filed.get(key, ()):
+                if abs(stored_mz - mz) < tol and (accept is None or accept(token)) \
+                        and float(np.abs(m - state).max()) < tol:
+                    return token
+        return None
+
+
 def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0,
                        torque_tol_T: float = 1e-3, max_iterations: int = 20_000, substeps: int = 1,
                        same_state_tol: float = 0.02, progress=None, extrapolate: bool = False,
-                       warm_step: bool = False) -> ForcFamily:
+                       warm_step: bool = False, merge_curves: bool = True,
+                       merge_memory_MB: float = 256.0) -> ForcFamily:
     """Simulate a FORC family with the quasi-static path. ``m0`` is not modified.
 
     ``substeps`` relaxations are made per grid step (at evenly spaced intermediate fields) to follow
     the field more finely than the recorded grid. ``progress(done, total)`` is called per curve.
+    ``same_state_tol`` = 0 disables every remainder copy (the reference); ``merge_curves`` also
+    copies from earlier FORCs, not only from the descending branch (module docstring).
     Raises ``SimulationError`` if the magnetization becomes non-finite.
     """
     if n_fields < 2:
@@ -146,11 +200,12 @@ def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: 
         raise ValueError("substeps must be >= 1")
     start = time.perf_counter()
     fields = np.linspace(-B_max_T, B_max_T, n_fields)
-    stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0}
+    stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0, "curves_merged": 0}
     descending, states, m = descending_branch(film, m0, fields, torque_tol_T, max_iterations, substeps, stats,
                                               keep_states=True, extrapolate=extrapolate, warm_step=warm_step)
     sweep = Continuation(film, torque_tol_T, max_iterations, stats, extrapolate, warm_step)
     curves = np.full((n_fields, n_fields), np.nan)
+    memory = StateMemory(merge_memory_MB * 2**20) if merge_curves and same_state_tol > 0 else None
     for i in range(n_fields - 1, -1, -1):
         curves[i, i] = descending[i]
         m[...] = states[i]
@@ -162,6 +217,14 @@ def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: 
                 curves[i, j:] = curves[j, j:]
                 stats["curves_shortened"] += 1
                 break
+            if memory is not None:
+                twin = memory.find((j,), m, same_state_tol)
+                if twin is not None:
+                    curves[i, j:] = curves[twin, j:]
+                    stats["curves_shortened"] += 1
+                    stats["curves_merged"] += 1
+                    break
+                memory.add(j, i, m)
             curves[i, j] = m[2].mean()
         if not np.all(np.isfinite(curves[i, i:])):
             raise SimulationError(f"non-finite magnetization on the FORC with H_r = {fields[i]:+.3f} T")

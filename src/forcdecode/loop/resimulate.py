@@ -106,10 +106,12 @@ def simulate_measured(cfg: dict, params: dict, rng: np.random.Generator, reversa
     if protocol_name(cfg) != "quasistatic":
         raise ConfigError("the measured protocol is re-simulated quasi-statically only (protocol: quasistatic)")
     film, m0, _ = build_film(cfg, params, rng=rng)
+    options = sweep_options(cfg)
     return measured_protocol_family(film, m0, reversal_fields_T, curve_fields_T,
                                     direction=field_direction(_tilt(params)),
-                                    torque_tol_T=cfg["minimizer"]["torque_tol_T"],
-                                    max_iterations=cfg["minimizer"]["max_iterations"], max_step_T=max_step_T,
+                                    torque_tol_T=options["torque_tol_T"], max_iterations=options["max_iterations"],
+                                    same_state_tol=options["same_state_tol"], merge_curves=options["merge_curves"],
+                                    merge_memory_MB=options["merge_memory_MB"], max_step_T=max_step_T,
                                     field_tol_T=field_tol_T)
 
 

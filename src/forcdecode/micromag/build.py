@@ -78,10 +78,16 @@ def build_film(cfg: dict, params: dict, sample_id: int | None = None, pinning: s
 
 def sweep_options(cfg: dict) -> dict:
     """Keyword arguments of the quasi-static protocol (``forc.protocol``) from the config's
-    ``minimizer`` section: torque criterion, iteration cap and the continuation shortcuts."""
+    ``minimizer`` section (torque criterion, iteration cap, the continuation shortcuts) and the
+    ``protocol`` section's remainder copy (``same_state_tol``, ``merge_curves``, ``merge_memory_MB``)."""
+    from ..config import defaults
+
     mini = cfg["minimizer"]
+    protocol = {**defaults("protocol"), **cfg.get("protocol", {})}
     return {"torque_tol_T": mini["torque_tol_T"], "max_iterations": mini["max_iterations"],
-            "warm_step": bool(mini.get("warm_step", False)), "extrapolate": bool(mini.get("extrapolate", False))}
+            "warm_step": bool(mini.get("warm_step", False)), "extrapolate": bool(mini.get("extrapolate", False)),
+            "same_state_tol": float(protocol["same_state_tol"]), "merge_curves": bool(protocol["merge_curves"]),
+            "merge_memory_MB": float(protocol["merge_memory_MB"])}
 
 
 __all__ = ["REFERENCE_CELLS", "mesh_from_config", "pinning_cells", "build_film", "sweep_options"]

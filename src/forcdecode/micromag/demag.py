@@ -211,29 +211,39 @@ def periodic_film_kernel(mesh: Mesh, n_alias: int = 20, cache_dir: str | Path | 
     return kernel
 
 
-@numba.njit(cache=True)
-def _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag):
-    """H(k) = −Σ_j N(i − j; k) m_j(k) in units of M_s, for every observer layer i."""
+@numba.njit(cache=True, fastmath={"contract"})
+def _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, scale):
+    """H(k) = −scale Σ_j N(i − j; k) m_j(k) for every observer layer i (``scale`` = μ0 M_s gives
+    tesla). The self-layer block (i = j) has no xz, yz part (the module docstring), so it is skipped."""
     _, nz, ny, nxh = mk.shape
     hk = np.zeros_like(mk)
     for i in range(nz):
         for j in range(nz):
             d = i - j + nz - 1
+            cross = i != j
             for a in range(ny):
                 for b in range(nxh):
                     mx = mk[0, j, a, b]
                     my = mk[1, j, a, b]
                     mz = mk[2, j, a, b]
-                    nxz = 1j * kxz_imag[d, a, b]
-                    nyz = 1j * kyz_imag[d, a, b]
-                    hk[0, i, a, b] -= kxx[d, a, b] * mx + kxy[d, a, b] * my + nxz * mz
-                    hk[1, i, a, b] -= kxy[d, a, b] * mx + kyy[d, a, b] * my + nyz * mz
-                    hk[2, i, a, b] -= nxz * mx + nyz * my + kzz[d, a, b] * mz
+                    xx, yy, xy = scale * kxx[d, a, b], scale * kyy[d, a, b], scale * kxy[d, a, b]
+                    hx = xx * mx + xy * my
+                    hy = xy * mx + yy * my
+                    hz = scale * kzz[d, a, b] * mz
+                    if cross:
+                        nxz = 1j * (scale * kxz_imag[d, a, b])
+                        nyz = 1j * (scale * kyz_imag[d, a, b])
+                        hx += nxz * mz
+                        hy += nyz * mz
+                        hz += nxz * mx + nyz * my
+                    hk[0, i, a, b] -= hx
+                    hk[1, i, a, b] -= hy
+                    hk[2, i, a, b] -= hz
     return hk
 
 
 @numba.njit(cache=True)
-def _inverse_add(hk, scale, out):
+def _inverse_add(hk, out):
     _, nz, ny, nx = out.shape
     for c in range(3):
         for i in range(nz):
@@ -241,12 +251,12 @@ def _inverse_add(hk, scale, out):
             h = np.fft.irfft2(hk[c, i], s=(ny, nx))
             for a in range(ny):
                 for b in range(nx):
-                    out[c, i, a, b] += scale * h[a, b]
+                    out[c, i, a, b] += h[a, b]
 
 
 @numba.njit(cache=True)
 def add_demag_field(m, Ms, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, out):
     """Add the demag flux density B = −μ0 M_s N m (tesla) of magnetization ``m`` to ``out``."""
     mk = np.fft.rfft2(m)
-    hk = _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag)
-    _inverse_add(hk, MU0 * Ms, out)
+    hk = _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, MU0 * Ms)
+    _inverse_add(hk, out)

@@ -29,9 +29,13 @@ from .effective_field import compute_effective_field, relax_slaved_cells, torque
 
 # Reassociation lets LLVM vectorize the reductions; NaN/Inf semantics are kept (no nnan/ninf).
 _FAST = {"reassoc", "contract", "arcp", "nsz"}
+# error_model="numpy": a division by zero gives inf/nan instead of raising, so no branch per division
+# stops LLVM from vectorizing the cell loops (measured: the Cayley step 15.7 → 3.0 µs at 64×64×1).
+# The loops below touch few arrays each, so LLVM's runtime alias checks stay within its limit.
+_KERNEL = dict(cache=True, fastmath=_FAST, error_model="numpy")
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(**_KERNEL)
 def _cayley_step(m4, torque4, h, precondition, step4):
     """m ← Cayley(m, h p τ) per cell, renormalized; ``step`` receives s = m_new − m_old."""
     m = m4.reshape(3, -1)  # flat views: one cell index, loops the compiler can vectorize
@@ -61,41 +65,59 @@ def _cayley_step(m4, torque4, h, precondition, step4):
         step[2, n] = nz_ - oz
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _torque_and_bb_products(m4, field4, frozen3, precondition, step4, torque_old4, torque4):
-    """New torque τ = B − (m·B)m (zero on frozen cells) and, with y = τ_old − τ, the sums in the
-    preconditioned metric s·P⁻¹s, s·y, y·P y. Returns (max |τ|, max |P τ|, ss, sy, yy)."""
+@numba.njit(**_KERNEL)
+def _torque_and_squares(m4, field4, frozen3, torque4, squares):
+    """τ = B − (m·B)m per cell (zero on frozen cells) into ``torque``; |τ|² into ``squares``."""
     m = m4.reshape(3, -1)
     field = field4.reshape(3, -1)
     frozen = frozen3.reshape(-1)
+    torque = torque4.reshape(3, -1)
+    mx, my, mz, bx, by, bz = m[0], m[1], m[2], field[0], field[1], field[2]
+    tx, ty, tz = torque[0], torque[1], torque[2]
+    for n in range(squares.shape[0]):
+        p = mx[n] * bx[n] + my[n] * by[n] + mz[n] * bz[n]
+        keep = 0.0 if frozen[n] else 1.0
+        x = keep * (bx[n] - p * mx[n])
+        y = keep * (by[n] - p * my[n])
+        z = keep * (bz[n] - p * mz[n])
+        tx[n] = x
+        ty[n] = y
+        tz[n] = z
+        squares[n] = x * x + y * y + z * z
+
+
+@numba.njit(**_KERNEL)
+def _bb_products(step4, torque_old4, torque4, precondition, inverse_precondition):
+    """With y = τ_old − τ, the sums s·P⁻¹s, s·y, y·P y in the preconditioned metric."""
     step = step4.reshape(3, -1)
     torque_old = torque_old4.reshape(3, -1)
     torque = torque4.reshape(3, -1)
-    max_sq = 0.0
-    max_p_sq = 0.0
     ss = 0.0
     sy = 0.0
     yy = 0.0
-    for n in range(m.shape[1]):
-        pc = precondition[n]
-        mx, my, mz = m[0, n], m[1, n], m[2, n]
-        bx, by, bz = field[0, n], field[1, n], field[2, n]
-        p = mx * bx + my * by + mz * bz
-        keep = 0.0 if frozen[n] else 1.0
-        tx, ty, tz = keep * (bx - p * mx), keep * (by - p * my), keep * (bz - p * mz)
-        torque[0, n] = tx
-        torque[1, n] = ty
-        torque[2, n] = tz
-        t2 = tx * tx + ty * ty + tz * tz
-        max_sq = max(max_sq, t2)
-        max_p_sq = max(max_p_sq, pc * pc * t2)
-        sx, sy_, sz = step[0, n], step[1, n], step[2, n]
-        yx = torque_old[0, n] - tx
-        yy_ = torque_old[1, n] - ty
-        yz = torque_old[2, n] - tz
-        ss += (sx * sx + sy_ * sy_ + sz * sz) / pc
-        sy += sx * yx + sy_ * yy_ + sz * yz
-        yy += pc * (yx * yx + yy_ * yy_ + yz * yz)
+    for c in range(3):
+        s, old, new = step[c], torque_old[c], torque[c]
+        for n in range(precondition.shape[0]):
+            y = old[n] - new[n]
+            ss += s[n] * s[n] * inverse_precondition[n]
+            sy += s[n] * y
+            yy += precondition[n] * y * y
+    return ss, sy, yy
+
+
+@numba.njit(**_KERNEL)
+def _torque_and_bb_products(m4, field4, frozen3, precondition, inverse_precondition, step4, torque_old4, torque4,
+                            squares):
+    """New torque τ = B − (m·B)m (zero on frozen cells) and, with y = τ_old − τ, the sums in the
+    preconditioned metric s·P⁻¹s, s·y, y·P y. Returns (max |τ|, max |P τ|, ss, sy, yy); ``squares``
+    is scratch (one value per cell). Three short loops, each vectorized, not one long one that is not."""
+    _torque_and_squares(m4, field4, frozen3, torque4, squares)
+    max_sq = 0.0
+    max_p_sq = 0.0
+    for n in range(squares.shape[0]):
+        max_sq = max(max_sq, squares[n])
+        max_p_sq = max(max_p_sq, precondition[n] * precondition[n] * squares[n])
+    ss, sy, yy = _bb_products(step4, torque_old4, torque4, precondition, inverse_precondition)
     return np.sqrt(max_sq), np.sqrt(max_p_sq), ss, sy, yy
 
 
@@ -129,6 +151,8 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad,
     torque_old = np.empty_like(m)
     step = np.empty_like(m)
     precondition = diagonal_preconditioner(model)
+    inverse_precondition = 1.0 / precondition
+    squares = np.empty_like(precondition)
     compute_effective_field(m, model, B_ext, field)
     max_torque = torque_and_max(m, field, model.frozen, torque)
     max_torque = max(max_torque, relax_slaved_cells(m, field, model))
@@ -145,7 +169,7 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad,
         torque, torque_old = torque_old, torque  # torque_old now holds the torque the step used
         compute_effective_field(m, model, B_ext, field)
         max_torque, max_p_torque, ss, sy, yy = _torque_and_bb_products(
-            m, field, model.frozen, precondition, step, torque_old, torque)
+            m, field, model.frozen, precondition, inverse_precondition, step, torque_old, torque, squares)
         max_torque = max(max_torque, relax_slaved_cells(m, field, model))
         if max_torque < torque_tol_T:
             return iteration, max_torque, True, h
