@@ -41,9 +41,12 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
             status = h5["status"].asstr()[:]
             reason = h5["reason"].asstr()[:]
             seconds = h5["family_s"][:]
+            # CPU time of the family (s); chunks written before it was recorded have none
+            cpu_seconds = h5["family_cpu_s"][:] if "family_cpu_s" in h5 else np.full(len(ids), np.nan)
             for k, sample_id in enumerate(ids):
                 family_rows.append({"sample_id": int(sample_id), "family_status": status[k],
-                                    "family_reason": reason[k], "family_s": float(seconds[k])})
+                                    "family_reason": reason[k], "family_s": float(seconds[k]),
+                                    "family_cpu_s": float(cpu_seconds[k])})
                 if status[k] == "ok":
                     ok_ids.append(int(sample_id))
                     if f"raw/{int(sample_id)}" in h5:
@@ -51,7 +54,8 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
                     images.append(h5["images"][k])
                     curves.append(h5["curves_mz"][k])
                     descending.append(h5["descending_mz"][k])
-    families = pd.DataFrame(family_rows, columns=["sample_id", "family_status", "family_reason", "family_s"])
+    families = pd.DataFrame(family_rows, columns=["sample_id", "family_status", "family_reason", "family_s",
+                                                  "family_cpu_s"])
     table = table.merge(families, on="sample_id", how="left")
     table["in_dataset"] = table["sample_id"].isin(ok_ids)
     table["config_hash"] = config_hash(physics_config(cfg))

@@ -122,6 +122,7 @@ def simulate_stage(cfg: dict, params_path, screen_path, chunk: int, out, log=_qu
             h5["status"] = np.array([r["status"] for r in results], dtype=h5py.string_dtype())
             h5["reason"] = np.array([r["reason"] for r in results], dtype=h5py.string_dtype())
             h5["family_s"] = np.array([r["family_s"] for r in results])
+            h5["family_cpu_s"] = np.array([r.get("family_cpu_s", np.nan) for r in results])
             images = np.zeros((count, n_fields, n_fields), dtype=np.uint8)
             curves = np.full((count, n_fields, n_fields), np.nan, dtype=np.float32)
             descending = np.full((count, n_fields), np.nan, dtype=np.float32)
