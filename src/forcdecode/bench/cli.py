@@ -1,4 +1,4 @@
-"""``forcdecode bench engine|protocols|effects|learn [--json]``: prints figures; with --json the last
+"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|fit [--json]``: prints figures; with --json the last
 line is one JSON object."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "fit"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -38,6 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     films.add_argument("--workers", type=int, default=1, help="films: families simulated at once (one core each)")
     films.add_argument("--out-dir", default="results/bench/films", help="films: one HDF5 per family (resumable)")
     films.add_argument("--summarize-only", action="store_true", help="films: only summarize the families on disk")
+    films.add_argument("--runs", nargs="+", default=["laptop=results/films_learning/laptop/results",
+                                                      "laptop_paper_grains=results/films_learning/laptop_paper_grains/results",
+                                                      "box128=results/films_learning/box128/results"],
+                       help="film-learning: NAME=RESULTS_DIR of workflow runs (config/films/*.yaml) up to metrics.json")
+    films.add_argument("--learning-out", default="results/bench/film_learning",
+                       help="film-learning: summary.json and film_learning.png")
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
     fit.add_argument("--posterior", default="results/posterior/model.pt", help="fit: the amortized posterior")
     fit.add_argument("--families", type=int, default=5, help="fit: test families refined")
@@ -70,6 +76,8 @@ def run(args) -> int:
         return _bench_learn(args, say)
     if args.target == "films":
         return _bench_films(args, say)
+    if args.target == "film-learning":
+        return _bench_film_learning(args, say)
     if args.target == "fit":
         return _bench_fit(args, say)
     from . import engine
@@ -153,6 +161,27 @@ def _bench_learn(args, say) -> int:
         say(f"wrote {args.out}")
     if args.json:
         print(json.dumps(result))
+    return 0
+
+
+def _bench_film_learning(args, say) -> int:
+    from ..core.errors import ConfigError
+    from ..core.io import write_json
+    from . import film_learning
+
+    runs = {}
+    for item in args.runs:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ConfigError(f"--runs {item!r}: expected NAME=RESULTS_DIR")
+        runs[name] = path
+    result = film_learning.compare_films(runs)
+    write_json(f"{args.learning_out}/summary.json", result)
+    film_learning.figure(result, f"{args.learning_out}/film_learning.png")
+    for line in film_learning.summary_lines(result):
+        say(line)
+    if args.json:
+        print(json.dumps(result["at_common_budget"]))
     return 0
 
 

@@ -1,0 +1,137 @@
+"""Accuracy per core-hour of candidate laptop films: learning curves at equal simulation budget.
+
+Each candidate film (``config/config.yaml``, ``config/films/*.yaml``) is run through the workflow up to
+``results/metrics.json``; its learning stage fits Alice on nested subsets of its train split (the
+``learning_curve`` fractions, several seeds) and scores each on the film's own test split. Here the
+x axis becomes what those training samples cost to simulate: the CPU seconds of every draw's screening
+and every family (rejected draws included), per sample that entered the dataset, times the training-
+set size (``screen_cpu_s``, ``family_cpu_s`` of ``samples.parquet``; wall seconds where a run predates
+them). The y axis is skill over the best trivial predictor of that test split, 1 − MAE / min(MAE of the
+train median, MAE of the M_s-only k-NN), per seed. A film is the better laptop default for a
+parameter when its curve lies above the others' at the same core-hours.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..core.errors import InputFileError
+
+
+def _cost_per_sample_s(samples: pd.DataFrame) -> tuple[float, str]:
+    """CPU (or, for older runs, wall) seconds of simulation per sample in the dataset."""
+    n_ok = int(samples["in_dataset"].sum())
+    if n_ok == 0:
+        raise InputFileError("the run has no sample in its dataset")
+    use_cpu = "screen_cpu_s" in samples and samples["screen_cpu_s"].notna().any()
+    screen = samples["screen_cpu_s" if use_cpu else "screen_s"].fillna(0.0).sum()
+    family_column = "family_cpu_s" if use_cpu and "family_cpu_s" in samples else "family_s"
+    family = samples[family_column].fillna(0.0).sum()
+    return float((screen + family) / n_ok), "cpu" if use_cpu else "wall"
+
+
+def run_curves(results_dir) -> dict:
+    """Learning curves of one workflow run (its ``results/`` folder) against simulation core-hours."""
+    results_dir = Path(results_dir)
+    try:
+        samples = pd.read_parquet(results_dir / "samples.parquet")
+        curves = json.loads((results_dir / "learning_curve.json").read_text())
+        config = json.loads((results_dir / "config.json").read_text())
+    except FileNotFoundError as error:
+        raise InputFileError(f"{results_dir}: not a finished run up to metrics.json ({error.filename} missing)") from None
+    per_sample_s, clock = _cost_per_sample_s(samples)
+    out = {"results": str(results_dir), "mesh": config["mesh"], "n_grains": config.get("n_grains"),
+           "n_draws": int(len(samples)), "n_dataset": int(samples["in_dataset"].sum()),
+           "core_s_per_sample": per_sample_s, "clock": clock, "parameters": {}}
+    for name, entry in curves["parameters"].items():
+        baselines = entry.get("baselines") or {}
+        trivial = min(v for k, v in baselines.items() if k in ("prior", "ms_only") and v is not None)
+        mae = np.asarray(entry["mae"], dtype=float)  # sizes × seeds
+        skill = 1.0 - mae / trivial
+        sizes = np.asarray(entry["sizes"], dtype=float)
+        out["parameters"][name] = {
+            "sizes": sizes.tolist(), "core_hours": (sizes * per_sample_s / 3600.0).tolist(),
+            "trivial_mae": float(trivial), "skill_mean": np.nanmean(skill, axis=1).tolist(),
+            "skill_min": np.nanmin(skill, axis=1).tolist(), "skill_max": np.nanmax(skill, axis=1).tolist(),
+            "n_seeds": int(mae.shape[1]),
+        }
+    return out
+
+
+def _at(core_hours, skill, budget) -> float:
+    """Skill at ``budget`` core-hours, linear in log(core-hours) between measured sizes (NaN outside)."""
+    x, y = np.log(np.asarray(core_hours)), np.asarray(skill)
+    if not (x[0] - 1e-9 <= np.log(budget) <= x[-1] + 1e-9):
+        return float("nan")
+    return float(np.interp(np.log(budget), x, y))
+
+
+def compare_films(runs: dict) -> dict:
+    """``runs``: film name → results folder. Per parameter, each film's skill at the largest budget
+    every film reached (the common budget) and the film that is best there (when its seeds' range
+    does not overlap the runner-up's, else "tie")."""
+    films = {name: run_curves(path) for name, path in runs.items()}
+    parameters = sorted(set.intersection(*(set(f["parameters"]) for f in films.values())))
+    common = {}
+    for p in parameters:
+        budget = min(f["parameters"][p]["core_hours"][-1] for f in films.values())
+        row = {"budget_core_hours": budget, "films": {}}
+        for name, f in films.items():
+            c = f["parameters"][p]
+            row["films"][name] = {k: _at(c["core_hours"], c[f"skill_{k}"], budget) for k in ("mean", "min", "max")}
+        ranked = sorted(row["films"], key=lambda n: -np.nan_to_num(row["films"][n]["mean"], nan=-np.inf))
+        best, second = ranked[0], ranked[1] if len(ranked) > 1 else None
+        separated = second is None or row["films"][best]["min"] > row["films"][second]["max"]
+        row["best"] = best if separated else "tie"
+        common[p] = row
+    return {"films": films, "at_common_budget": common}
+
+
+def summary_lines(result: dict) -> list[str]:
+    lines = []
+    for name, f in result["films"].items():
+        lines.append(f"{name}: {f['mesh']['nx']}x{f['mesh']['ny']}x{f['mesh']['nz']} cells, {f['n_grains']} grains, "
+                     f"{f['n_dataset']} of {f['n_draws']} draws in the dataset, "
+                     f"{f['core_s_per_sample']:.1f} core-s ({f['clock']}) of simulation per sample")
+    for p, row in result["at_common_budget"].items():
+        cells = ", ".join(f"{n} {v['mean']:+.2f} [{v['min']:+.2f}, {v['max']:+.2f}]" for n, v in row["films"].items())
+        lines.append(f"{p}: skill at {row['budget_core_hours']:.3f} core-hours: {cells} -> {row['best']}")
+    return lines
+
+
+def figure(result: dict, out_path) -> None:
+    """Skill (seeds: line = mean, band = range) against simulation core-hours, one panel per parameter."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    parameters = list(result["at_common_budget"])
+    cols = min(3, max(1, len(parameters)))
+    rows = int(np.ceil(len(parameters) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4.0 * cols, 3.2 * rows), squeeze=False)
+    for ax, p in zip(axes.flat, parameters):
+        for name, f in result["films"].items():
+            c = f["parameters"][p]
+            line, = ax.plot(c["core_hours"], c["skill_mean"], marker="o", label=name)
+            ax.fill_between(c["core_hours"], c["skill_min"], c["skill_max"], color=line.get_color(), alpha=0.2)
+        ax.axhline(0.0, color="grey", lw=0.8)
+        ax.axvline(result["at_common_budget"][p]["budget_core_hours"], color="grey", ls=":", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_title(p)
+        ax.set_xlabel("simulation core-hours of the training set")
+        ax.set_ylabel("skill over best trivial predictor")
+    for ax in list(axes.flat)[len(parameters):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=8)
+    fig.tight_layout()
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_path, dpi=120)
+    plt.close(fig)
+
+
+__all__ = ["run_curves", "compare_films", "summary_lines", "figure"]

@@ -1,0 +1,57 @@
+"""Learning curves against simulation core-hours (bench/film_learning.py) on two synthetic runs
+whose answer is known: the costlier film learns better per sample but not per core-hour."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from forcdecode.bench.film_learning import compare_films, figure, run_curves, summary_lines
+from forcdecode.core.errors import InputFileError
+
+
+def write_run(folder, n_draws, n_ok, screen_cpu, family_cpu, sizes, mae, prior=0.2, ms_only=0.25, nx=64):
+    folder.mkdir(parents=True)
+    ok = np.arange(n_draws) < n_ok
+    pd.DataFrame({"sample_id": np.arange(n_draws), "in_dataset": ok, "screen_s": 99.0, "screen_cpu_s": screen_cpu,
+                  "family_s": np.where(ok, 99.0, np.nan), "family_cpu_s": np.where(ok, family_cpu, np.nan)}
+                 ).to_parquet(folder / "samples.parquet")
+    curves = {"parameters": {"K_u": {"sizes": sizes, "mae": mae, "baselines": {"prior": prior, "ms_only": ms_only}}}}
+    (folder / "learning_curve.json").write_text(json.dumps(curves))
+    (folder / "config.json").write_text(json.dumps({"mesh": {"nx": nx, "ny": nx, "nz": 1}, "n_grains": 16}))
+
+
+def test_cost_per_sample_and_skill_over_best_trivial(tmp_path):
+    # 10 draws at 1 CPU-s screening, 4 in the dataset at 8 CPU-s each: (10 + 32) / 4 = 10.5 core-s per sample
+    write_run(tmp_path / "a", 10, 4, 1.0, 8.0, [2, 4], [[0.1, 0.12], [0.05, 0.07]])
+    run = run_curves(tmp_path / "a")
+    assert run["clock"] == "cpu"
+    assert run["core_s_per_sample"] == pytest.approx(10.5)
+    k = run["parameters"]["K_u"]
+    assert k["core_hours"] == pytest.approx([2 * 10.5 / 3600, 4 * 10.5 / 3600])
+    assert k["trivial_mae"] == 0.2  # the better of the two trivial predictors
+    assert k["skill_mean"] == pytest.approx([1 - 0.11 / 0.2, 1 - 0.06 / 0.2])
+    assert k["skill_min"] == pytest.approx([1 - 0.12 / 0.2, 1 - 0.07 / 0.2])
+
+
+def test_equal_budget_favours_the_cheaper_film_when_it_learns_faster_per_core_hour(tmp_path):
+    # cheap: 1 core-s per sample; skill 0.5 at 100 samples and 0.75 at 400
+    write_run(tmp_path / "cheap", 4, 4, 0.0, 1.0, [100, 400], [[0.1, 0.1], [0.05, 0.05]])
+    # costly: 4 core-s per sample; better per sample (0.6 at 100) but at 400 core-s it has only 100 samples
+    write_run(tmp_path / "costly", 4, 4, 0.0, 4.0, [25, 100], [[0.12, 0.12], [0.08, 0.08]], nx=128)
+    result = compare_films({"cheap": tmp_path / "cheap", "costly": tmp_path / "costly"})
+    row = result["at_common_budget"]["K_u"]
+    assert row["budget_core_hours"] == pytest.approx(400 / 3600)
+    assert row["films"]["cheap"]["mean"] == pytest.approx(0.75)
+    assert row["films"]["costly"]["mean"] == pytest.approx(0.6)
+    assert row["best"] == "cheap"
+    assert any("-> cheap" in line for line in summary_lines(result))
+    figure(result, tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_an_unfinished_run_is_named(tmp_path):
+    (tmp_path / "run").mkdir()
+    with pytest.raises(InputFileError, match="not a finished run"):
+        run_curves(tmp_path / "run")
