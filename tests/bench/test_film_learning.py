@@ -11,7 +11,7 @@ from forcdecode.bench.film_learning import compare_films, figure, run_curves, su
 from forcdecode.core.errors import InputFileError
 
 
-def write_run(folder, n_draws, n_ok, screen_cpu, family_cpu, sizes, mae, prior=0.2, ms_only=0.25, nx=64):
+def write_run(folder, n_draws, n_ok, screen_cpu, family_cpu, sizes, mae, prior=0.2, ms_only=0.25, nx=64, ci=0.05):
     folder.mkdir(parents=True)
     ok = np.arange(n_draws) < n_ok
     pd.DataFrame({"sample_id": np.arange(n_draws), "in_dataset": ok, "screen_s": 99.0, "screen_cpu_s": screen_cpu,
@@ -20,6 +20,10 @@ def write_run(folder, n_draws, n_ok, screen_cpu, family_cpu, sizes, mae, prior=0
     curves = {"parameters": {"K_u": {"sizes": sizes, "mae": mae, "baselines": {"prior": prior, "ms_only": ms_only}}}}
     (folder / "learning_curve.json").write_text(json.dumps(curves))
     (folder / "config.json").write_text(json.dumps({"mesh": {"nx": nx, "ny": nx, "nz": 1}, "n_grains": 16}))
+    skill = 1 - np.mean(mae[-1]) / min(prior, ms_only)
+    (folder / "metrics.json").write_text(json.dumps({"parameters": {"K_u": {
+        "n_test": 30, "skill_vs_prior": skill, "skill_vs_prior_ci90": [skill - ci, skill + ci],
+        "skill_vs_ms_only": 0.0, "skill_vs_ms_only_ci90": [-0.1, 0.1]}}}))
 
 
 def test_cost_per_sample_and_skill_over_best_trivial(tmp_path):
@@ -47,6 +51,15 @@ def test_equal_budget_favours_the_cheaper_film_when_it_learns_faster_per_core_ho
     assert row["films"]["costly"]["mean"] == pytest.approx(0.6)
     assert row["best"] == "cheap"
     assert any("-> cheap" in line for line in summary_lines(result))
+    assert result["films"]["costly"]["parameters"]["K_u"]["full_set_skill"] == pytest.approx(0.6)
+    # a wide bootstrap interval on the full set makes the same curves a tie
+    write_run(tmp_path / "cheap_few_tests", 4, 4, 0.0, 1.0, [100, 400], [[0.1, 0.1], [0.05, 0.05]], ci=0.3)
+    wide = compare_films({"cheap": tmp_path / "cheap_few_tests", "costly": tmp_path / "costly"})
+    assert wide["at_common_budget"]["K_u"]["best"] == "tie"
+    # curves below the trivial predictors: nothing to choose by
+    write_run(tmp_path / "bad1", 4, 4, 0.0, 1.0, [100, 400], [[0.3, 0.3], [0.25, 0.25]])
+    write_run(tmp_path / "bad2", 4, 4, 0.0, 1.0, [100, 400], [[0.35, 0.35], [0.3, 0.3]])
+    assert compare_films({"a": tmp_path / "bad1", "b": tmp_path / "bad2"})["at_common_budget"]["K_u"]["best"] == "none learned"
     figure(result, tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 0
 

@@ -41,6 +41,7 @@ def run_curves(results_dir) -> dict:
         samples = pd.read_parquet(results_dir / "samples.parquet")
         curves = json.loads((results_dir / "learning_curve.json").read_text())
         config = json.loads((results_dir / "config.json").read_text())
+        metrics = json.loads((results_dir / "metrics.json").read_text())["parameters"]
     except FileNotFoundError as error:
         raise InputFileError(f"{results_dir}: not a finished run up to metrics.json ({error.filename} missing)") from None
     per_sample_s, clock = _cost_per_sample_s(samples)
@@ -53,11 +54,16 @@ def run_curves(results_dir) -> dict:
         mae = np.asarray(entry["mae"], dtype=float)  # sizes × seeds
         skill = 1.0 - mae / trivial
         sizes = np.asarray(entry["sizes"], dtype=float)
+        # the full training set: skill over the same best trivial predictor with its bootstrap interval
+        # over test samples (the learning-curve points carry only the seeds' spread)
+        full = metrics.get(name, {})
+        which = "ms_only" if baselines.get("ms_only", np.inf) <= baselines.get("prior", np.inf) else "prior"
         out["parameters"][name] = {
             "sizes": sizes.tolist(), "core_hours": (sizes * per_sample_s / 3600.0).tolist(),
             "trivial_mae": float(trivial), "skill_mean": np.nanmean(skill, axis=1).tolist(),
             "skill_min": np.nanmin(skill, axis=1).tolist(), "skill_max": np.nanmax(skill, axis=1).tolist(),
-            "n_seeds": int(mae.shape[1]),
+            "n_seeds": int(mae.shape[1]), "n_test": full.get("n_test"),
+            "full_set_skill": full.get(f"skill_vs_{which}"), "full_set_skill_ci90": full.get(f"skill_vs_{which}_ci90"),
         }
     return out
 
@@ -72,8 +78,10 @@ def _at(core_hours, skill, budget) -> float:
 
 def compare_films(runs: dict) -> dict:
     """``runs``: film name → results folder. Per parameter, each film's skill at the largest budget
-    every film reached (the common budget) and the film that is best there (when its seeds' range
-    does not overlap the runner-up's, else "tie")."""
+    every film reached (the common budget) and the film that is best there: best when its seeds'
+    range lies above the runner-up's and its full-set bootstrap interval (90 %, over test samples)
+    above the runner-up's full-set skill; else "tie"; "none learned" when the leader's skill there, or
+    the lower end of its full-set interval, is not above zero."""
     films = {name: run_curves(path) for name, path in runs.items()}
     parameters = sorted(set.intersection(*(set(f["parameters"]) for f in films.values())))
     common = {}
@@ -86,7 +94,15 @@ def compare_films(runs: dict) -> dict:
         ranked = sorted(row["films"], key=lambda n: -np.nan_to_num(row["films"][n]["mean"], nan=-np.inf))
         best, second = ranked[0], ranked[1] if len(ranked) > 1 else None
         separated = second is None or row["films"][best]["min"] > row["films"][second]["max"]
-        row["best"] = best if separated else "tie"
+        if second is not None:
+            ci = films[best]["parameters"][p]["full_set_skill_ci90"]
+            other = films[second]["parameters"][p]["full_set_skill"]
+            separated = separated and ci is not None and other is not None and ci[0] > other
+        ci_best = films[best]["parameters"][p]["full_set_skill_ci90"]
+        if not row["films"][best]["mean"] > 0 or (ci_best is not None and not ci_best[0] > 0):
+            row["best"] = "none learned"  # no film beats the trivial predictors there: nothing to choose by
+        else:
+            row["best"] = best if separated else "tie"
         common[p] = row
     return {"films": films, "at_common_budget": common}
 
@@ -99,7 +115,15 @@ def summary_lines(result: dict) -> list[str]:
                      f"{f['core_s_per_sample']:.1f} core-s ({f['clock']}) of simulation per sample")
     for p, row in result["at_common_budget"].items():
         cells = ", ".join(f"{n} {v['mean']:+.2f} [{v['min']:+.2f}, {v['max']:+.2f}]" for n, v in row["films"].items())
-        lines.append(f"{p}: skill at {row['budget_core_hours']:.3f} core-hours: {cells} -> {row['best']}")
+        lines.append(f"{p}: skill at {row['budget_core_hours']:.3f} core-hours (seeds' range): {cells} -> {row['best']}")
+        full = []
+        for n, f in result["films"].items():
+            c = f["parameters"][p]
+            if c.get("full_set_skill") is not None and c.get("full_set_skill_ci90"):
+                full.append(f"{n} {c['full_set_skill']:+.2f} [{c['full_set_skill_ci90'][0]:+.2f}, "
+                            f"{c['full_set_skill_ci90'][1]:+.2f}] at {c['core_hours'][-1]:.3f} core-h")
+        if full:
+            lines.append(f"    full training set, 90 % bootstrap over test samples: {', '.join(full)}")
     return lines
 
 
