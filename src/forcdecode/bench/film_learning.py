@@ -27,10 +27,10 @@ def _cost_per_sample_s(samples: pd.DataFrame) -> tuple[float, str]:
     n_ok = int(samples["in_dataset"].sum())
     if n_ok == 0:
         raise InputFileError("the run has no sample in its dataset")
-    use_cpu = "screen_cpu_s" in samples and samples["screen_cpu_s"].notna().any()
+    # one clock for both stages: CPU where the run recorded it, else wall
+    use_cpu = all(c in samples and samples[c].notna().any() for c in ("screen_cpu_s", "family_cpu_s"))
     screen = samples["screen_cpu_s" if use_cpu else "screen_s"].fillna(0.0).sum()
-    family_column = "family_cpu_s" if use_cpu and "family_cpu_s" in samples else "family_s"
-    family = samples[family_column].fillna(0.0).sum()
+    family = samples["family_cpu_s" if use_cpu else "family_s"].fillna(0.0).sum()
     return float((screen + family) / n_ok), "cpu" if use_cpu else "wall"
 
 

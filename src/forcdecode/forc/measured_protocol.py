@@ -66,6 +66,17 @@ def _steps(start, stop, max_step):
     return list(np.linspace(start, stop, k + 1)[1:])
 
 
+def _covers(curve_fields, rest, field_tol_T) -> bool:
+    """Whether a curve's fields span the ``rest`` of another curve (so its values can be copied)."""
+    return rest.min() >= curve_fields.min() - field_tol_T and rest.max() <= curve_fields.max() + field_tol_T
+
+
+def _along(rest, curve_fields, curve_values):
+    """A curve's values at the fields ``rest`` (linear interpolation; exact where the fields coincide)."""
+    order = np.argsort(curve_fields, kind="stable")
+    return np.interp(rest, curve_fields[order], curve_values[order])
+
+
 def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curve_fields_T, *,
                              direction=Z, saturation_field_T: float | None = None, torque_tol_T: float = 1e-3,
                              max_iterations: int = 20_000, same_state_tol: float = 0.02, field_tol_T: float = 1e-12,
@@ -128,11 +139,9 @@ def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curv
                 if abs(H_other - B) > field_tol_T or H_other <= H_r:
                     continue
                 if np.abs(m - states[level_of[H_other]]).max() < same_state_tol:
-                    f_other, v_other = curve_fields[other], out[other]
                     rest = fields[p:]
-                    if rest.min() >= f_other.min() - field_tol_T and rest.max() <= f_other.max() + field_tol_T:
-                        order = np.argsort(f_other, kind="stable")
-                        values[p:] = np.interp(rest, f_other[order], v_other[order])
+                    if _covers(curve_fields[other], rest, field_tol_T):
+                        values[p:] = _along(rest, curve_fields[other], out[other])
                         stats["curves_shortened"] += 1
                         copied = True
                 break
@@ -143,16 +152,13 @@ def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curv
 
                 def joins(token, rest=rest, B=B, k=k):
                     other, p_other, B_other = token
-                    tail = curve_fields[other][p_other:]
-                    return (other != k and abs(B_other - B) <= field_tol_T and rest.min() >= tail.min() - field_tol_T
-                            and rest.max() <= tail.max() + field_tol_T)
+                    return (other != k and abs(B_other - B) <= field_tol_T
+                            and _covers(curve_fields[other][p_other:], rest, field_tol_T))
 
                 twin = memory.find((bin_, bin_ - 1, bin_ + 1), m, same_state_tol, accept=joins)
                 if twin is not None:
                     other, p_other, _ = twin
-                    tail, tail_values = curve_fields[other][p_other:], out[other][p_other:]
-                    order = np.argsort(tail, kind="stable")
-                    values[p:] = np.interp(rest, tail[order], tail_values[order])
+                    values[p:] = _along(rest, curve_fields[other][p_other:], out[other][p_other:])
                     stats["curves_shortened"] += 1
                     stats["curves_merged"] += 1
                     break
