@@ -68,6 +68,16 @@ def test_alice_learns_and_reports_on_the_test_split_only(trained):
     n_train = metrics["n_train"]
     assert metrics["learning_curve"]["sizes"] == [round(0.5 * n_train), n_train]
     assert np.asarray(metrics["learning_curve"]["mae"]).shape == (2, 2)  # sizes x seeds
+    # the same fits scored on validation (choices are made there); the full-set point is the seed members'
+    curve = metrics["learning_curve"]
+    assert np.asarray(curve["mae_validation"]).shape == (2, 2)
+    val = frame[frame["split"] == "validation"]
+    assert curve["mae_validation"][-1][0] == pytest.approx(np.abs(val["prediction"] - val["target"]).mean())
+    assert curve["mae"][-1][0] == pytest.approx(metrics["mae"])
+    prior = np.median(frame.loc[frame["split"] == "train", "target"])
+    assert curve["baselines_validation"]["prior"] == pytest.approx(np.abs(prior - val["target"]).mean())
+    assert curve["baselines_validation"]["ms_only"] == pytest.approx(
+        np.abs(val["ms_only_prediction"] - val["target"]).mean())
 
 
 @pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine

@@ -38,10 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     films.add_argument("--workers", type=int, default=1, help="films: families simulated at once (one core each)")
     films.add_argument("--out-dir", default="results/bench/films", help="films: one HDF5 per family (resumable)")
     films.add_argument("--summarize-only", action="store_true", help="films: only summarize the families on disk")
-    films.add_argument("--runs", nargs="+", default=["laptop=results/films_learning/laptop/results",
-                                                      "laptop_paper_grains=results/films_learning/laptop_paper_grains/results",
+    films.add_argument("--runs", nargs="+", default=["laptop_8nm_grains=results/films_learning/laptop/results",
+                                                      "laptop=results/films_learning/laptop_paper_grains/results",
                                                       "box128=results/films_learning/box128/results"],
-                       help="film-learning: NAME=RESULTS_DIR of workflow runs (config/films/*.yaml) up to metrics.json")
+                       help="film-learning: NAME=RESULTS_DIR of workflow runs up to metrics.json (default: the runs of "
+                            "config/films/laptop_8nm_grains.yaml, config/config.yaml and config/films/box128.yaml "
+                            "named in README)")
     films.add_argument("--learning-out", default="results/bench/film_learning",
                        help="film-learning: summary.json and film_learning.png")
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")

@@ -119,12 +119,22 @@ def family_agreement(family, reference) -> dict:
             "descending_max_abs_dmz": float(np.abs(family.descending_mz - reference.descending_mz).max())}
 
 
-def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, variants=None, progress=None, say=None) -> dict:
+def _shipped_grains() -> int:
+    """The grain count of the shipped laptop film (``config/config.yaml``)."""
+    from ..config import load_config, shipped_config
+
+    return int(load_config(shipped_config("config"))["n_grains"])
+
+
+def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, variants=None, progress=None, say=None,
+                       n_grains: int | None = None) -> dict:
     """Wall time, relaxations and iterations of one FORC family (``n_fields`` reversal fields) on the
-    64×64×1 laptop grid for each variant of ``LAPTOP_VARIANTS``, and each one's agreement with the
-    no-shortcut reference on the same film (one run, one process: the ratios are meaningful)."""
+    64×64×1 laptop grid (``n_grains``: default the shipped laptop film's) for each variant of
+    ``LAPTOP_VARIANTS``, and each one's agreement with the no-shortcut reference on the same film (one
+    run, one process: the ratios are meaningful)."""
     variants = variants or LAPTOP_VARIANTS
-    film, m0, _ = _film("64")
+    n_grains = _shipped_grains() if n_grains is None else int(n_grains)
+    film, m0, _ = _film("64", n_grains=n_grains)
     for preconditioner in ("diagonal", "fourier"):  # compile both minimizers outside the timing
         film.preconditioner = preconditioner
         quasistatic_family(film, m0, n_fields=3, torque_tol_T=torque_tol_T)
@@ -232,9 +242,16 @@ def benchmark_engine(grids=("64", "256"), seconds: float = 2.0, magnumnp: bool =
                     f"{report[f'speedup_vs_magnumnp_{grid}']:.1f}x, step speedup "
                     f"{report[f'llg_step_speedup_vs_magnumnp_{grid}']:.1f}x")
         report.setdefault(f"speedup_vs_magnumnp_{grid}", None)
-    say("[family] 64 reversal fields on 64x64x1, one core, the same film for every variant:")
-    family = time_laptop_family(progress=progress, say=say)
+    n_grains = _shipped_grains()
+    say(f"[family] 64 reversal fields on 64x64x1 ({n_grains} grains, the shipped laptop film), one core, the same "
+        "film for every variant:")
+    family = time_laptop_family(progress=progress, say=say, n_grains=n_grains)
     report["laptop_family"] = family
+    report["laptop_n_grains"] = n_grains
+    if n_grains != 255:  # the 8 nm-grain film shipped until 2026-11-25, for continuity (shipped protocol only)
+        say("[family] the same sample on the 8 nm-grain film (255 grains; the laptop default until 2026-11-25):")
+        previous = time_laptop_family(variants={"shipped": {}}, say=say, n_grains=255)
+        report["laptop_8nm_grains_family_s"] = previous["shipped"]["family_s"]
     report["laptop_family_s"] = family["shipped"]["family_s"]
     report["reference_family_s"] = family["reference"]["family_s"]
     report["reference_agreement"] = family["shipped"]["agreement_with_reference"]

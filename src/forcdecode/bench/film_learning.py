@@ -2,13 +2,18 @@
 
 Each candidate film (``config/config.yaml``, ``config/films/*.yaml``) is run through the workflow up to
 ``results/metrics.json``; its learning stage fits Alice on nested subsets of its train split (the
-``learning_curve`` fractions, several seeds) and scores each on the film's own test split. Here the
+``learning_curve`` fractions, several seeds) and scores each on the film's own validation split (the
+choice of a film is made there; the test split's figures are carried along, reported only). Here the
 x axis becomes what those training samples cost to simulate: the CPU seconds of every draw's screening
 and every family (rejected draws included), per sample that entered the dataset, times the training-
 set size (``screen_cpu_s``, ``family_cpu_s`` of ``samples.parquet``; wall seconds where a run predates
-them). The y axis is skill over the best trivial predictor of that test split, 1 − MAE / min(MAE of the
-train median, MAE of the M_s-only k-NN), per seed. A film is the better laptop default for a
-parameter when its curve lies above the others' at the same core-hours.
+them). The y axis is skill over the best trivial predictor of that validation split, 1 − MAE /
+min(MAE of the train median, MAE of the M_s-only k-NN), per seed; the full training set's skill also
+gets a 90 % bootstrap interval over validation samples. A film is the better laptop default for a
+parameter when its curve lies above the others' at the same core-hours. Validation also stops Alice's
+training (early stopping), which biases its figures up by the same mechanism for every film.
+Runs made before the pipeline scored its curves on validation fall back to test, flagged
+(``scored_on``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,29 @@ import numpy as np
 import pandas as pd
 
 from ..core.errors import InputFileError
+from ..core.streams import stream_rng
+from ..learn.scoring import bootstrap_interval, skill
+
+
+def _validation_full_set(results_dir, name: str, which: str, seed: int, n_boot: int = 2000) -> tuple[float, list]:
+    """Skill of the full-training-set Alice over the ``which`` trivial predictor on the validation split,
+    with its paired 90 % bootstrap interval over validation samples (``learn/NAME_predictions.parquet``)."""
+    path = Path(results_dir) / "learn" / f"{name}_predictions.parquet"
+    try:
+        table = pd.read_parquet(path, columns=["split", "target", "prediction", "ms_only_prediction"])
+    except FileNotFoundError:
+        raise InputFileError(f"{path}: missing; the run's learning stage did not finish") from None
+    val = table[table["split"] == "validation"]
+    truth, prediction = val["target"].to_numpy(float), val["prediction"].to_numpy(float)
+    if which == "ms_only":
+        baseline = val["ms_only_prediction"].to_numpy(float)
+    else:  # the train median
+        baseline = np.full(len(val), float(np.median(table.loc[table["split"] == "train", "target"])))
+    mae = lambda t, q: float(np.mean(np.abs(q - t)))  # noqa: E731
+    value = skill(mae(truth, prediction), mae(truth, baseline))
+    interval = bootstrap_interval(lambda t, q, b: skill(mae(t, q), mae(t, b)), [truth, prediction, baseline],
+                                  stream_rng(seed, "bootstrap", "film_learning", name), n_boot)
+    return value, interval
 
 
 def _cost_per_sample_s(samples: pd.DataFrame) -> tuple[float, str]:
@@ -45,25 +73,37 @@ def run_curves(results_dir) -> dict:
     except FileNotFoundError as error:
         raise InputFileError(f"{results_dir}: not a finished run up to metrics.json ({error.filename} missing)") from None
     per_sample_s, clock = _cost_per_sample_s(samples)
+    validated = all(e.get("mae_validation") is not None and e.get("baselines_validation")
+                    for e in curves["parameters"].values())
     out = {"results": str(results_dir), "mesh": config["mesh"], "n_grains": config.get("n_grains"),
            "n_draws": int(len(samples)), "n_dataset": int(samples["in_dataset"].sum()),
-           "core_s_per_sample": per_sample_s, "clock": clock, "parameters": {}}
+           "core_s_per_sample": per_sample_s, "clock": clock,
+           "scored_on": "validation" if validated else "test", "parameters": {}}
     for name, entry in curves["parameters"].items():
-        baselines = entry.get("baselines") or {}
-        trivial = min(v for k, v in baselines.items() if k in ("prior", "ms_only") and v is not None)
-        mae = np.asarray(entry["mae"], dtype=float)  # sizes × seeds
-        skill = 1.0 - mae / trivial
+        baselines = (entry["baselines_validation"] if validated else entry.get("baselines")) or {}
+        trivial_name = min((k for k in ("prior", "ms_only") if baselines.get(k) is not None), key=baselines.get)
+        trivial = float(baselines[trivial_name])
+        mae = np.asarray(entry["mae_validation"] if validated else entry["mae"], dtype=float)  # sizes × seeds
+        curve_skill = 1.0 - mae / trivial
         sizes = np.asarray(entry["sizes"], dtype=float)
         # the full training set: skill over the same best trivial predictor with its bootstrap interval
-        # over test samples (the learning-curve points carry only the seeds' spread)
+        # over the scored split's samples (the learning-curve points carry only the seeds' spread)
         full = metrics.get(name, {})
-        which = "ms_only" if baselines.get("ms_only", np.inf) <= baselines.get("prior", np.inf) else "prior"
+        test_baselines = entry.get("baselines") or {}
+        test_which = "ms_only" if test_baselines.get("ms_only", np.inf) <= test_baselines.get("prior", np.inf) else "prior"
+        test_skill, test_ci = full.get(f"skill_vs_{test_which}"), full.get(f"skill_vs_{test_which}_ci90")
+        if validated:
+            full_skill, full_ci = _validation_full_set(results_dir, name, trivial_name, int(config["seed"]))
+        else:
+            full_skill, full_ci = test_skill, test_ci
         out["parameters"][name] = {
             "sizes": sizes.tolist(), "core_hours": (sizes * per_sample_s / 3600.0).tolist(),
-            "trivial_mae": float(trivial), "skill_mean": np.nanmean(skill, axis=1).tolist(),
-            "skill_min": np.nanmin(skill, axis=1).tolist(), "skill_max": np.nanmax(skill, axis=1).tolist(),
-            "n_seeds": int(mae.shape[1]), "n_test": full.get("n_test"),
-            "full_set_skill": full.get(f"skill_vs_{which}"), "full_set_skill_ci90": full.get(f"skill_vs_{which}_ci90"),
+            "trivial": trivial_name, "trivial_mae": trivial, "skill_mean": np.nanmean(curve_skill, axis=1).tolist(),
+            "skill_min": np.nanmin(curve_skill, axis=1).tolist(), "skill_max": np.nanmax(curve_skill, axis=1).tolist(),
+            "n_seeds": int(mae.shape[1]), "n_test": full.get("n_test"), "n_validation": full.get("n_validation"),
+            "full_set_skill": full_skill, "full_set_skill_ci90": full_ci,
+            # reported only: the test split's figures (no choice is made on them)
+            "test_full_set_skill": test_skill, "test_full_set_skill_ci90": test_ci,
         }
     return out
 
@@ -79,10 +119,15 @@ def _at(core_hours, skill, budget) -> float:
 def compare_films(runs: dict) -> dict:
     """``runs``: film name → results folder. Per parameter, each film's skill at the largest budget
     every film reached (the common budget) and the film that is best there: best when its seeds'
-    range lies above the runner-up's and its full-set bootstrap interval (90 %, over test samples)
-    above the runner-up's full-set skill; else "tie"; "none learned" when the leader's skill there, or
-    the lower end of its full-set interval, is not above zero."""
+    range lies above the runner-up's and its full-set bootstrap interval (90 %, over the scored split's
+    samples: validation) above the runner-up's full-set skill; else "tie"; "none learned" when the
+    leader's skill there, or the lower end of its full-set interval, is not above zero."""
     films = {name: run_curves(path) for name, path in runs.items()}
+    splits = {f["scored_on"] for f in films.values()}
+    if len(splits) > 1:
+        raise InputFileError("the runs' learning curves are scored on different splits ("
+                             + ", ".join(f"{n}: {f['scored_on']}" for n, f in films.items())
+                             + "); rerun the learning stage of the older runs")
     parameters = sorted(set.intersection(*(set(f["parameters"]) for f in films.values())))
     common = {}
     for p in parameters:
@@ -112,18 +157,22 @@ def summary_lines(result: dict) -> list[str]:
     for name, f in result["films"].items():
         lines.append(f"{name}: {f['mesh']['nx']}x{f['mesh']['ny']}x{f['mesh']['nz']} cells, {f['n_grains']} grains, "
                      f"{f['n_dataset']} of {f['n_draws']} draws in the dataset, "
-                     f"{f['core_s_per_sample']:.1f} core-s ({f['clock']}) of simulation per sample")
+                     f"{f['core_s_per_sample']:.1f} core-s ({f['clock']}) of simulation per sample; "
+                     f"curves scored on {f['scored_on']}")
     for p, row in result["at_common_budget"].items():
         cells = ", ".join(f"{n} {v['mean']:+.2f} [{v['min']:+.2f}, {v['max']:+.2f}]" for n, v in row["films"].items())
         lines.append(f"{p}: skill at {row['budget_core_hours']:.3f} core-hours (seeds' range): {cells} -> {row['best']}")
-        full = []
-        for n, f in result["films"].items():
-            c = f["parameters"][p]
-            if c.get("full_set_skill") is not None and c.get("full_set_skill_ci90"):
-                full.append(f"{n} {c['full_set_skill']:+.2f} [{c['full_set_skill_ci90'][0]:+.2f}, "
-                            f"{c['full_set_skill_ci90'][1]:+.2f}] at {c['core_hours'][-1]:.3f} core-h")
-        if full:
-            lines.append(f"    full training set, 90 % bootstrap over test samples: {', '.join(full)}")
+        for split, key in (("scored split", "full_set_skill"), ("test, reported only", "test_full_set_skill")):
+            full = []
+            for n, f in result["films"].items():
+                c = f["parameters"][p]
+                if c.get(key) is not None and c.get(f"{key}_ci90"):
+                    full.append(f"{n} {c[key]:+.2f} [{c[key + '_ci90'][0]:+.2f}, {c[key + '_ci90'][1]:+.2f}] "
+                                f"at {c['core_hours'][-1]:.3f} core-h")
+            if full:
+                lines.append(f"    full training set, 90 % bootstrap ({split}): {', '.join(full)}")
+            if split == "scored split" and all(f["scored_on"] == "test" for f in result["films"].values()):
+                break  # the same figures
     return lines
 
 
@@ -148,7 +197,7 @@ def figure(result: dict, out_path) -> None:
         ax.set_xscale("log")
         ax.set_title(p)
         ax.set_xlabel("simulation core-hours of the training set")
-        ax.set_ylabel("skill over best trivial predictor")
+        ax.set_ylabel(f"skill over best trivial ({result['films'][next(iter(result['films']))]['scored_on']})")
     for ax in list(axes.flat)[len(parameters):]:
         ax.axis("off")
     axes.flat[0].legend(fontsize=8)

@@ -6,11 +6,14 @@ Films (cells of 2 × 2 × 4 nm; periodic in the plane; grains columnar Voronoi c
 =====================  =========  =======  ===========  =====================================
 name                   cells      box nm   grain nm     role
 =====================  =========  =======  ===========  =====================================
-``laptop``             64²×1      128×4    ≈ 8 (255)    the shipped laptop default
-``laptop_paper_grains`` 64²×1     128×4    ≈ 32 (16)    laptop box, the paper's grain size
+``laptop``             64²×1      128×4    ≈ 8 (255)    the laptop default until 2026-11-25
+``laptop_paper_grains`` 64²×1     128×4    ≈ 32 (16)    the laptop default (2026-11-25 on)
 ``box128``             128²×1     256×4    ≈ 32 (64)    twice the box, the paper's grain size
 ``paper``              256²×2     512×8    ≈ 32 (255)   the seed paper's film
 =====================  =========  =======  ===========  =====================================
+
+(The names are those of the measurements in ``results/bench/films``: ``laptop`` is the 8 nm-grain film,
+``config/films/laptop_8nm_grains.yaml``; ``laptop_paper_grains`` is ``config/config.yaml`` today.)
 
 Hamiltonians are the dataset's draws (Table I priors, ``draw_parameters``) that pass the laptop
 screening; N_pin keeps its density (``scale_to_reference``). Each (film, Hamiltonian, realisation)
