@@ -15,7 +15,7 @@ from forcdecode.core.errors import ConfigError, DatasetError, ModelFileError, Ou
 from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
 from forcdecode.learn.data import LearningData
 from forcdecode.learn.posterior import (PosteriorEstimator, fit_posterior, from_latent, posterior_settings, summarize,
-                                        to_latent, train_posterior)
+                                        posterior_prediction, to_latent, train_posterior)
 from forcdecode.learn.scoring import binomial_band
 from forcdecode.learn.splits import assign_splits
 
@@ -188,3 +188,26 @@ def test_predict_with_the_posterior_estimator(stage, tmp_path, capsys):
     assert "K_u" in table and "J/m^3" in table
     assert main([*args[:-4], "--posterior", str(tmp_path / "none.pt")]) == 2
     assert "cannot load posterior model" in capsys.readouterr().err
+
+
+def test_intervals_conformalized_on_the_calibration_split(stage):
+    """The calibration split (held out from the flow) widens the reported intervals; the widening is
+    saved with the model, measured on test, and carried into a prediction."""
+    data, metrics, out = stage
+    splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
+    conformal = metrics["conformal"]
+    assert conformal["n_calibration"] == len(splits["calibration"])
+    for tag in ("50", "68", "90"):
+        assert set(conformal["widening"][tag]) == set(metrics["parameters"])
+    for row in metrics["per_parameter"].values():
+        assert 0.0 <= row["coverage_90_conformal"] <= 1.0 and 0.0 < row["width_90_conformal"] <= 1.0
+    est = PosteriorEstimator.load(out / "model.pt")
+    assert est.metadata["conformal"] == conformal
+    k = int(splits["test"][0])
+    result = posterior_prediction(est, data.images[k], float(denormalize("Ms", data.ms_norm[k], data.bounds)), n_draws=500)
+    row = result["K_u"]
+    q = conformal["widening"]["90"]["K_u"]
+    lo, hi = row["interval_90_normalized"]
+    assert row["interval_90_conformal_normalized"] == pytest.approx([max(0.0, lo - q), min(1.0, hi + q)])
+    assert row["interval_90_conformal"] == pytest.approx(
+        [denormalize("K_u", v, est.bounds) for v in row["interval_90_conformal_normalized"]])

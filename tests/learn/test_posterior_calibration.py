@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from forcdecode.core.errors import DatasetError
-from forcdecode.learn.calibration import calibration_figure, calibration_metrics, sbc_ks_pvalues, sbc_ranks, tarp_coverage
+from forcdecode.learn.calibration import (calibration_figure, calibration_metrics, conformal_coverage, conformal_widening,
+                                         sbc_ks_pvalues, sbc_ranks, tarp_coverage)
 from forcdecode.learn.scoring import binomial_band
 
 SIGMA = 0.08
@@ -88,3 +89,37 @@ def test_the_figure_is_written(tmp_path):
     metrics = calibration_metrics(draws[:100], truth[:100], ["a", "b"], np.random.default_rng(0))
     calibration_figure(metrics, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("scale_factor", [0.5, 1.0, 2.0])
+def test_conformalized_intervals_cover_whatever_the_flow_width(scale_factor):
+    """Overconfident, exact and underconfident posteriors: intervals widened (or narrowed) on 300
+    calibration observations cover 300 fresh ones at the level, within 3 standard deviations of the
+    coverage of a conformal interval (calibration draw and test draw both vary: α(1 − α)(1/301 + 1/300));
+    the exact posterior's widening is ~0, the overconfident one is widened back to the exact width,
+    the underconfident one narrowed."""
+    draws, truth = bounded_gaussian(scale_factor=scale_factor, seed=3)
+    cal, test = slice(0, 300), slice(300, N_OBS)
+    widening = conformal_widening(draws[cal], truth[cal], (0.68, 0.9))
+    coverage = conformal_coverage(draws[test], truth[test], widening)
+    for level, (cov, width) in coverage.items():
+        sd = np.sqrt(level * (1 - level) * (1 / 301 + 1 / 300))
+        assert np.all(np.abs(cov - level) < 3 * sd), (scale_factor, level, cov)
+    q90 = widening[0.9]
+    if scale_factor == 1.0:
+        assert np.all(np.abs(q90) < 0.3 * SIGMA), q90
+    elif scale_factor == 0.5:  # half-width 1.645·σ/2 → the exact 1.645·σ: q ≈ 0.82 σ
+        assert np.all((0.5 * SIGMA < q90) & (q90 < 1.1 * SIGMA)), q90
+        # the exact interval: 3.29 σ wide, narrower near the bounds where it is clipped to [0, 1] (raw: 1.65 σ)
+        assert np.all((2.6 * SIGMA < coverage[0.9][1]) & (coverage[0.9][1] < 3.4 * SIGMA)), coverage[0.9][1]
+    else:  # too wide: narrowed (negative widening; the draws' truncation at the bounds keeps it small)
+        raw_width = conformal_coverage(draws[test], truth[test], {0.9: np.zeros(2)})[0.9][1]
+        assert np.all(q90 < 0) and np.all(coverage[0.9][1] < raw_width - 0.04), (q90, raw_width)
+
+
+def test_conformal_widening_with_too_few_samples_is_the_whole_support():
+    draws, truth = bounded_gaussian(seed=4)
+    widening = conformal_widening(draws[:5], truth[:5], (0.9,))  # ⌈6 · 0.9⌉ = 6 > 5
+    assert widening[0.9].tolist() == [1.0, 1.0]
+    cov, width = conformal_coverage(draws[5:50], truth[5:50], widening)[0.9]
+    assert cov.tolist() == [1.0, 1.0] and np.allclose(width, 1.0)

@@ -460,8 +460,10 @@ def summarize(samples, names, bounds, levels=(0.68, 0.9)) -> dict:
 def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float, n_draws: int = 4000,
                          seed: int = 0) -> dict:
     """One FORC image and M_s (A/m) → per parameter the posterior median (``value``, SI), mean, the
-    68 % and 90 % central credible intervals (SI and normalized), and the pairwise correlations of the
-    draws (``posterior_correlation``): the format of ``predict_parameters``, Bob's fields absent."""
+    68 % and 90 % central credible intervals (SI and normalized), the same conformalized on the
+    calibration split (``interval_90_conformal``; models trained with a calibration split), and the
+    pairwise correlations of the draws (``posterior_correlation``): the format of
+    ``predict_parameters``, Bob's fields absent."""
     from ..core.parameters import normalize
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
@@ -471,10 +473,19 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     summary = summarize(draws, est.names, est.bounds)
     result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws),
               "ood": ood_check(est, np.asarray(image_uint8), [ms_norm])}
+    widening = (est.metadata.get("conformal") or {}).get("widening", {})
     for name, row in summary["parameters"].items():
         result[name] = {"value": row["median_value"], "normalized": row["median"], "mean_normalized": row["mean"],
                         "interval_68": row["value_68"], "interval_90": row["value_90"],
                         "interval_68_normalized": row["interval_68"], "interval_90_normalized": row["interval_90"]}
+        for tag in ("68", "90"):  # conformalized on the calibration split (learn/calibration.py), when fitted
+            q = widening.get(tag, {}).get(name)
+            if q is None:
+                continue
+            lo, hi = (float(np.clip(row[f"interval_{tag}"][0] - q, 0, 1)), float(np.clip(row[f"interval_{tag}"][1] + q, 0, 1)))
+            result[name][f"interval_{tag}_conformal_normalized"] = [lo, hi]
+            result[name][f"interval_{tag}_conformal"] = [float(denormalize(name, lo, est.bounds)),
+                                                         float(denormalize(name, hi, est.bounds))]
     result["posterior_correlation"] = summary["correlation"]
     return result
 
@@ -493,7 +504,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                     figure_path, log=print) -> dict:
     """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
     the test split; write the model, metrics.json and the calibration figure (all atomically)."""
-    from .calibration import calibration_figure, calibration_metrics
+    from .calibration import calibration_figure, calibration_metrics, conformal_coverage, conformal_widening
 
     settings = posterior_settings(settings)
     learning = {**defaults("learning"), **(learning or {})}
@@ -528,16 +539,27 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     levels = [float(a) for a in settings["levels"]]
     calibration = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
     # the calibration split is held out from the posterior too (only Alice's conformal step uses it):
-    # test + calibration doubles the samples behind the SBC and coverage figures (reported apart)
+    # test + calibration doubles the samples behind the SBC and coverage figures (reported apart), and
+    # the calibration split alone conformalizes the reported intervals (measured on test)
     held_out = np.union1d(test, splits["calibration"])
-    pooled = None
+    pooled, conformal = None, None
     if learning["protocol"] == "holdout" and len(held_out) > len(test):
-        extra = est.sample(data.images[splits["calibration"]], data.ms_norm[splits["calibration"]], draws,
+        cal = splits["calibration"]
+        extra = est.sample(data.images[cal], data.ms_norm[cal], draws,
                            seed=stream_seed(seed, "posterior", "calibration_draws"))
-        both = np.concatenate([test, splits["calibration"]])
+        both = np.concatenate([test, cal])
         pooled = calibration_metrics(np.concatenate([samples, extra]), u[both], names,
                                      stream_rng(seed, "posterior", "calibration_pooled"), levels)
         pooled = {"n": int(len(both)), "per_parameter": pooled["per_parameter"], "joint": pooled["joint"]["tarp"]}
+        widening = conformal_widening(extra, u[cal], levels)
+        conformal = {"n_calibration": int(len(cal)),
+                     "widening": {f"{int(round(a * 100))}": {n_: float(q[j]) for j, n_ in enumerate(names)}
+                                  for a, q in widening.items()}}
+        for level, (cov, width) in conformal_coverage(samples, u[test], widening).items():
+            tag = f"{int(round(level * 100))}"
+            for j, name in enumerate(names):
+                calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
+                calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
     calibration_s = time.perf_counter() - started
     metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
                "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
@@ -550,6 +572,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
                "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
                "test_and_calibration_splits": pooled,
+               "conformal": conformal,
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
                "ood_alpha": est.metadata["ood"]["alpha"],
@@ -557,7 +580,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     metrics["wall_s"]["total"] = train_s + calibration_s
     est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings,
              summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
-             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"])
+             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal)
     io.write_json(metrics_path, metrics)
     calibration_figure(metrics, figure_path)
     for name, row in metrics["per_parameter"].items():

@@ -382,6 +382,12 @@ def _markdown(path, report, analysis) -> str:
                       "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
             for name, row in zip(corr["names"], corr["matrix"]):
                 lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
+            conformal = {n: e["interval_90_conformal"] for n, e in prediction.items()
+                         if isinstance(e, dict) and "interval_90_conformal" in e}
+            if conformal:
+                lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
+                          "families like the training data): " + "; ".join(
+                              f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
         if report.get("ood"):
             lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:
