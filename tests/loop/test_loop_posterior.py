@@ -106,3 +106,25 @@ def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_pat
         assert 0.0 <= lo <= final["parameters"][name]["median"] <= hi <= 1.0
     assert "effective sample size" in capsys.readouterr().out
     assert main(["fit", str(path), "--posterior", str(posterior), "--config", str(cfg), "--out", str(out)]) == 2
+
+
+def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured, tmp_path):
+    """`loop --estimator posterior --refine N`: the refined medians (not the amortized ones) are the
+    Hamiltonian re-simulated and analysed; the report carries both."""
+    path, cfg = measured
+    out = tmp_path / "loop"
+    assert main(["loop", str(path), "--out", str(out), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--profiles", "1", "--no-physics",
+                 "--no-measured-protocol", "--force", "--refine", "6", "--refine-round-size", "3"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    refined = report["refined"]
+    assert report["status"] == "analysed" and refined["budget"] == 6 and 1.0 <= refined["ess"] <= 6.0
+    for name, row in refined["parameters"].items():
+        assert row["value_90"][0] <= row["value"] <= row["value_90"][1]
+        expected = round(row["value"]) if name == "N_pin" else row["value"]
+        assert report["parameters"][name] == pytest.approx(expected, rel=1e-9), name  # what was re-simulated
+    assert report["parameters"]["Ms"] == pytest.approx(6e5)
+    assert "Refined by 6 simulations" in (out / "report.md").read_text()
+    # refinement starts from the joint posterior: Alice, or a given Hamiltonian, is refused with exit 2
+    assert main(["loop", str(path), "--out", str(tmp_path / "x"), "--config", str(cfg), "--Ms-kA-m", "600",
+                 "--refine", "6"]) == 2

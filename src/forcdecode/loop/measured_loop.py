@@ -82,6 +82,37 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     return best, rows
 
 
+def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log):
+    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
+    medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
+    the tempering reached the full likelihood."""
+    import hashlib
+
+    from ..core.parameters import denormalize
+    from .fit_cli import fit_one
+    from .posterior_predictive import draws_as_hamiltonians
+
+    key = int(hashlib.sha1(f"{Path(path).name}:refine".encode()).hexdigest()[:8], 16)
+    result = fit_one(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
+                     seed=int(cfg.get("seed", 0)), key=key, log=log)
+    final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
+    names = result["names"]
+    medians = np.array([[final["parameters"][n]["median"] for n in names]])
+    params = draws_as_hamiltonians(medians, names, Ms, est.bounds)[0]
+    entry = {"budget": int(budget), "ess": final["ess"], "reached_full_likelihood": result["reached_full_likelihood"],
+             "betas": result["betas"], "wall_s": result["wall_s"], "note": final.get("note"), "parameters": {}}
+    for n in names:
+        row = dict(final["parameters"][n])
+        row["value"] = float(denormalize(n, row["median"], est.bounds))
+        for tag in ("68", "90"):
+            row[f"value_{tag}"] = [float(denormalize(n, v, est.bounds)) for v in row[f"interval_{tag}"]]
+        row["amortized_median"] = result["amortized"]["parameters"][n]["median"]
+        entry["parameters"][n] = row
+    log(f"refined by {budget} simulations: ESS {final['ess']:.1f}"
+        + ("" if result["reached_full_likelihood"] else " (tempered: not the full posterior)"))
+    return entry, params
+
+
 def _drift_note(data) -> str:
     if not data.calibration:
         return "none (the file has no calibration points)"
@@ -172,7 +203,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
-                       null_realisations: int = 2, log=_progress) -> dict:
+                       null_realisations: int = 2, refine_budget: int = 0, refine_round_size: int = 25,
+                       refine_workers: int = 1, log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -198,12 +230,22 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     InputFileError for an unreadable file, ModelFileError for missing models, ConfigError for
     ``fixed_point`` without ``refit`` or with ``params``. ``null_realisations`` (with ``refit``): other
     disorder realisations of the refitted Hamiltonian whose gains a candidate must beat (the
-    realisation floor, ``loop.refit.analyse_with_refit``; 0: off)."""
+    realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
+    posterior estimator): refine the amortized posterior of this family by that many simulations of
+    the film at the chosen M_s (``loop.fit``, rounds of ``refine_round_size``, ``refine_workers``
+    processes); the refined medians are the Hamiltonian re-simulated, so the residual analysis runs on
+    the refined re-simulation; report key ``refined``."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
     if fixed_point and not refit:
         raise ConfigError("the fixed-point iteration needs a Hamiltonian refit (refit names, --refit)")
+    if refine_budget and (estimator != "posterior" or params is not None):
+        raise ConfigError("refinement by simulation (--refine) starts from the joint posterior: it needs "
+                          "--estimator posterior and a prediction, not --params")
+    if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
+        raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
+                          f"(round size {refine_round_size}) and >= 1 worker")
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
                           "networks, not a given Hamiltonian (--params)")
@@ -268,6 +310,11 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                       Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
         if best["n_profiles"] == profiles:
             resim, spread = best["family"], best["spread"]
+        if refine_budget:
+            report["refined"], params = _refine(cfg, est, image, family, best["Ms"], path, refine_budget,
+                                                refine_round_size, refine_workers, log)
+            report["parameters"] = params
+            resim = None  # re-simulate the refined Hamiltonian
     if resim is None:
         resim, spread = resimulate_with_spread(cfg, params, n_profiles=profiles,
                                                progress=counter("re-simulation", "profiles"))
@@ -388,6 +435,16 @@ def _markdown(path, report, analysis) -> str:
                 lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
                           "families like the training data): " + "; ".join(
                               f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
+        refined = report.get("refined")
+        if refined:
+            lines += ["", f"Refined by {refined['budget']} simulations of this film (`loop.fit`; effective sample size "
+                      f"{refined['ess']:.1f}{'' if refined['reached_full_likelihood'] else '; tempered, not the full posterior'}). "
+                      "The residual below is that of the refined medians:", "",
+                      "| parameter | amortized median (normalized) | refined median | refined 68 % | refined 90 % |",
+                      "|---|---|---|---|---|"]
+            for name, row in refined["parameters"].items():
+                lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
+                             f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
         if report.get("ood"):
             lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:
