@@ -148,3 +148,43 @@ def test_beta_schedule_is_monotone_reaches_one_and_a_tempered_result_says_so():
     for bad in ({"target_ess_fraction": 0.0}, {"target_ess_fraction": 1.5}, {"path": "likelihood"}):
         with pytest.raises(ConfigError):
             run(0, budget=50, **bad)
+
+
+def test_a_state_saved_and_loaded_between_rounds_continues_exactly(tmp_path):
+    """Refinement.save/load (each round its own job): the generator, the rounds' proposals and β come
+    back, so the run equals `refine` in one process."""
+    from forcdecode.loop.fit import Refinement
+
+    truth, observed, draws, whole = run(7, budget=100)
+    rng = np.random.default_rng(7)  # the same draws as `run`: truth, noise, proposal
+    rng.uniform(0.2, 0.8, 2), rng.normal(size=(20, 1))
+    draws2, logpdf = proposal(truth, rng)
+    assert np.array_equal(draws, draws2)
+    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), checkpoints=(50, 100))
+    state.context = {"note": "kept"}
+    path = tmp_path / "state.npz"
+    while not state.done:
+        take = state.propose()
+        state.update(take, forward(take), logpdf(take))
+        state.save(path)
+        state = Refinement.load(path)
+    assert state.context == {"note": "kept"}
+    result = state.result()
+    assert result["betas"] == whole["betas"] and result["ess"] == whole["ess"]
+    assert np.array_equal(result["u"], whole["u"])
+    for b in (50, 100):
+        assert result["by_budget"][b]["parameters"] == whole["by_budget"][b]["parameters"]
+    with pytest.raises(ConfigError, match="all its 4 rounds"):
+        state.propose()
+
+
+def test_a_file_that_is_not_a_state_is_named(tmp_path):
+    from forcdecode.core.errors import InputFileError
+    from forcdecode.loop.fit import Refinement
+
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, x=np.zeros(3))
+    with pytest.raises(InputFileError, match="not a refinement state"):
+        Refinement.load(bad)
+    with pytest.raises(InputFileError, match="not a refinement state"):
+        Refinement.load(tmp_path / "missing.npz")

@@ -128,3 +128,28 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
     # refinement starts from the joint posterior: Alice, or a given Hamiltonian, is refused with exit 2
     assert main(["loop", str(path), "--out", str(tmp_path / "x"), "--config", str(cfg), "--Ms-kA-m", "600",
                  "--refine", "6"]) == 2
+
+
+def test_fit_one_round_per_job_equals_fit_in_one_process(posterior, measured, tmp_path):
+    """`fit-step init|round|report` (the workflow's per-round jobs, each a fresh process reading the
+    state file) reproduce `forcdecode fit` exactly: same particles, same β, same refined posterior."""
+    path, cfg = measured
+    common = ["--posterior", str(posterior), "--config", str(cfg)]
+    assert main(["fit", str(path), "--Ms-kA-m", "600", *common, "--budget", "6", "--round-size", "3",
+                 "--out", str(tmp_path / "whole")]) == 0
+    states = [tmp_path / f"round_{r}.npz" for r in range(3)]
+    assert main(["fit-step", "init", str(path), "--Ms-kA-m", "600", *common, "--budget", "6", "--round-size", "3",
+                 "--state", str(states[0])]) == 0
+    # a report before the last round is refused, naming what is missing
+    assert main(["fit-step", "report", "--state", str(states[0]), "--out", str(tmp_path / "early.json")]) == 2
+    for r in (1, 2):
+        assert main(["fit-step", "round", *common, "--state-in", str(states[r - 1]), "--state-out", str(states[r])]) == 0
+    assert main(["fit-step", "report", "--state", str(states[2]), "--out", str(tmp_path / "steps.json")]) == 0
+    whole = json.loads((tmp_path / "whole" / "fit.json").read_text())
+    steps = json.loads((tmp_path / "steps.json").read_text())
+    assert steps["betas"] == whole["betas"] and steps["ess_per_round"] == whole["ess_per_round"]
+    for budget in ("3", "6"):
+        a, b = whole["refined_by_budget"][budget], steps["refined_by_budget"][budget]
+        assert a["ess"] == b["ess"] and a["parameters"] == b["parameters"], budget
+    assert steps["amortized"] == whole["amortized"] and steps["sigma2"] == whole["sigma2"]
+    assert main(["fit-step", "round", *common, "--state-in", str(states[2]), "--state-out", str(tmp_path / "x.npz")]) == 2

@@ -154,6 +154,164 @@ def next_beta(loglik, log_q, beta_prev: float, target_ess: float, steps: int = 3
 PATHS = ("amortized", "prior")
 
 
+class Refinement:
+    """The state of one tempered population Monte Carlo run between rounds (see the module docstring):
+    every particle so far (u, log-likelihood, log q₀), the rounds' proposals, β, the per-round ESS, the
+    checkpoint summaries and the random generator. ``propose`` → simulate the candidates → ``update``
+    is one round; ``save``/``load`` (one .npz, written atomically) let each round run as its own job
+    (``forcdecode fit-round``, the workflow's ``fit_round`` rule) with results identical to ``refine``."""
+
+    def __init__(self, observed, proposal_draws, sigma2: float, budget: int, round_size: int, rng: np.random.Generator,
+                 names, checkpoints=(), n_effective: float | None = None, *, tempering: bool = True,
+                 target_ess_fraction: float = 0.3, path: str = "amortized"):
+        if budget < round_size or round_size < 2:
+            raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
+        if not 0.0 < target_ess_fraction <= 1.0:
+            raise ConfigError(f"target_ess_fraction ({target_ess_fraction}) must lie in (0, 1]")
+        if path not in PATHS:
+            raise ConfigError(f"tempering path {path!r} is not one of {PATHS}")
+        self.observed = np.asarray(observed, float)
+        self.n_curves = float(self.observed.shape[0] if n_effective is None else n_effective)
+        self.pool = np.asarray(proposal_draws, float)
+        d = self.pool.shape[1]
+        self.sigma2, self.budget, self.round_size, self.rng = float(sigma2), int(budget), int(round_size), rng
+        self.names, self.checkpoints = tuple(names), tuple(int(c) for c in checkpoints)
+        self.tempering, self.target_ess_fraction, self.path = bool(tempering), float(target_ess_fraction), path
+        self.u, self.loglik, self.log_q0 = np.zeros((0, d)), np.zeros(0), np.zeros(0)
+        self.rounds = []  # (size, mean_z, cov_z); mean None: the round drew from q₀
+        self.cursor, self.beta, self.betas, self.ess = 0, 0.0, [], []
+        self.by_budget, self.wall_s, self.logw = {}, 0.0, np.zeros(0)
+        self.context = {}  # plain values the caller keeps with the state (saved with it)
+
+    @property
+    def n_rounds(self) -> int:
+        return self.budget // self.round_size
+
+    @property
+    def done(self) -> bool:
+        return len(self.rounds) >= self.n_rounds
+
+    def _log_mixture(self, u, q0):
+        """log Σ_r (N_r/N) q_r(u) over the rounds so far (q₀ for round 1 and the defensive part)."""
+        total = sum(r[0] for r in self.rounds)
+        z, lj = _logit(u), _log_jacobian(u)
+        terms = []
+        for size, mean, cov in self.rounds:
+            if mean is None:
+                terms.append(np.log(size / total) + q0)
+            else:
+                gauss = multivariate_normal(mean, cov, allow_singular=True).logpdf(z) + lj
+                terms.append(np.log(size / total) + np.logaddexp(np.log(DEFENSIVE) + q0, np.log(1 - DEFENSIVE) + gauss))
+        return np.logaddexp.reduce(np.stack(terms), axis=0)
+
+    def propose(self) -> np.ndarray:
+        """The next round's candidates (round_size, d) in u; records the round's proposal."""
+        if self.done:
+            raise ConfigError(f"the refinement has run all its {self.n_rounds} rounds")
+        d, size = self.pool.shape[1], self.round_size
+        if not self.rounds:
+            take = self.pool[self.cursor:self.cursor + size]
+            self.cursor += size
+            self.rounds.append((size, None, None))
+            return take
+        w = _normalized(self.logw)
+        z = _logit(self.u)
+        mean = w @ z
+        centred = z - mean
+        cov = (centred * w[:, None]).T @ centred
+        cov = INFLATION * 0.5 * (cov + cov.T) + 1e-3 * np.eye(d)
+        n_def = self.rng.binomial(size, DEFENSIVE)
+        if self.cursor + n_def > len(self.pool):
+            self.cursor = 0
+        from_q0 = self.pool[self.cursor:self.cursor + n_def]
+        self.cursor += n_def
+        z_new = self.rng.multivariate_normal(mean, cov, size=size - n_def)
+        from_gauss = (1 / (1 + np.exp(-z_new)) - SQUEEZE) / (1 - 2 * SQUEEZE)
+        self.rounds.append((size, mean, cov))
+        return np.clip(np.concatenate([from_q0, from_gauss]), 0.0, 1.0)
+
+    def update(self, take, families, log_q0, wall_s: float = 0.0) -> None:
+        """Add the round's candidates with their simulated families and log q₀; raise β; summarize at
+        checkpoints (``wall_s``: the round's time, accumulated into the summaries' ``wall_s``)."""
+        self.u = np.concatenate([self.u, take])
+        self.loglik = np.concatenate([self.loglik, synthetic_loglik(families, self.observed, self.sigma2, self.n_curves)])
+        self.log_q0 = np.concatenate([self.log_q0, np.asarray(log_q0, float)])
+        with np.errstate(invalid="ignore"):
+            log_q = self._log_mixture(self.u, self.log_q0)
+        # log π_β / q_mix = β·tilt − base (uniform prior: constant): the bridge from q₀ shifts both by log q₀
+        tilt, base = ((self.loglik - self.log_q0, log_q - self.log_q0) if self.path == "amortized"
+                      else (self.loglik, log_q))
+        self.beta = (next_beta(tilt, base, self.beta, self.target_ess_fraction * self.round_size)
+                     if self.tempering else 1.0)
+        self.logw = _log_weights(tilt, base, self.beta)
+        self.betas.append(self.beta)
+        self.ess.append(_ess(self.logw))
+        self.wall_s += float(wall_s)
+        spent = len(self.rounds) * self.round_size
+        if spent in self.checkpoints or spent == self.n_rounds * self.round_size:
+            summary = summarize_particles(self.u, _normalized(self.logw), self.names)
+            summary.update(beta=self.beta, tempered=self.beta < 1.0, wall_s=self.wall_s)
+            if self.beta < 1.0:
+                summary["note"] = (f"tempered posterior: likelihood to the power beta = {self.beta:.3g} < 1 "
+                                   + ("(wider than the target)" if self.path == "prior" else
+                                      "(between the amortized posterior and the target)")
+                                   + "; not the posterior: a larger budget is needed")
+            self.by_budget[spent] = summary
+
+    def result(self) -> dict:
+        return {"u": self.u, "loglik": self.loglik, "weights": _normalized(self.logw),
+                "summary": self.by_budget[max(self.by_budget)], "by_budget": dict(self.by_budget),
+                "sigma2": self.sigma2, "n_curves": self.n_curves, "betas": list(self.betas), "ess": list(self.ess),
+                "reached_full_likelihood": self.beta == 1.0, "path": self.path if self.tempering else None}
+
+    def save(self, path) -> None:
+        """Atomic .npz of the whole state (arrays, the rounds' proposals, the generator's state)."""
+        import json
+
+        from ..core.io import atomic_path
+
+        d = self.pool.shape[1]
+        means = np.array([np.full(d, np.nan) if m is None else m for _, m, _ in self.rounds]).reshape(-1, d)
+        covs = np.array([np.full((d, d), np.nan) if c is None else c for _, _, c in self.rounds]).reshape(-1, d, d)
+        meta = {"sigma2": self.sigma2, "n_curves": self.n_curves, "budget": self.budget, "round_size": self.round_size,
+                "names": list(self.names), "checkpoints": list(self.checkpoints), "tempering": self.tempering,
+                "target_ess_fraction": self.target_ess_fraction, "path": self.path, "cursor": self.cursor,
+                "beta": self.beta, "betas": self.betas, "ess": self.ess, "wall_s": self.wall_s,
+                "round_sizes": [r[0] for r in self.rounds], "by_budget": {str(k): v for k, v in self.by_budget.items()},
+                "rng": self.rng.bit_generator.state, "context": self.context}
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez(handle, observed=self.observed, pool=self.pool, u=self.u, loglik=self.loglik,
+                         log_q0=self.log_q0, logw=self.logw, means=means, covs=covs,
+                         meta=np.array(json.dumps(meta)))
+
+    @classmethod
+    def load(cls, path) -> "Refinement":
+        import json
+
+        from ..core.errors import InputFileError
+
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            meta = json.loads(str(arrays["meta"]))
+        except (OSError, KeyError, ValueError) as error:
+            raise InputFileError(f"{path}: not a refinement state ({error})") from None
+        rng = np.random.Generator(getattr(np.random, meta["rng"]["bit_generator"])())
+        rng.bit_generator.state = meta["rng"]
+        state = cls(arrays["observed"], arrays["pool"], meta["sigma2"], meta["budget"], meta["round_size"], rng,
+                    meta["names"], meta["checkpoints"], meta["n_curves"], tempering=meta["tempering"],
+                    target_ess_fraction=meta["target_ess_fraction"], path=meta["path"])
+        state.u, state.loglik, state.log_q0, state.logw = arrays["u"], arrays["loglik"], arrays["log_q0"], arrays["logw"]
+        state.rounds = [(size, None if np.isnan(m).all() else m, None if np.isnan(c).all() else c)
+                        for size, m, c in zip(meta["round_sizes"], arrays["means"], arrays["covs"])]
+        state.cursor, state.beta, state.betas, state.ess = meta["cursor"], meta["beta"], meta["betas"], meta["ess"]
+        state.wall_s = meta["wall_s"]
+        state.by_budget = {int(k): v for k, v in meta["by_budget"].items()}
+        state.context = meta.get("context", {})
+        return state
+
+
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
            rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None, *,
            tempering: bool = True, target_ess_fraction: float = 0.3, path: str = "amortized") -> dict:
@@ -171,83 +329,16 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
     ``beta``, ``tempered`` and, if tempered, a ``note``), per round ``betas`` and ``ess``, and
     ``reached_full_likelihood`` (final β = 1; otherwise the result is a tempered posterior, not the
     target: raise the budget)."""
-    if budget < round_size or round_size < 2:
-        raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
-    if not 0.0 < target_ess_fraction <= 1.0:
-        raise ConfigError(f"target_ess_fraction ({target_ess_fraction}) must lie in (0, 1]")
-    if path not in PATHS:
-        raise ConfigError(f"tempering path {path!r} is not one of {PATHS}")
-    observed = np.asarray(observed, float)
-    n_curves = observed.shape[0] if n_effective is None else float(n_effective)
-    d = proposal_draws.shape[1]
-    pool = np.asarray(proposal_draws, float)
-    u_all, ll_all, lq0_all, rounds = np.zeros((0, d)), np.zeros(0), np.zeros(0), []  # rounds: (size, mean_z, cov_z)
-    by_budget, started = {}, time.perf_counter()
-    n_rounds = budget // round_size
-    cursor, beta, betas, ess_rounds = 0, 0.0, [], []
-
-    def log_mixture(u, q0):
-        """log Σ_r (N_r/N) q_r(u) over the rounds so far (q₀ for round 1 and the defensive part)."""
-        total = sum(r[0] for r in rounds)
-        z = _logit(u)
-        lj = _log_jacobian(u)
-        terms = []
-        for size, mean, cov in rounds:
-            if mean is None:
-                terms.append(np.log(size / total) + q0)
-            else:
-                gauss = multivariate_normal(mean, cov, allow_singular=True).logpdf(z) + lj
-                terms.append(np.log(size / total) + np.logaddexp(np.log(DEFENSIVE) + q0, np.log(1 - DEFENSIVE) + gauss))
-        return np.logaddexp.reduce(np.stack(terms), axis=0)
-
-    for r in range(n_rounds):
-        if r == 0:
-            take = pool[cursor:cursor + round_size]
-            cursor += round_size
-            rounds.append((round_size, None, None))
-        else:
-            w = _normalized(logw)
-            z = _logit(u_all)
-            mean = w @ z
-            centred = z - mean
-            cov = (centred * w[:, None]).T @ centred
-            cov = INFLATION * 0.5 * (cov + cov.T) + 1e-3 * np.eye(d)
-            n_def = rng.binomial(round_size, DEFENSIVE)
-            if cursor + n_def > len(pool):
-                cursor = 0
-            from_q0 = pool[cursor:cursor + n_def]
-            cursor += n_def
-            z_new = rng.multivariate_normal(mean, cov, size=round_size - n_def)
-            from_gauss = (1 / (1 + np.exp(-z_new)) - SQUEEZE) / (1 - 2 * SQUEEZE)
-            take = np.clip(np.concatenate([from_q0, from_gauss]), 0.0, 1.0)
-            rounds.append((round_size, mean, cov))
+    state = Refinement(observed, proposal_draws, sigma2, budget, round_size, rng, names, checkpoints, n_effective,
+                       tempering=tempering, target_ess_fraction=target_ess_fraction, path=path)
+    while not state.done:
+        started = time.perf_counter()
+        take = state.propose()
         families = simulate(take)
-        u_all = np.concatenate([u_all, take])
-        ll_all = np.concatenate([ll_all, synthetic_loglik(families, observed, sigma2, n_curves)])
-        lq0_all = np.concatenate([lq0_all, proposal_logpdf(take)])
-        with np.errstate(invalid="ignore"):
-            log_q = log_mixture(u_all, lq0_all)
-        # log π_β / q_mix = β·tilt − base (uniform prior: constant): the bridge from q₀ shifts both by log q₀
-        tilt, base = (ll_all - lq0_all, log_q - lq0_all) if path == "amortized" else (ll_all, log_q)
-        beta = next_beta(tilt, base, beta, target_ess_fraction * round_size) if tempering else 1.0
-        logw = _log_weights(tilt, base, beta)
-        betas.append(beta)
-        ess_rounds.append(_ess(logw))
-        spent = (r + 1) * round_size
+        state.update(take, families, proposal_logpdf(take), wall_s=time.perf_counter() - started)
         if progress is not None:
-            progress(spent, n_rounds * round_size)
-        if spent in checkpoints or spent == n_rounds * round_size:
-            summary = summarize_particles(u_all, _normalized(logw), names)
-            summary.update(beta=beta, tempered=beta < 1.0, wall_s=time.perf_counter() - started)
-            if beta < 1.0:
-                summary["note"] = (f"tempered posterior: likelihood to the power beta = {beta:.3g} < 1 "
-                                   + ("(wider than the target)" if path == "prior" else
-                                      "(between the amortized posterior and the target)")
-                                   + "; not the posterior: a larger budget is needed")
-            by_budget[spent] = summary
-    return {"u": u_all, "loglik": ll_all, "weights": _normalized(logw), "summary": by_budget[max(by_budget)],
-            "by_budget": by_budget, "sigma2": sigma2, "n_curves": n_curves, "betas": betas, "ess": ess_rounds,
-            "reached_full_likelihood": beta == 1.0, "path": path if tempering else None}
+            progress(len(state.rounds) * state.round_size, state.n_rounds * state.round_size)
+    return state.result()
 
 
 def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: int = 1):
@@ -272,4 +363,4 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     return simulate
 
 
-__all__ = ["refine", "next_beta", "synthetic_loglik", "summarize_particles", "simulate_on_film", "weighted_quantiles"]
+__all__ = ["Refinement", "refine", "next_beta", "synthetic_loglik", "summarize_particles", "simulate_on_film", "weighted_quantiles"]

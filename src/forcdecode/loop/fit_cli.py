@@ -63,46 +63,85 @@ def observation(path, sample_id, cfg, ms_kA_m):
     return image, family, ms_kA_m * 1e3, None
 
 
-def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None) -> dict:
-    """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict."""
+def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=()):
+    """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
+    σ², ν from the amortized median on 4 disorder realisations. The state carries what later rounds
+    need (``context``: M_s, key, names, the amortized summary) so that each round can run as a job."""
     from ..core.parameters import normalize
     from ..core.streams import stream_rng, stream_seed
-    from .fit import effective_observations, refine, simulate_on_film, summarize_particles
+    from .fit import Refinement, effective_observations, summarize_particles
+    from .posterior_predictive import draws_as_hamiltonians
+    from .simulated import run_tasks
 
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
     draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key))[0]
-    images = np.repeat(np.asarray(image)[None], 256, axis=0)
-
-    def logpdf(u):
-        u = np.atleast_2d(u)
-        out = np.empty(len(u))
-        for s in range(0, len(u), 256):
-            part = u[s:s + 256]
-            out[s:s + len(part)] = est.log_prob(part, images[:len(part)], np.full(len(part), ms_norm))
-        return out
-
-    simulate = simulate_on_film(cfg, names, Ms, est.bounds, key, workers)
     median = np.median(draws, axis=0)
-    # the disorder floor: the amortized median on two realisations (0 is the one every candidate uses)
-    from .simulated import run_tasks
-    from .posterior_predictive import draws_as_hamiltonians
-
+    # the disorder floor: the amortized median on four realisations (0 is the one every candidate uses)
     params = draws_as_hamiltonians(median[None], names, Ms, est.bounds)[0]
     n_real = 4
     floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
     sigma2, nu = effective_observations(floor)
     sigma2 += (2 / 255) ** 2 / 12
+    state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
+                       names, checkpoints=checkpoints, n_effective=nu)
+    state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
+                     "n_effective": nu, "simulations_for_sigma2": n_real,
+                     "amortized": summarize_particles(draws, np.ones(len(draws)), names),
+                     "image_uint8": np.asarray(image, dtype=np.uint8).tolist()}
+    return state
+
+
+def fit_round(state, cfg, est, workers: int = 1) -> None:
+    """One round of the refinement: propose, simulate this film (common random numbers), update."""
+    from .fit import simulate_on_film
+
+    ctx = state.context
+    simulate = simulate_on_film(cfg, state.names, ctx["Ms"], est.bounds, ctx["key"], workers)
     started = time.perf_counter()
-    result = refine(family, simulate, draws, logpdf, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
-                    names, checkpoints=checkpoints, n_effective=nu,
-                    progress=(lambda d, t: log(f"simulated {d}/{t}")) if log else None)
-    amortized = summarize_particles(draws, np.ones(len(draws)), names)
-    return {"names": list(names), "Ms": Ms, "sigma2": sigma2, "n_effective": nu, "simulations_for_sigma2": n_real,
-            "amortized": amortized, "refined_by_budget": {str(b): s for b, s in result["by_budget"].items()},
+    take = state.propose()
+    families = simulate(take)
+    state.update(take, families, _proposal_logpdf(est, state)(take), wall_s=time.perf_counter() - started)
+
+
+def finish_fit(state) -> dict:
+    """fit.json's content (plain values) from a finished refinement state."""
+    ctx = state.context
+    result = state.result()
+    return {"names": ctx["names"], "Ms": ctx["Ms"], "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
+            "simulations_for_sigma2": ctx["simulations_for_sigma2"], "amortized": ctx["amortized"],
+            "refined_by_budget": {str(b): v for b, v in result["by_budget"].items()},
             "betas": result["betas"], "ess_per_round": result["ess"],
-            "reached_full_likelihood": result["reached_full_likelihood"],
-            "wall_s": time.perf_counter() - started}
+            "reached_full_likelihood": result["reached_full_likelihood"], "wall_s": state.wall_s}
+
+
+def _proposal_logpdf(est, state):
+    """log q₀(u) of the amortized posterior at this observation (the image is kept in the state)."""
+    image = np.asarray(state.context["image_uint8"], dtype=np.uint8)
+    ms_norm = state.context["ms_norm"]
+
+    def logpdf(u):
+        u = np.atleast_2d(u)
+        out = np.empty(len(u))
+        images = np.repeat(image[None], min(256, len(u)), axis=0)
+        for s in range(0, len(u), 256):
+            part = u[s:s + 256]
+            out[s:s + len(part)] = est.log_prob(part, images[:len(part)], np.full(len(part), ms_norm))
+        return out
+
+    return logpdf
+
+
+def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None) -> dict:
+    """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
+    The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results)."""
+    state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
+                      seed=seed, key=key, checkpoints=checkpoints)
+    while not state.done:
+        fit_round(state, cfg, est, workers)
+        if log:
+            log(f"simulated {len(state.rounds) * state.round_size}/{state.n_rounds * state.round_size}")
+    return finish_fit(state)
 
 
 def run(args) -> int:
