@@ -24,6 +24,7 @@ include: "workflow/rules/merge.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/learn.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/fit.smk"
 
 
 localrules:

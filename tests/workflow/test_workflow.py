@@ -118,6 +118,19 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert "drew 40 parameter sets" in page and "Figure 5b-c of the paper" in page  # description, captions
     assert "screen_status" in (out / "tables" / "samples.html").read_text()
     assert "<td>K_u</td>" in (out / "tables" / "metrics.html").read_text()
+    # the refinement of one family, one workflow job per round (workflow/rules/fit.smk; posterior tiny)
+    fit_config = tmp_path / "fit.yaml"
+    fit_config.write_text(json.dumps({
+        "posterior": {"epochs": 5, "patience": 2, "draws": 50, "width": 8, "hidden": 8, "transforms": 1},
+        "fit": {"input": "results/dataset.h5", "sample_id": sample, "budget": 4, "round_size": 2, "workers": 1}}))
+    fit_run = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
+                        f"results/fit/dataset_sample{sample}/fit.json", timeout=600)
+    assert fit_run.returncode == 0, fit_run.stdout[-3000:] + fit_run.stderr[-3000:]
+    rounds = sorted(p.name for p in (out / "fit" / f"dataset_sample{sample}").glob("round_*.npz"))
+    assert rounds == ["round_0000.npz", "round_0001.npz", "round_0002.npz"]  # init + one job per round
+    fitted = json.loads((out / "fit" / f"dataset_sample{sample}" / "fit.json").read_text())
+    assert set(fitted["refined_by_budget"]) == {"2", "4"} and len(fitted["betas"]) == 2
+    assert fitted["truth"]["Ms"] > 0  # a dataset sample: its truth travels with the state
     # a finished run has nothing left to do
     again = snakemake(tmp_path, "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr

@@ -16,7 +16,7 @@ validate(config, "../schemas/config.schema.yaml", set_default=True)
 STAGE_SECTIONS = ("learning", "loop")
 # sections that only optional rules read (kept out of config.json and learning.json: changing them
 # reruns only their own rule, passed to it as a parameter)
-OPTION_SECTIONS = ("posterior",)
+OPTION_SECTIONS = ("posterior", "fit")
 RESULTS = config["results_dir"].rstrip("/")
 LEARN_PARAMETERS = config["learning"]["parameters"]
 # Whole screening chunks of `chunk_size` consecutive sample ids, from first_sample_id on: a chunk's
@@ -65,3 +65,21 @@ wildcard_constraints:
     chunk=r"\d{4}",
     part=r"\d{3}",
     parameter="|".join(re.escape(p) for p in LEARN_PARAMETERS),
+
+
+# The refinement of one family (workflow/rules/fit.smk, an option): where its rounds live
+FIT = config["fit"]
+FIT_ROUNDS = FIT["budget"] // FIT["round_size"]
+if FIT["budget"] % FIT["round_size"]:
+    raise ValueError(f"fit.budget ({FIT['budget']}) must be a multiple of fit.round_size ({FIT['round_size']})")
+FIT_NAME = (
+    Path(FIT["input"]).stem + (f"_sample{FIT['sample_id']}" if FIT["sample_id"] is not None else "")
+    if FIT["input"]
+    else "NONE"
+)
+FIT_DIR = f"{RESULTS}/fit/{FIT_NAME}"
+FIT_WHICH = (
+    f"--sample-id {FIT['sample_id']}"
+    if FIT["sample_id"] is not None
+    else (f"--Ms-kA-m {FIT['Ms_kA_m']}" if FIT["Ms_kA_m"] is not None else "")
+)

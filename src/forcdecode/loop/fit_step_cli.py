@@ -24,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sample-id", type=int, help="init: sample of dataset.h5")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, help="init: M_s (kA/m) of a measured file")
     parser.add_argument("--posterior", default="results/posterior/model.pt", help="init, round: the amortized posterior")
-    parser.add_argument("--config", help="init, round: simulation config (default: the shipped config.yaml)")
+    parser.add_argument("--config", help="init, round: simulation config, a YAML config or the workflow's resolved "
+                                         "config.json (default: the shipped config.yaml)")
     parser.add_argument("--budget", type=int, default=200, help="init: simulations in all (default 200)")
     parser.add_argument("--round-size", type=int, default=25, help="init: simulations per round (default 25)")
     parser.add_argument("--seed", type=int, default=0, help="init: seed of the draws and of the proposal rounds")
@@ -60,7 +61,12 @@ def run(args) -> int:
         return 0
     from ..learn.posterior import PosteriorEstimator
 
-    cfg = load_config(args.config or shipped_config("config"))
+    if args.config and str(args.config).endswith(".json"):
+        from ..core.io import read_config
+
+        cfg = read_config(args.config)  # the workflow's resolved config (validated when it was written)
+    else:
+        cfg = load_config(args.config or shipped_config("config"))
     est = PosteriorEstimator.load(args.posterior)
     if args.step == "init":
         need("input", "state")
