@@ -30,4 +30,6 @@ def test_both_heads_learn_the_bar_and_the_ratios_follow():
     assert np.isclose(ratios["weights_ratio"], paper["weights"] / small["weights"])
     assert np.isclose(ratios["mae_difference"], paper["mae"] - small["mae"])
     assert np.isclose(ratios["validation_mae_difference"], paper["validation_mae"] - small["validation_mae"])
-    assert ratios["throughput_ratio"] < 1  # 12 M weights are slower per sample than 0.14 M
+    # the ratio of the rows' throughputs (not a timing claim: a loaded machine can reorder two short runs;
+    # `forcdecode bench learn` measures the speed)
+    assert np.isclose(ratios["throughput_ratio"], paper["samples_per_s"] / small["samples_per_s"])
