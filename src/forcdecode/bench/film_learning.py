@@ -26,7 +26,7 @@ import pandas as pd
 
 from ..core.errors import InputFileError
 from ..core.streams import stream_rng
-from ..learn.scoring import bootstrap_interval, skill
+from ..learn.scoring import skill, skill_interval
 
 
 def _validation_full_set(results_dir, name: str, which: str, seed: int, n_boot: int = 2000) -> tuple[float, list]:
@@ -43,11 +43,13 @@ def _validation_full_set(results_dir, name: str, which: str, seed: int, n_boot: 
         baseline = val["ms_only_prediction"].to_numpy(float)
     else:  # the train median
         baseline = np.full(len(val), float(np.median(table.loc[table["split"] == "train", "target"])))
-    mae = lambda t, q: float(np.mean(np.abs(q - t)))  # noqa: E731
-    value = skill(mae(truth, prediction), mae(truth, baseline))
-    interval = bootstrap_interval(lambda t, q, b: skill(mae(t, q), mae(t, b)), [truth, prediction, baseline],
-                                  stream_rng(seed, "bootstrap", "film_learning", name), n_boot)
-    return value, interval
+    value = skill(float(np.mean(np.abs(prediction - truth))), float(np.mean(np.abs(baseline - truth))))
+    return value, skill_interval(truth, prediction, baseline, stream_rng(seed, "bootstrap", "film_learning", name), n_boot)
+
+
+def _best_trivial(baselines: dict) -> str:
+    """The trivial predictor with the lower MAE: ``ms_only`` (ties included) or ``prior``."""
+    return "ms_only" if baselines.get("ms_only", np.inf) <= baselines.get("prior", np.inf) else "prior"
 
 
 def _cost_per_sample_s(samples: pd.DataFrame) -> tuple[float, str]:
@@ -81,7 +83,7 @@ def run_curves(results_dir) -> dict:
            "scored_on": "validation" if validated else "test", "parameters": {}}
     for name, entry in curves["parameters"].items():
         baselines = (entry["baselines_validation"] if validated else entry.get("baselines")) or {}
-        trivial_name = min((k for k in ("prior", "ms_only") if baselines.get(k) is not None), key=baselines.get)
+        trivial_name = _best_trivial(baselines)
         trivial = float(baselines[trivial_name])
         mae = np.asarray(entry["mae_validation"] if validated else entry["mae"], dtype=float)  # sizes × seeds
         curve_skill = 1.0 - mae / trivial
@@ -89,8 +91,7 @@ def run_curves(results_dir) -> dict:
         # the full training set: skill over the same best trivial predictor with its bootstrap interval
         # over the scored split's samples (the learning-curve points carry only the seeds' spread)
         full = metrics.get(name, {})
-        test_baselines = entry.get("baselines") or {}
-        test_which = "ms_only" if test_baselines.get("ms_only", np.inf) <= test_baselines.get("prior", np.inf) else "prior"
+        test_which = _best_trivial(entry.get("baselines") or {})
         test_skill, test_ci = full.get(f"skill_vs_{test_which}"), full.get(f"skill_vs_{test_which}_ci90")
         if validated:
             full_skill, full_ci = _validation_full_set(results_dir, name, trivial_name, int(config["seed"]))

@@ -102,11 +102,15 @@ def conformal_widening(samples, truth, levels) -> dict:
     return out
 
 
+def widen(low, high, widening) -> tuple[np.ndarray, np.ndarray]:
+    """[low − q, high + q] clipped to the normalized support [0, 1]."""
+    widening = np.asarray(widening, dtype=float)
+    return np.clip(np.asarray(low) - widening, 0.0, 1.0), np.clip(np.asarray(high) + widening, 0.0, 1.0)
+
+
 def conformal_intervals(samples, level: float, widening) -> tuple[np.ndarray, np.ndarray]:
     """Central interval at ``level`` widened by ``widening`` (per parameter), clipped to [0, 1]."""
-    low, high = central_intervals(samples, level)
-    widening = np.asarray(widening, dtype=float)
-    return np.clip(low - widening, 0.0, 1.0), np.clip(high + widening, 0.0, 1.0)
+    return widen(*central_intervals(samples, level), widening)
 
 
 def conformal_coverage(samples, truth, widening_by_level: dict) -> dict:

@@ -473,6 +473,8 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     summary = summarize(draws, est.names, est.bounds)
     result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws),
               "ood": ood_check(est, np.asarray(image_uint8), [ms_norm])}
+    from .calibration import widen
+
     widening = (est.metadata.get("conformal") or {}).get("widening", {})
     for name, row in summary["parameters"].items():
         result[name] = {"value": row["median_value"], "normalized": row["median"], "mean_normalized": row["mean"],
@@ -482,7 +484,7 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
             q = widening.get(tag, {}).get(name)
             if q is None:
                 continue
-            lo, hi = (float(np.clip(row[f"interval_{tag}"][0] - q, 0, 1)), float(np.clip(row[f"interval_{tag}"][1] + q, 0, 1)))
+            lo, hi = (float(v) for v in widen(*row[f"interval_{tag}"], q))
             result[name][f"interval_{tag}_conformal_normalized"] = [lo, hi]
             result[name][f"interval_{tag}_conformal"] = [float(denormalize(name, lo, est.bounds)),
                                                          float(denormalize(name, hi, est.bounds))]

@@ -74,6 +74,13 @@ def skill(mae: float, baseline_mae: float) -> float:
     return 1.0 - mae / baseline_mae if baseline_mae > 0 else float("nan")
 
 
+def skill_interval(truth, prediction, baseline, rng, n_boot: int = 2000, level: float = 0.9) -> list[float]:
+    """Paired percentile-bootstrap interval of the skill 1 − MAE(prediction) / MAE(baseline) (the same
+    resamples for the model and its baseline)."""
+    return bootstrap_interval(lambda t, p, b: skill(_mae(t, p), _mae(t, b)), [truth, prediction, baseline],
+                              rng, n_boot, level)
+
+
 def accuracy_with_intervals(truth, prediction, ms_only, prior, covered_90, rng, n_boot: int = 2000) -> dict:
     """MAE, Pearson r, skill over the M_s-only and prior baselines and the 90 % coverage, each with a
     bootstrap 90 % interval over the test samples (paired: the same resamples for a model and its
@@ -86,11 +93,9 @@ def accuracy_with_intervals(truth, prediction, ms_only, prior, covered_90, rng, 
         "mae": mae, "mae_ci90": bootstrap_interval(_mae, [truth, prediction], rng, n_boot),
         "pearson_r": pearson(truth, prediction), "r_ci90": bootstrap_interval(pearson, [truth, prediction], rng, n_boot),
         "skill_vs_ms_only": skill(mae, mae_ms),
-        "skill_vs_ms_only_ci90": bootstrap_interval(lambda t, p, b: skill(_mae(t, p), _mae(t, b)),
-                                                    [truth, prediction, ms_only], rng, n_boot),
+        "skill_vs_ms_only_ci90": skill_interval(truth, prediction, ms_only, rng, n_boot),
         "skill_vs_prior": skill(mae, mae_prior),
-        "skill_vs_prior_ci90": bootstrap_interval(lambda t, p, b: skill(_mae(t, p), _mae(t, b)),
-                                                  [truth, prediction, prior], rng, n_boot),
+        "skill_vs_prior_ci90": skill_interval(truth, prediction, prior, rng, n_boot),
         "coverage_90": float(covered.mean()) if covered.size else float("nan"),
         "coverage_90_ci90": bootstrap_interval(lambda c: float(c.mean()), [covered], rng, n_boot),
     }

@@ -63,6 +63,11 @@ def observation(path, sample_id, cfg, ms_kA_m):
     return image, family, ms_kA_m * 1e3, None
 
 
+def family_key(label: str) -> int:
+    """The disorder key of a refinement (common random numbers) from a label naming its family."""
+    return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
+
+
 def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=()):
     """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
     σ², ν from the amortized median on 4 disorder realisations. The state carries what later rounds
@@ -155,7 +160,7 @@ def run(args) -> int:
     cfg = load_config(args.config or shipped_config("config"))
     est = PosteriorEstimator.load(args.posterior)
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
-    key = int(hashlib.sha1(f"{Path(args.input).name}:{args.sample_id}".encode()).hexdigest()[:8], 16)
+    key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     result = fit_one(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                      workers=args.workers, seed=args.seed, key=key,
                      checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),

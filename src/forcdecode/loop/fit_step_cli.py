@@ -12,7 +12,6 @@ rounds give exactly what ``forcdecode fit`` gives in one process.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import time
 from pathlib import Path
 
@@ -41,7 +40,7 @@ def run(args) -> int:
     from ..core.errors import ConfigError
     from ..core.io import write_json
     from .fit import Refinement
-    from .fit_cli import finish_fit, fit_round, observation, start_fit
+    from .fit_cli import family_key, finish_fit, fit_round, observation, start_fit
 
     def need(*names):
         missing = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) in (None, "")]
@@ -73,7 +72,7 @@ def run(args) -> int:
         if args.budget < args.round_size or args.round_size < 2:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
-        key = int(hashlib.sha1(f"{Path(args.input).name}:{args.sample_id}".encode()).hexdigest()[:8], 16)
+        key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                           workers=args.workers, seed=args.seed, key=key,
                           checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)))

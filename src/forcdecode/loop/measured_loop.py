@@ -86,13 +86,11 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log)
     """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood."""
-    import hashlib
-
     from ..core.parameters import denormalize
-    from .fit_cli import fit_one
+    from .fit_cli import family_key, fit_one
     from .posterior_predictive import draws_as_hamiltonians
 
-    key = int(hashlib.sha1(f"{Path(path).name}:refine".encode()).hexdigest()[:8], 16)
+    key = family_key(f"{Path(path).name}:refine")
     result = fit_one(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
                      seed=int(cfg.get("seed", 0)), key=key, log=log)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
