@@ -11,10 +11,12 @@ synthetic Gaussian likelihood in observation space:
     log L(u) = −½ · n_curves · MSE(u) / σ²,
 
 with MSE(u) the mean square difference, over every FORC point (H ≥ H_r), between the family simulated
-at u and the observed one, σ² the variance a new disorder realisation alone causes and ν the number
-of independent observations a family carries, both measured from a few disorder realisations of the
-amortized posterior median (``effective_observations``; plus the 8-bit quantization step²/12 in σ²):
-a candidate as close as the truth on new disorder scores like the truth. (Counting every curve as
+at u and the observed one; σ² the variance of that difference at the true parameters, which is
+twice the variance one disorder realisation causes (the candidate's realisation and the
+observation's are two independent ones: ``difference_variance``), and ν the number of independent
+observations a family carries, both measured from a few disorder realisations of the amortized
+posterior median (``effective_observations``): a candidate as close as the truth on new disorder
+scores like the truth. (Counting every curve as
 independent, ν = 64, made the weights collapse to one particle on the laptop film: its curves share
 one disorder realisation.)
 
@@ -114,6 +116,20 @@ def effective_observations(families) -> tuple[float, float]:
     var = float(pairs.var(ddof=1)) if len(pairs) > 1 else 0.0
     nu = 2 * pairs.mean() ** 2 / var if var > 0 else float(fams.shape[1])
     return sigma2, float(np.clip(nu, 1.0, fams.shape[1]))
+
+
+def difference_variance(realisations, quantization_step: float = 0.0) -> tuple[float, float]:
+    """(variance of one point of candidate − observation, ν) for the synthetic likelihood, from R ≥ 3
+    disorder realisations of one Hamiltonian (``effective_observations``).
+
+    With common random numbers every candidate is simulated on one realisation, the observation is
+    another: at the true parameters the two still differ by two independent realisations, so the
+    per-point variance of the difference is 2σ², not σ². (Using σ² made the likelihood twice as sharp
+    in log: the 90 % intervals of a linear-Gaussian problem then hold the truth 75 % of the time;
+    ``tests/loop/test_fit.py`` measures it.) ``quantization_step``: the observation's digitization
+    step (e.g. 2/255 for an 8-bit image of m ∈ [−1, 1]), adding step²/12 once."""
+    sigma2, nu = effective_observations(realisations)
+    return 2.0 * sigma2 + quantization_step ** 2 / 12, nu
 
 
 def _log_weights(loglik, log_q, beta: float) -> np.ndarray:
@@ -363,4 +379,4 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     return simulate
 
 
-__all__ = ["Refinement", "refine", "next_beta", "synthetic_loglik", "summarize_particles", "simulate_on_film", "weighted_quantiles"]
+__all__ = ["Refinement", "refine", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "simulate_on_film", "weighted_quantiles"]

@@ -70,11 +70,12 @@ def family_key(label: str) -> int:
 
 def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=()):
     """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
-    σ², ν from the amortized median on 4 disorder realisations. The state carries what later rounds
+    σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
+    realisations. The state carries what later rounds
     need (``context``: M_s, key, names, the amortized summary) so that each round can run as a job."""
     from ..core.parameters import normalize
     from ..core.streams import stream_rng, stream_seed
-    from .fit import Refinement, effective_observations, summarize_particles
+    from .fit import Refinement, difference_variance, summarize_particles
     from .posterior_predictive import draws_as_hamiltonians
     from .simulated import run_tasks
 
@@ -86,8 +87,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     params = draws_as_hamiltonians(median[None], names, Ms, est.bounds)[0]
     n_real = 4
     floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
-    sigma2, nu = effective_observations(floor)
-    sigma2 += (2 / 255) ** 2 / 12
+    sigma2, nu = difference_variance(floor, quantization_step=2 / 255)
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
                        names, checkpoints=checkpoints, n_effective=nu)
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
