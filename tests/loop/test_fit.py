@@ -178,6 +178,32 @@ def test_a_state_saved_and_loaded_between_rounds_continues_exactly(tmp_path):
         state.propose()
 
 
+def test_a_saved_run_extended_to_a_larger_budget_equals_the_longer_run(tmp_path):
+    """A budget-100 run saved, loaded and extended to 200 (``Refinement.extend``: what ``bench fit``
+    does when a larger budget is asked of a family already refined) gives the budget-200 run exactly."""
+    from forcdecode.loop.fit import Refinement
+
+    truth, observed, draws, whole = run(7, budget=200)
+    rng = np.random.default_rng(7)
+    rng.uniform(0.2, 0.8, 2), rng.normal(size=(20, 1))
+    _, logpdf = proposal(truth, rng)
+    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), checkpoints=(50, 100))
+    path = tmp_path / "state.npz"
+    for budget in (100, 200):
+        state.extend(budget)
+        while not state.done:
+            take = state.propose()
+            state.update(take, forward(take), logpdf(take))
+        state.save(path)
+        state = Refinement.load(path)
+    result = state.result()
+    assert np.array_equal(result["u"], whole["u"]) and result["betas"] == whole["betas"]
+    for b in (50, 100, 200):
+        assert result["by_budget"][b]["parameters"] == whole["by_budget"][b]["parameters"]
+    with pytest.raises(ConfigError, match="not a multiple"):
+        state.extend(210)
+
+
 def test_a_file_that_is_not_a_state_is_named(tmp_path):
     from forcdecode.core.errors import InputFileError
     from forcdecode.loop.fit import Refinement

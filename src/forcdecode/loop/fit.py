@@ -199,6 +199,14 @@ class Refinement:
         self.by_budget, self.wall_s, self.logw = {}, 0.0, np.zeros(0)
         self.context = {}  # plain values the caller keeps with the state (saved with it)
 
+    def extend(self, budget: int, checkpoints=()) -> None:
+        """Raise the budget (never lower it) and add checkpoints: the rounds already run are the first
+        rounds of the longer run, so its result is the one a run with that budget from the start gives."""
+        if budget % self.round_size:
+            raise ConfigError(f"budget {budget} is not a multiple of the round size {self.round_size}")
+        self.budget = max(self.budget, int(budget))
+        self.checkpoints = tuple(sorted(set(self.checkpoints) | {int(c) for c in checkpoints}))
+
     @property
     def n_rounds(self) -> int:
         return self.budget // self.round_size

@@ -137,13 +137,27 @@ def _proposal_logpdf(est, state):
     return logpdf
 
 
-def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None) -> dict:
+def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
+            state_path=None) -> dict:
     """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
-    The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results)."""
-    state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                      seed=seed, key=key, checkpoints=checkpoints)
+    The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
+    ``state_path``: the state (every particle) is saved there after each round; a run that stops
+    resumes from it."""
+    from ..core.errors import ConfigError
+    from .fit import Refinement
+
+    if state_path is not None and Path(state_path).exists():
+        state = Refinement.load(state_path)
+        if state.round_size != round_size:
+            raise ConfigError(f"{state_path}: saved with rounds of {state.round_size}, asked for {round_size}")
+        state.extend(budget, checkpoints)  # nested rounds: a longer budget continues the saved run
+    else:
+        state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
+                          seed=seed, key=key, checkpoints=checkpoints)
     while not state.done:
         fit_round(state, cfg, est, workers)
+        if state_path is not None:
+            state.save(state_path)
         if log:
             log(f"simulated {len(state.rounds) * state.round_size}/{state.n_rounds * state.round_size}")
     return finish_fit(state)
