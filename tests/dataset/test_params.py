@@ -76,3 +76,39 @@ def test_a_sample_that_cannot_be_simulated_is_recorded_not_raised():
     result = simulate(cfg, params, 0)
     assert result["status"] == "failed" and "Ms" in result["reason"]
     json.dumps({k: v for k, v in row.items() if k != "traceback"})  # serializable for the table
+
+
+@pytest.mark.parametrize("Ms", [3e5, 8e5, 1.3e6])  # A_ex: the exchange-length branch; both; the fallback
+def test_draw_density_matches_the_draws(Ms):
+    """``draw_log_density`` against 20,000 draws at a fixed M_s: the probability of each of 25 bins
+    (the density integrated by the midpoint rule on 40 sub-points) against the counts, χ² p > 0.001
+    for A_ex | M_s and K_u; the density integrates to 1. Dropping the fallback term of A_ex (or the
+    branch) fails at 8e5 and 1.3e6 A/m."""
+    from scipy.stats import chisquare
+
+    from forcdecode.dataset.params import draw_log_density
+
+    bounds = {"Ms": (Ms, Ms)}
+    draws = [draw_parameters(11, i, bounds) for i in range(20_000)]
+    for name in ("A_ex", "K_u"):
+        u = np.array([normalize(name, d[name]) for d in draws])
+        edges = np.linspace(0, 1, 26)
+        counts = np.histogram(u, bins=edges)[0]
+        fine = (np.arange(25 * 40) + 0.5) / (25 * 40)
+        density = np.exp(draw_log_density(fine[:, None], (name,), Ms))
+        probs = density.reshape(25, 40).mean(axis=1) / 25
+        assert probs.sum() == pytest.approx(1.0, abs=0.01)
+        expected = probs / probs.sum() * counts.sum()
+        keep = expected > 5
+        assert counts[~keep].sum() <= 10  # nothing drawn where the density says there is nothing
+        stat = chisquare(counts[keep], expected[keep] * counts[keep].sum() / expected[keep].sum())
+        assert stat.pvalue > 1e-3, (name, Ms, stat)
+
+
+def test_draw_density_is_minus_infinity_outside_the_box():
+    from forcdecode.dataset.params import draw_log_density
+
+    logp = draw_log_density(np.array([[0.5, 0.5], [1.2, 0.5], [0.5, -0.1]]), ("D", "K_u"), 8e5)
+    assert np.isfinite(logp[0]) and np.isneginf(logp[1:]).all()
+    with pytest.raises(KeyError, match="no draw density"):
+        draw_log_density(np.array([[0.5]]), ("Ms",), 8e5)

@@ -53,6 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--round-size", type=int, default=25, help="fit: simulations per round")
     fit.add_argument("--fit-workers", type=int, default=2, help="fit: processes simulating in parallel")
     fit.add_argument("--fit-dir", default="results/bench/fit", help="fit: one fit.json per family (resumable)")
+    fit.add_argument("--prior", choices=["draw", "uniform"], default="draw",
+                     help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
@@ -267,7 +269,7 @@ def _bench_fit(args, say) -> int:
                 result = fit_one(cfg, est, data.images[k], h5["curves_mz"][k].astype(float), float(data.values["Ms"][k]),
                                  budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
                                  seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
-                                 state_path=f"{args.fit_dir}/state_{sid}.npz")
+                                 state_path=f"{args.fit_dir}/state_{sid}.npz", prior=args.prior)
                 result["truth_normalized"] = {p: float(np.clip(normalize(p, data.values[p][k], data.bounds), 0, 1))
                                               for p in result["names"]}
                 write_json(path, result)
@@ -276,7 +278,7 @@ def _bench_fit(args, say) -> int:
     err = lambda summary, r, p: abs(summary["parameters"][p]["median"] - r["truth_normalized"][p])  # noqa: E731
     inside = lambda summary, r, p: (summary["parameters"][p]["interval_90"][0] <= r["truth_normalized"][p]  # noqa: E731
                                     <= summary["parameters"][p]["interval_90"][1])
-    out = {"split": args.split, "families": len(rows), "sample_ids": [int(data.sample_id[k]) for k in chosen], "budgets": budgets,
+    out = {"split": args.split, "prior": args.prior, "families": len(rows), "sample_ids": [int(data.sample_id[k]) for k in chosen], "budgets": budgets,
            "mae_amortized": {p: float(np.mean([err(r["amortized"], r, p) for r in rows])) for p in names},
            "mae_refined": {str(b): {p: float(np.mean([err(r["refined_by_budget"][str(b)], r, p) for r in rows]))
                                     for p in names} for b in budgets},

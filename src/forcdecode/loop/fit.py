@@ -5,8 +5,11 @@ Why this and not sequential NPE: with budgets of 50–500 simulations in a 6-par
 neural density estimator retrained per round has far too few samples to learn a conditional
 density, while importance sampling is exact in the limit and its error is visible (the effective
 sample size). The amortized posterior q₀(u | x_o) is the first proposal; the target is
-π(u) ∝ p(u) L(u), p uniform on the normalized box [0, 1]⁶ (the prior of the dataset draws) and L a
-synthetic Gaussian likelihood in observation space:
+π(u) ∝ p(u | M_s) L(u), p the prior the dataset was drawn from given the film's M_s
+(``dataset.params.draw_log_density``: far from uniform — A_ex follows M_s through the exchange
+length, ln K_u is triangular; a uniform box prior, used before, threw that knowledge away and the
+refined A_ex was worse than the amortized one) and L a synthetic Gaussian likelihood in observation
+space:
 
     log L(u) = −½ · n_curves · MSE(u) / σ²,
 
@@ -193,7 +196,7 @@ class Refinement:
         self.sigma2, self.budget, self.round_size, self.rng = float(sigma2), int(budget), int(round_size), rng
         self.names, self.checkpoints = tuple(names), tuple(int(c) for c in checkpoints)
         self.tempering, self.target_ess_fraction, self.path = bool(tempering), float(target_ess_fraction), path
-        self.u, self.loglik, self.log_q0 = np.zeros((0, d)), np.zeros(0), np.zeros(0)
+        self.u, self.loglik, self.log_q0, self.log_prior = np.zeros((0, d)), np.zeros(0), np.zeros(0), np.zeros(0)
         self.rounds = []  # (size, mean_z, cov_z); mean None: the round drew from q₀
         self.cursor, self.beta, self.betas, self.ess = 0, 0.0, [], []
         self.by_budget, self.wall_s, self.logw = {}, 0.0, np.zeros(0)
@@ -254,17 +257,21 @@ class Refinement:
         self.rounds.append((size, mean, cov))
         return np.clip(np.concatenate([from_q0, from_gauss]), 0.0, 1.0)
 
-    def update(self, take, families, log_q0, wall_s: float = 0.0) -> None:
-        """Add the round's candidates with their simulated families and log q₀; raise β; summarize at
-        checkpoints (``wall_s``: the round's time, accumulated into the summaries' ``wall_s``)."""
+    def update(self, take, families, log_q0, wall_s: float = 0.0, log_prior=None) -> None:
+        """Add the round's candidates with their simulated families, log q₀ and log prior (None: the
+        uniform box, 0); raise β; summarize at checkpoints (``wall_s``: the round's time, accumulated
+        into the summaries' ``wall_s``)."""
         self.u = np.concatenate([self.u, take])
         self.loglik = np.concatenate([self.loglik, synthetic_loglik(families, self.observed, self.sigma2, self.n_curves)])
         self.log_q0 = np.concatenate([self.log_q0, np.asarray(log_q0, float)])
+        self.log_prior = np.concatenate([self.log_prior, np.zeros(len(take)) if log_prior is None
+                                         else np.asarray(log_prior, float)])
         with np.errstate(invalid="ignore"):
             log_q = self._log_mixture(self.u, self.log_q0)
-        # log π_β / q_mix = β·tilt − base (uniform prior: constant): the bridge from q₀ shifts both by log q₀
-        tilt, base = ((self.loglik - self.log_q0, log_q - self.log_q0) if self.path == "amortized"
-                      else (self.loglik, log_q))
+        # log π_β / q_mix = β·tilt − base: the bridge from q₀ shifts both by log q₀
+        with np.errstate(invalid="ignore"):
+            tilt, base = ((self.loglik + self.log_prior - self.log_q0, log_q - self.log_q0) if self.path == "amortized"
+                          else (self.loglik, log_q - self.log_prior))
         self.beta = (next_beta(tilt, base, self.beta, self.target_ess_fraction * self.round_size)
                      if self.tempering else 1.0)
         self.logw = _log_weights(tilt, base, self.beta)
@@ -306,7 +313,7 @@ class Refinement:
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as handle:
                 np.savez(handle, observed=self.observed, pool=self.pool, u=self.u, loglik=self.loglik,
-                         log_q0=self.log_q0, logw=self.logw, means=means, covs=covs,
+                         log_q0=self.log_q0, log_prior=self.log_prior, logw=self.logw, means=means, covs=covs,
                          meta=np.array(json.dumps(meta)))
 
     @classmethod
@@ -327,6 +334,7 @@ class Refinement:
                     meta["names"], meta["checkpoints"], meta["n_curves"], tempering=meta["tempering"],
                     target_ess_fraction=meta["target_ess_fraction"], path=meta["path"])
         state.u, state.loglik, state.log_q0, state.logw = arrays["u"], arrays["loglik"], arrays["log_q0"], arrays["logw"]
+        state.log_prior = arrays.get("log_prior", np.zeros(len(state.u)))
         state.rounds = [(size, None if np.isnan(m).all() else m, None if np.isnan(c).all() else c)
                         for size, m, c in zip(meta["round_sizes"], arrays["means"], arrays["covs"])]
         state.cursor, state.beta, state.betas, state.ess = meta["cursor"], meta["beta"], meta["betas"], meta["ess"]
@@ -338,7 +346,8 @@ class Refinement:
 
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
            rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None, *,
-           tempering: bool = True, target_ess_fraction: float = 0.3, path: str = "amortized") -> dict:
+           tempering: bool = True, target_ess_fraction: float = 0.3, path: str = "amortized",
+           prior_logpdf=None) -> dict:
     """Tempered population Monte Carlo for one observation (see the module docstring).
 
     ``proposal_draws`` (m, d): draws of the amortized posterior q₀ in u ∈ [0, 1]^d (round 1 takes the
@@ -359,7 +368,8 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
         started = time.perf_counter()
         take = state.propose()
         families = simulate(take)
-        state.update(take, families, proposal_logpdf(take), wall_s=time.perf_counter() - started)
+        state.update(take, families, proposal_logpdf(take), wall_s=time.perf_counter() - started,
+                     log_prior=None if prior_logpdf is None else prior_logpdf(take))
         if progress is not None:
             progress(len(state.rounds) * state.round_size, state.n_rounds * state.round_size)
     return state.result()

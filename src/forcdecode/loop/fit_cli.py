@@ -29,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-size", type=int, default=25, help="simulations per round (default 25)")
     parser.add_argument("--workers", type=int, default=1, help="processes simulating in parallel")
     parser.add_argument("--seed", type=int, default=0, help="seed of the draws and of the proposal rounds")
+    parser.add_argument("--prior", choices=("draw", "uniform"), default="draw",
+                        help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
     parser.add_argument("--out", required=True, help="output directory (fit.json)")
 
 
@@ -68,11 +70,20 @@ def family_key(label: str) -> int:
     return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
 
 
-def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=()):
+PRIORS = ("draw", "uniform")
+
+
+def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), prior="draw"):
     """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
     σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
     realisations. The state carries what later rounds
-    need (``context``: M_s, key, names, the amortized summary) so that each round can run as a job."""
+    need (``context``: M_s, key, names, the amortized summary, the prior) so that each round can run as a
+    job. ``prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
+    or "uniform" on the normalized box (the former target, kept for comparison)."""
+    from ..core.errors import ConfigError
+
+    if prior not in PRIORS:
+        raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
     from ..core.parameters import normalize
     from ..core.streams import stream_rng, stream_seed
     from .fit import Refinement, difference_variance, summarize_particles
@@ -91,6 +102,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
                        names, checkpoints=checkpoints, n_effective=nu)
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
+                     "prior": prior,
                      "n_effective": nu, "simulations_for_sigma2": n_real,
                      "amortized": summarize_particles(draws, np.ones(len(draws)), names),
                      "image_uint8": np.asarray(image, dtype=np.uint8).tolist()}
@@ -106,14 +118,25 @@ def fit_round(state, cfg, est, workers: int = 1) -> None:
     started = time.perf_counter()
     take = state.propose()
     families = simulate(take)
-    state.update(take, families, _proposal_logpdf(est, state)(take), wall_s=time.perf_counter() - started)
+    state.update(take, families, _proposal_logpdf(est, state)(take), wall_s=time.perf_counter() - started,
+                 log_prior=prior_logpdf(state, est.bounds)(take))
+
+
+def prior_logpdf(state, bounds):
+    """log p(u) of the refinement's prior (the state's ``context["prior"]``; older states: uniform)."""
+    from ..dataset.params import draw_log_density
+
+    ctx = state.context
+    if ctx.get("prior", "uniform") == "uniform":
+        return lambda u: np.zeros(len(np.atleast_2d(u)))
+    return lambda u: draw_log_density(u, state.names, ctx["Ms"], bounds)
 
 
 def finish_fit(state) -> dict:
     """fit.json's content (plain values) from a finished refinement state."""
     ctx = state.context
     result = state.result()
-    return {"names": ctx["names"], "Ms": ctx["Ms"], "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
+    return {"names": ctx["names"], "Ms": ctx["Ms"], "prior": ctx.get("prior", "uniform"), "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
             "simulations_for_sigma2": ctx["simulations_for_sigma2"], "amortized": ctx["amortized"],
             "refined_by_budget": {str(b): v for b, v in result["by_budget"].items()},
             "betas": result["betas"], "ess_per_round": result["ess"],
@@ -138,7 +161,7 @@ def _proposal_logpdf(est, state):
 
 
 def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
-            state_path=None) -> dict:
+            state_path=None, prior="draw") -> dict:
     """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
     The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
     ``state_path``: the state (every particle) is saved there after each round; a run that stops
@@ -153,7 +176,7 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
         state.extend(budget, checkpoints)  # nested rounds: a longer budget continues the saved run
     else:
         state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                          seed=seed, key=key, checkpoints=checkpoints)
+                          seed=seed, key=key, checkpoints=checkpoints, prior=prior)
     while not state.done:
         fit_round(state, cfg, est, workers)
         if state_path is not None:
@@ -176,7 +199,7 @@ def run(args) -> int:
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     result = fit_one(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                     workers=args.workers, seed=args.seed, key=key,
+                     workers=args.workers, seed=args.seed, key=key, prior=args.prior,
                      checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
                      log=lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True))
     result["truth"] = truth
