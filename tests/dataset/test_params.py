@@ -112,3 +112,17 @@ def test_draw_density_is_minus_infinity_outside_the_box():
     assert np.isfinite(logp[0]) and np.isneginf(logp[1:]).all()
     with pytest.raises(KeyError, match="no draw density"):
         draw_log_density(np.array([[0.5]]), ("Ms",), 8e5)
+
+
+def test_draw_prior_quantiles_are_the_draws_quantiles():
+    """The draw prior's median and 5/95 % quantiles of A_ex | M_s and K_u against 20,000 draws at a
+    fixed M_s (within 0.01 in u); K_u's median is the closed form 1/√2 of p(u) = 2u."""
+    from forcdecode.dataset.params import draw_prior_quantiles
+
+    Ms = 8e5
+    draws = [draw_parameters(12, i, {"Ms": (Ms, Ms)}) for i in range(20_000)]
+    for name in ("A_ex", "K_u"):
+        u = np.array([normalize(name, d[name]) for d in draws])
+        assert np.allclose(draw_prior_quantiles(name, Ms, [0.05, 0.5, 0.95]), np.quantile(u, [0.05, 0.5, 0.95]),
+                           atol=0.01)
+    assert draw_prior_quantiles("K_u", Ms, [0.5])[0] == pytest.approx(2**-0.5, abs=1e-3)

@@ -264,6 +264,9 @@ def _bench_fit(args, say) -> int:
             sid = int(data.sample_id[k])
             path = f"{args.fit_dir}/sample_{sid}.json"
             result = read_json(path, what="fit result") if os.path.exists(path) else None
+            if result is not None and result.get("prior", "uniform") != args.prior:
+                raise ConfigError(f"{path} was refined with the {result.get('prior', 'uniform')} prior, not "
+                                  f"--prior {args.prior}: use another --fit-dir")
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
                 say(f"family {n}/{len(chosen)} (sample {sid}): budget {budgets[-1]}")
                 result = fit_one(cfg, est, data.images[k], h5["curves_mz"][k].astype(float), float(data.values["Ms"][k]),
@@ -274,25 +277,12 @@ def _bench_fit(args, say) -> int:
                                               for p in result["names"]}
                 write_json(path, result)
             rows.append(result)
-    names = rows[0]["names"]
-    err = lambda summary, r, p: abs(summary["parameters"][p]["median"] - r["truth_normalized"][p])  # noqa: E731
-    inside = lambda summary, r, p: (summary["parameters"][p]["interval_90"][0] <= r["truth_normalized"][p]  # noqa: E731
-                                    <= summary["parameters"][p]["interval_90"][1])
-    out = {"split": args.split, "prior": args.prior, "families": len(rows), "sample_ids": [int(data.sample_id[k]) for k in chosen], "budgets": budgets,
-           "mae_amortized": {p: float(np.mean([err(r["amortized"], r, p) for r in rows])) for p in names},
-           "mae_refined": {str(b): {p: float(np.mean([err(r["refined_by_budget"][str(b)], r, p) for r in rows]))
-                                    for p in names} for b in budgets},
-           "coverage_refined": {str(b): {p: float(np.mean([inside(r["refined_by_budget"][str(b)], r, p) for r in rows]))
-                                         for p in names} for b in budgets},
-           "coverage_amortized": {p: float(np.mean([inside(r["amortized"], r, p) for r in rows])) for p in names},
-           "ess": {str(b): float(np.mean([r["refined_by_budget"][str(b)]["ess"] for r in rows])) for b in budgets},
-           "wall_s": {str(b): float(np.mean([r["refined_by_budget"][str(b)]["wall_s"] for r in rows])) for b in budgets}}
-    say(f"{'parameter':16s} {'amortized':>10s} " + " ".join(f"{'refined ' + str(b):>12s}" for b in budgets))
-    for p in names:
-        say(f"{p:16s} {out['mae_amortized'][p]:10.3f} " + " ".join(f"{out['mae_refined'][str(b)][p]:12.3f}" for b in budgets))
-    say("coverage of the refined 90 % intervals: " + "; ".join(
-        f"{b}: " + ", ".join(f"{p} {out['coverage_refined'][str(b)][p]:.2f}" for p in names) for b in budgets))
-    say("mean wall time per family: " + ", ".join(f"{b} simulations {out['wall_s'][str(b)]:.0f} s" for b in budgets))
+    from .fit import fit_summary, summary_lines
+
+    out = {"split": args.split, "prior": args.prior, "sample_ids": [int(data.sample_id[k]) for k in chosen],
+           **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
+    for line in summary_lines(out):
+        say(line)
     write_json(f"{args.fit_dir}/summary.json", out)
     print(json.dumps(out))
     return 0

@@ -93,5 +93,16 @@ def draw_log_density(u, names, Ms: float, bounds=None, exchange_length_nm=(10.0,
     return np.where(inside, out, -np.inf)
 
 
+def draw_prior_quantiles(name: str, Ms: float, qs, bounds=None, grid: int = 4001) -> np.ndarray:
+    """Quantiles (normalized u) of one parameter's draw prior given M_s: the density of
+    :func:`draw_log_density` is a product over parameters, so each marginal is its own factor
+    (integrated on ``grid`` midpoints). The median is the trivial predictor that reads M_s alone."""
+    mid = (np.arange(grid) + 0.5) / grid
+    density = np.exp(draw_log_density(mid[:, None], (name,), Ms, bounds))
+    cdf = np.concatenate([[0.0], np.cumsum(density)])
+    cdf /= cdf[-1]
+    return np.interp(np.asarray(qs, float), cdf, np.linspace(0.0, 1.0, grid + 1))
+
+
 __all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "draw_log_density",
-           "normalize", "denormalize"]
+           "draw_prior_quantiles", "normalize", "denormalize"]
