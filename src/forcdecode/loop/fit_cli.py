@@ -132,6 +132,25 @@ def prior_logpdf(state, bounds):
     return lambda u: draw_log_density(u, state.names, ctx["Ms"], bounds)
 
 
+def observation_rms(state) -> dict:
+    """The posterior-predictive check the particles give for free: each candidate's observation RMS
+    against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the
+    common disorder realisation) over the floor √σ² (the RMS the true Hamiltonian reaches on another
+    realisation). ``amortized``: median over round 1 (draws of the amortized posterior);
+    ``refined``: weighted median over every particle at the final β."""
+    from .fit import _normalized, weighted_quantiles
+
+    ok = np.isfinite(state.loglik)
+    ratio = np.sqrt(np.clip(-2.0 * state.loglik[ok] * state.sigma2 / state.n_curves, 0, None)) / np.sqrt(state.sigma2)
+    first = np.zeros(len(state.loglik), bool)
+    first[: state.round_size] = True
+    weights = _normalized(state.logw)[ok]
+    return {"floor_rms": float(np.sqrt(state.sigma2)),
+            "amortized_over_floor": float(np.median(ratio[first[ok]])) if first[ok].any() else float("nan"),
+            "refined_over_floor": float(weighted_quantiles(ratio, weights, [0.5])[0]) if weights.sum() > 0
+            else float("nan")}
+
+
 def finish_fit(state) -> dict:
     """fit.json's content (plain values) from a finished refinement state."""
     ctx = state.context
@@ -140,7 +159,8 @@ def finish_fit(state) -> dict:
             "simulations_for_sigma2": ctx["simulations_for_sigma2"], "amortized": ctx["amortized"],
             "refined_by_budget": {str(b): v for b, v in result["by_budget"].items()},
             "betas": result["betas"], "ess_per_round": result["ess"],
-            "reached_full_likelihood": result["reached_full_likelihood"], "wall_s": state.wall_s}
+            "reached_full_likelihood": result["reached_full_likelihood"], "wall_s": state.wall_s,
+            "observation_rms": observation_rms(state)}
 
 
 def _proposal_logpdf(est, state):
