@@ -9,7 +9,7 @@ from forcdecode.bench.fit import fit_summary, summary_lines
 def row(truth, amortized, refined, lo_hi, Ms=8e5):
     summary = lambda m, iv: {"parameters": {"K_u": {"median": m, "interval_90": list(iv)}}, "ess": 10.0,  # noqa: E731
                              "wall_s": 5.0, "tempered": False}
-    return {"names": ["K_u"], "Ms": Ms, "truth_normalized": {"K_u": truth},
+    return {"names": ["K_u"], "Ms": Ms, "observation_rms": {"amortized_over_floor": 3.0, "refined_over_floor": 1.0}, "truth_normalized": {"K_u": truth},
             "amortized": summary(amortized, (0.0, 1.0)), "refined_by_budget": {"50": summary(refined, lo_hi)}}
 
 
@@ -28,3 +28,4 @@ def test_a_refinement_that_halves_every_error_is_scored_as_better():
     # the M_s-only predictor: K_u's draw prior p(u) = 2u has its median at 1/√2 whatever M_s
     assert out["mae_prior"]["K_u"] == pytest.approx(np.mean(np.abs(2**-0.5 - truths)), abs=1e-3)
     assert any("beta = 1 in 12 of 12" in line for line in summary_lines(out))
+    assert out["observation_rms_over_floor"] == {"amortized": [3.0, 3.0, 3.0], "refined": [1.0, 1.0, 1.0]}

@@ -26,7 +26,8 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     """Per parameter: MAE of the amortized median, of the refined median at each budget and of the
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
-    (amortized, refined) and its binomial band; mean ESS and wall time per budget."""
+    (amortized, refined) and its binomial band; mean ESS and wall time per budget; the 10/50/90 %
+    points over families of the observation RMS over the floor (amortized draws, refined particles)."""
     names = rows[0]["names"]
     amortized = lambda r: r["amortized"]  # noqa: E731
     refined = {b: (lambda r, b=b: r["refined_by_budget"][str(b)]) for b in budgets}
@@ -55,6 +56,11 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
         out["ess"][key] = float(np.mean([refined[b](r)["ess"] for r in rows]))
         out["wall_s"][key] = float(np.mean([refined[b](r)["wall_s"] for r in rows]))
         out["reached_full_likelihood"][key] = int(sum(not refined[b](r).get("tempered", False) for r in rows))
+    checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
+    if checks:  # at the final budget of each family's run
+        out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],
+                                                                              [0.1, 0.5, 0.9])]
+                                             for k in ("amortized", "refined")}
     return out
 
 
@@ -76,6 +82,10 @@ def summary_lines(out: dict) -> list[str]:
     for b in budgets:
         lines.append(f"  refined {b}: " + ", ".join(f"{p} {out['coverage_refined'][str(b)][p]:.2f}" for p in names)
                      + f"; beta = 1 in {out['reached_full_likelihood'][str(b)]} of {out['families']}")
+    if "observation_rms_over_floor" in out:
+        a, r = out["observation_rms_over_floor"]["amortized"], out["observation_rms_over_floor"]["refined"]
+        lines.append(f"observation RMS / floor (10/50/90 % over families): amortized draws {a[0]:.2f}/{a[1]:.2f}/{a[2]:.2f}, "
+                     f"refined {r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}")
     lines.append("mean wall time per family: " + ", ".join(f"{b} simulations {out['wall_s'][str(b)]:.0f} s"
                                                            for b in budgets))
     return lines
