@@ -272,6 +272,7 @@ class Refinement:
         with np.errstate(invalid="ignore"):
             tilt, base = ((self.loglik + self.log_prior - self.log_q0, log_q - self.log_q0) if self.path == "amortized"
                           else (self.loglik, log_q - self.log_prior))
+        tilt = np.where(np.isneginf(self.log_prior), -np.inf, tilt)  # outside the prior: weight 0 (not −∞ − −∞)
         self.beta = (next_beta(tilt, base, self.beta, self.target_ess_fraction * self.round_size)
                      if self.tempering else 1.0)
         self.logw = _log_weights(tilt, base, self.beta)
