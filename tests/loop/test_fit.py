@@ -35,10 +35,12 @@ def proposal(truth, rng, n=4000, bias=0.6, sd=1.0):
     return draws, logpdf
 
 
-def grid_posterior(observed):
+def grid_posterior(observed, log_prior=None):
     g = np.linspace(0.0005, 0.9995, 400)
     uu = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     ll = -0.5 * ((forward(uu) - observed[None]) ** 2).sum(axis=(1, 2)) / SIGMA**2
+    if log_prior is not None:
+        ll = ll + log_prior(uu)
     w = np.exp(ll - ll.max())
     w /= w.sum()
     medians = []
@@ -282,3 +284,26 @@ def test_observation_rms_of_the_refined_particles_reaches_the_floor():
     print(np.round(out, 2).tolist())
     out = np.array(out)
     assert np.all((out[:, 0] > 0.59) & (out[:, 0] < 1.32)) and np.all(out[:, 1] > 1.5)
+
+
+def test_a_non_uniform_prior_gives_the_exact_posterior_with_that_prior():
+    """``prior_logpdf`` (as ``forcdecode fit`` passes the draw prior): p(u) ∝ exp(−(b − 0.3)²/(2·0.05²))
+    on the box, a prior as strong as the likelihood. The refined median is the exact grid posterior's
+    under that prior within 0.02 (seeds 0–4; measured ≤ 0.005), where the prior moves the exact median
+    by up to 0.15 from the uniform-prior one."""
+    def log_prior(u):
+        return -0.5 * ((np.atleast_2d(u)[:, 1] - 0.3) / 0.05) ** 2
+
+    shifts = []
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        truth = rng.uniform(0.2, 0.8, 2)
+        observed = forward(truth)[0] + SIGMA * rng.normal(size=(20, 1))
+        draws, logpdf = proposal(truth, rng)
+        result = refine(observed, forward, draws, logpdf, SIGMA**2, 400, 25, rng, ("a", "b"), prior_logpdf=log_prior)
+        refined = np.array([result["summary"]["parameters"][n]["median"] for n in ("a", "b")])
+        exact, flat = grid_posterior(observed, log_prior), grid_posterior(observed)
+        print(seed, refined, exact, flat)
+        assert np.abs(refined - exact).max() < 0.02
+        shifts.append(np.abs(exact - flat).max())
+    assert max(shifts) > 0.1  # the prior matters (measured: shifts 0.01-0.15; refined within 0.005 of exact)
