@@ -97,12 +97,52 @@ def draw_prior_quantiles(name: str, Ms: float, qs, bounds=None, grid: int = 4001
     """Quantiles (normalized u) of one parameter's draw prior given M_s: the density of
     :func:`draw_log_density` is a product over parameters, so each marginal is its own factor
     (integrated on ``grid`` midpoints). The median is the trivial predictor that reads M_s alone."""
+    edges, cdf = _cdf_table(name, Ms, bounds, grid)
+    return np.interp(np.asarray(qs, float), cdf, edges)
+
+
+def _cdf_table(name: str, Ms: float, bounds, grid: int = 4001):
+    """(u edges, CDF at the edges) of one parameter's draw prior given M_s (midpoint rule)."""
     mid = (np.arange(grid) + 0.5) / grid
     density = np.exp(draw_log_density(mid[:, None], (name,), Ms, bounds))
     cdf = np.concatenate([[0.0], np.cumsum(density)])
-    cdf /= cdf[-1]
-    return np.interp(np.asarray(qs, float), cdf, np.linspace(0.0, 1.0, grid + 1))
+    return np.linspace(0.0, 1.0, grid + 1), cdf / cdf[-1]
+
+
+def draw_prior_cdf(name: str, u, Ms, bounds=None) -> np.ndarray:
+    """F(u | M_s) of one parameter's draw prior (the probability integral transform: a drawn value
+    maps to a uniform v). ``u`` and ``Ms`` broadcast (one M_s per row). Closed forms where they exist
+    (uniform: v = u; K_u: v = u²), a 4001-point table for A_ex | M_s."""
+    u, Ms = np.broadcast_arrays(np.clip(np.asarray(u, float), 0.0, 1.0), np.asarray(Ms, float))
+    if name == "K_u":
+        return u**2
+    if name != "A_ex":
+        draw_log_density(np.zeros((1, 1)), (name,), 1e6)  # KeyError for a parameter without a draw density
+        return u.copy()
+    out = np.empty(u.shape)
+    for value in np.unique(Ms):
+        at = Ms == value
+        edges, cdf = _cdf_table(name, float(value), bounds)
+        out[at] = np.interp(u[at], edges, cdf)
+    return out
+
+
+def draw_prior_ppf(name: str, v, Ms, bounds=None) -> np.ndarray:
+    """Inverse of :func:`draw_prior_cdf`: v ∈ [0, 1] → u (where the prior has no mass the CDF is flat
+    and the inverse jumps across the gap)."""
+    v, Ms = np.broadcast_arrays(np.clip(np.asarray(v, float), 0.0, 1.0), np.asarray(Ms, float))
+    if name == "K_u":
+        return np.sqrt(v)
+    if name != "A_ex":
+        draw_log_density(np.zeros((1, 1)), (name,), 1e6)
+        return v.copy()
+    out = np.empty(v.shape)
+    for value in np.unique(Ms):
+        at = Ms == value
+        edges, cdf = _cdf_table(name, float(value), bounds)
+        out[at] = np.interp(v[at], cdf, edges)
+    return out
 
 
 __all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "draw_log_density",
-           "draw_prior_quantiles", "normalize", "denormalize"]
+           "draw_prior_quantiles", "draw_prior_cdf", "draw_prior_ppf", "normalize", "denormalize"]

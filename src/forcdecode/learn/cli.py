@@ -55,6 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="resolved learning.json (seed, split, posterior section)")
     p.add_argument("--dataset", required=True)
     p.add_argument("--out", required=True, help="output table (.json): every candidate's validation scores, the choice")
+    p.add_argument("--candidates", help="JSON list of partial posterior settings to compare (default: the built-in list)")
+    p.add_argument("--weight-seeds", type=int, default=1, help="weight seeds per candidate (scores averaged)")
     p.add_argument("--threads", type=int, default=1)
 
 
@@ -108,8 +110,17 @@ def run(args) -> int:
 
         torch.set_num_threads(max(1, args.threads))
         cfg = read_config(args.config)
+        from json import JSONDecodeError, loads
+
+        from .posterior_tune import CANDIDATES
+
+        try:
+            candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
+        except JSONDecodeError as error:
+            raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
         result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
-                                cfg["seed"], out=args.out, log=_log)
+                                cfg["seed"], candidates=candidates, out=args.out, log=_log,
+                                weight_seeds=tuple(range(max(1, args.weight_seeds))))
         for line in tuning_lines(result):
             print(line)
         return 0

@@ -111,6 +111,35 @@ def from_latent(z) -> np.ndarray:
     return np.clip((s - SQUEEZE) / (1.0 - 2.0 * SQUEEZE), 0.0, 1.0)
 
 
+COORDINATES = ("box", "prior")
+
+
+def to_coordinates(u, Ms, names, bounds, coordinates: str) -> np.ndarray:
+    """u (…, d) → the coordinates the flow models: ``box``, u itself; ``prior``, v_j = F_j(u_j | M_s),
+    the CDF of the draw prior given M_s (``dataset.params.draw_prior_cdf``): the prior becomes uniform,
+    so the flow learns only what the image adds (A_ex's dependence on M_s through the exchange length
+    and K_u's triangular draw no longer have to be learned from a few hundred families). ``Ms`` (A/m)
+    broadcasts against u's leading axes."""
+    u = np.asarray(u, dtype=float)
+    if coordinates == "box":
+        return u
+    from ..dataset.params import draw_prior_cdf
+
+    Ms = np.broadcast_to(np.asarray(Ms, dtype=float), u.shape[:-1])
+    return np.stack([draw_prior_cdf(n, u[..., j], Ms, bounds or None) for j, n in enumerate(names)], axis=-1)
+
+
+def from_coordinates(v, Ms, names, bounds, coordinates: str) -> np.ndarray:
+    """Inverse of :func:`to_coordinates`."""
+    v = np.asarray(v, dtype=float)
+    if coordinates == "box":
+        return v
+    from ..dataset.params import draw_prior_ppf
+
+    Ms = np.broadcast_to(np.asarray(Ms, dtype=float), v.shape[:-1])
+    return np.stack([draw_prior_ppf(n, v[..., j], Ms, bounds or None) for j, n in enumerate(names)], axis=-1)
+
+
 # ---------------------------------------------------------------- networks
 class ConvEmbedding(nn.Module):
     """The small head's layout: convolutions 1→8→16 (3×3, ReLU), 4×4 average pool, the pooled features
@@ -249,13 +278,18 @@ class PosteriorEstimator:
                 z = self.net.flow(ctx).sample((n_draws,))          # (n_draws, chunk, dim)
                 z = z * self.net.z_std + self.net.z_mean
                 out.append(from_latent(z.transpose(0, 1).double().numpy()))
-        return np.concatenate(out) if out else np.zeros((0, n_draws, len(self.names)))
+        if not out:
+            return np.zeros((0, n_draws, len(self.names)))
+        return self.from_coordinates(np.concatenate(out), ms.double().numpy()[:, None])
 
     @_float32
     def log_prob(self, u, x, ms_norm) -> np.ndarray:
         """log density of u ∈ [0, 1] per observation (one u per observation), change of variables included."""
         x, ms = self._inputs(x, ms_norm)
         u = np.atleast_2d(np.asarray(u, dtype=float))
+        ms_np = ms.double().numpy()
+        log_prior = self.coordinates_log_jacobian(u, ms_np)
+        u = self.to_coordinates(u, ms_np)
         z = to_latent(u)
         s = SQUEEZE + (1.0 - 2.0 * SQUEEZE) * u
         # du → dz: dz/du = (1 − 2ε)/(s(1 − s)); standardization: 1/σ_z
@@ -264,7 +298,36 @@ class PosteriorEstimator:
         zs = torch.as_tensor((z - self.net.z_mean.numpy()) / self.net.z_std.numpy(), dtype=torch.float32)
         self.net.eval()
         with torch.no_grad():
-            return self.net.log_prob(zs, x, ms).double().numpy() + log_jac
+            return self.net.log_prob(zs, x, ms).double().numpy() + log_jac + log_prior
+
+    # the flow's coordinates: "box" (u itself) or "prior" (v = F(u | M_s), the draw prior's CDF)
+    @property
+    def coordinates(self) -> str:
+        return self.architecture.get("coordinates", "box")
+
+    def _Ms(self, ms_norm) -> np.ndarray:
+        return denormalize("Ms", np.asarray(ms_norm, dtype=float), self.bounds or None)
+
+    def to_coordinates(self, u, ms_norm) -> np.ndarray:
+        """u (…, d) → the flow's coordinates (``ms_norm`` broadcast against u's leading axes)."""
+        return to_coordinates(u, self._Ms(ms_norm), self.names, self.bounds, self.coordinates)
+
+    def from_coordinates(self, v, ms_norm) -> np.ndarray:
+        return from_coordinates(v, self._Ms(ms_norm), self.names, self.bounds, self.coordinates)
+
+    def coordinates_log_jacobian(self, u, ms_norm) -> np.ndarray:
+        """log |dv/du| per row (the draw prior's log density for "prior" coordinates, 0 for "box")."""
+        u = np.atleast_2d(u)
+        if self.coordinates == "box":
+            return np.zeros(len(u))
+        from ..dataset.params import draw_log_density
+
+        Ms = np.broadcast_to(self._Ms(ms_norm), (len(u),))
+        out = np.empty(len(u))
+        for value in np.unique(Ms):
+            at = Ms == value
+            out[at] = draw_log_density(u[at], self.names, float(value), self.bounds or None)
+        return out
 
     def save(self, path, **metadata) -> None:
         """Atomic write of the weights, architecture, names, bounds and ``metadata`` (plain values)."""
@@ -313,7 +376,8 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
     if embedding not in EMBEDDINGS:
         raise ConfigError(f"unknown embedding {embedding!r} (one of {', '.join(EMBEDDINGS)})")
     x = np.asarray(x)
-    architecture = {"embedding": embedding, "summary": settings["summary"], "dim": len(names), "width": int(settings["width"]),
+    architecture = {"embedding": embedding, "summary": settings["summary"], "coordinates": settings["coordinates"],
+                    "dim": len(names), "width": int(settings["width"]),
                     "dropout": float(settings["dropout"]), "transforms": int(settings["transforms"]),
                     "hidden": int(settings["hidden"]), "bins": int(settings["bins"])}
     if embedding == "cnn":
@@ -328,7 +392,7 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
     net = PosteriorNet(architecture)
     est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}))
     x_all, ms_all = est._inputs(x, ms_norm)
-    z = to_latent(u)
+    z = to_latent(est.to_coordinates(u, ms_all.double().numpy()))
     mean, std = z[train].mean(axis=0), z[train].std(axis=0) + 1e-6
     net.z_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
     net.z_std.copy_(torch.as_tensor(std, dtype=torch.float32))
