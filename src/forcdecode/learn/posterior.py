@@ -48,7 +48,7 @@ from torch import nn
 from ..config import defaults, schema
 from ..core import io
 from ..core.errors import ConfigError, DatasetError, ModelFileError, OutOfDomainError
-from ..core.parameters import LOG_SCALE, denormalize
+from ..core.parameters import LOG_SCALE, TARGETS, denormalize
 from ..core.streams import stream_rng, stream_seed
 from .models import MS_NODES, conv_features, image_tensor
 from .scoring import binomial_band
@@ -391,6 +391,9 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
     torch.manual_seed(stream_seed(seed, "posterior", "weights"))
     net = PosteriorNet(architecture)
     est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}))
+    if architecture["coordinates"] == "prior" and not set(names) <= set(TARGETS):
+        raise ConfigError(f"coordinates: prior needs the dataset's parameters (a draw prior), got {list(names)}; "
+                          "use coordinates: box")
     x_all, ms_all = est._inputs(x, ms_norm)
     z = to_latent(est.to_coordinates(u, ms_all.double().numpy()))
     mean, std = z[train].mean(axis=0), z[train].std(axis=0) + 1e-6
