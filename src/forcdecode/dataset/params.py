@@ -109,39 +109,33 @@ def _cdf_table(name: str, Ms: float, bounds, grid: int = 4001):
     return np.linspace(0.0, 1.0, grid + 1), cdf / cdf[-1]
 
 
+def _prior_transform(name: str, values, Ms, bounds, inverse: bool) -> np.ndarray:
+    """F(u | M_s) (``inverse`` False) or its inverse, per row's M_s (see :func:`draw_prior_cdf`)."""
+    x, Ms = np.broadcast_arrays(np.clip(np.asarray(values, float), 0.0, 1.0), np.asarray(Ms, float))
+    if name == "K_u":
+        return np.sqrt(x) if inverse else x**2
+    if name != "A_ex":
+        draw_log_density(np.zeros((1, 1)), (name,), 1e6)  # KeyError for a parameter without a draw density
+        return x.copy()
+    out = np.empty(x.shape)
+    for value in np.unique(Ms):
+        at = Ms == value
+        edges, cdf = _cdf_table(name, float(value), bounds)
+        out[at] = np.interp(x[at], cdf, edges) if inverse else np.interp(x[at], edges, cdf)
+    return out
+
+
 def draw_prior_cdf(name: str, u, Ms, bounds=None) -> np.ndarray:
     """F(u | M_s) of one parameter's draw prior (the probability integral transform: a drawn value
     maps to a uniform v). ``u`` and ``Ms`` broadcast (one M_s per row). Closed forms where they exist
     (uniform: v = u; K_u: v = u²), a 4001-point table for A_ex | M_s."""
-    u, Ms = np.broadcast_arrays(np.clip(np.asarray(u, float), 0.0, 1.0), np.asarray(Ms, float))
-    if name == "K_u":
-        return u**2
-    if name != "A_ex":
-        draw_log_density(np.zeros((1, 1)), (name,), 1e6)  # KeyError for a parameter without a draw density
-        return u.copy()
-    out = np.empty(u.shape)
-    for value in np.unique(Ms):
-        at = Ms == value
-        edges, cdf = _cdf_table(name, float(value), bounds)
-        out[at] = np.interp(u[at], edges, cdf)
-    return out
+    return _prior_transform(name, u, Ms, bounds, inverse=False)
 
 
 def draw_prior_ppf(name: str, v, Ms, bounds=None) -> np.ndarray:
     """Inverse of :func:`draw_prior_cdf`: v ∈ [0, 1] → u (where the prior has no mass the CDF is flat
     and the inverse jumps across the gap)."""
-    v, Ms = np.broadcast_arrays(np.clip(np.asarray(v, float), 0.0, 1.0), np.asarray(Ms, float))
-    if name == "K_u":
-        return np.sqrt(v)
-    if name != "A_ex":
-        draw_log_density(np.zeros((1, 1)), (name,), 1e6)
-        return v.copy()
-    out = np.empty(v.shape)
-    for value in np.unique(Ms):
-        at = Ms == value
-        edges, cdf = _cdf_table(name, float(value), bounds)
-        out[at] = np.interp(v[at], cdf, edges)
-    return out
+    return _prior_transform(name, v, Ms, bounds, inverse=True)
 
 
 __all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "draw_log_density",
