@@ -261,12 +261,12 @@ def test_common_random_numbers_need_the_variance_of_a_difference():
 
 
 def test_observation_rms_of_the_refined_particles_reaches_the_floor():
-    """``fit_cli.observation_rms`` on the common-random-numbers problem (budget 200, 10 seeds): the
+    """``fit.observation_rms`` on the common-random-numbers problem (budget 200, 10 seeds): the
     refined particles' observation RMS is the floor's up to the scatter of a 20-point, 2-parameter fit
     (√(χ²₁₈/20) between its 1 and 99 % points, 0.59–1.32 ×; measured 0.71–1.16), the biased amortized
     draws' well above it (> 1.5 ×; measured 4.5–10.9)."""
     from forcdecode.loop.fit import Refinement, difference_variance
-    from forcdecode.loop.fit_cli import observation_rms
+    from forcdecode.loop.fit import observation_rms
 
     out = []
     for seed in range(10):

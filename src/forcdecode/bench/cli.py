@@ -9,6 +9,8 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..loop.fit_cli import PRIORS
+
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
@@ -53,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--round-size", type=int, default=25, help="fit: simulations per round")
     fit.add_argument("--fit-workers", type=int, default=2, help="fit: processes simulating in parallel")
     fit.add_argument("--fit-dir", default="results/bench/fit", help="fit: one fit.json per family (resumable)")
-    fit.add_argument("--prior", choices=["draw", "uniform"], default="draw",
+    fit.add_argument("--prior", choices=PRIORS, default="draw",
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")

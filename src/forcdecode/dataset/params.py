@@ -54,12 +54,17 @@ def draw_parameters(seed: int, sample_id: int, bounds=None, exchange_length_nm=(
             "sigma_theta_deg": float(sigma_theta), "sigma_K": float(sigma_K)}
 
 
-def draw_log_density(u, names, Ms: float, bounds=None, exchange_length_nm=(10.0, 1.0),
+UNIFORM_DRAWS = ("N_pin", "D", "sigma_theta_deg", "sigma_K")
+"""Parameters drawn uniformly on their bounds (N_pin, an integer, treated as continuous)."""
+
+
+def draw_log_density(u, names, Ms, bounds=None, exchange_length_nm=(10.0, 1.0),
                      min_exchange_length_nm: float = 5.0) -> np.ndarray:
     """log p(u | M_s) of :func:`draw_parameters` in normalized units u ∈ [0, 1] (rows of ``u`` in the
-    order of ``names``): the prior the dataset was drawn from, given the film's M_s (A/m).
+    order of ``names``): the prior the dataset was drawn from, given the film's M_s (A/m; one value,
+    or one per row).
 
-    Per parameter: uniform (N_pin, treated as continuous; D, σ_θ, σ_K) → 0; K_u, ln K_u triangular
+    Per parameter: uniform (``UNIFORM_DRAWS``) → 0; K_u, ln K_u triangular
     with its mode at the top → p(u) = 2u (u on the log scale); A_ex | M_s, a mixture of the
     exchange-length branch, A = l² μ0 M_s²/2 with l ~ N(l₀, σ_l) (density φ(l) / (2√(A c)) per J/m,
     c = μ0 M_s²/2; the branch's in-bounds part is kept) and, with the probability P_out that l falls
@@ -79,16 +84,17 @@ def draw_log_density(u, names, Ms: float, bounds=None, exchange_length_nm=(10.0,
                 out += np.log(2.0 * x)
         elif name == "A_ex":
             lo, hi = (float(v) for v in b["A_ex"])
-            c = MU0 * float(Ms) ** 2 / 2
+            c = MU0 * np.broadcast_to(np.asarray(Ms, float), (len(u),)) ** 2 / 2
             A = lo + x * (hi - lo)
             mean, sd = exchange_length_nm[0] * 1e-9, exchange_length_nm[1] * 1e-9
             branch = norm.pdf(np.sqrt(A / c), mean, sd) / (2 * np.sqrt(A * c))
             p_in = norm.cdf(np.sqrt(hi / c), mean, sd) - norm.cdf(np.sqrt(lo / c), mean, sd)
-            a_min = max(lo, min_exchange_length_nm**2 * 1e-18 * c)
-            fallback = np.where(A > a_min, 1.0 / (hi - a_min), 0.0) if a_min < hi else np.zeros_like(A)
+            a_min = np.maximum(lo, min_exchange_length_nm**2 * 1e-18 * c)
+            width = np.where(a_min < hi, hi - a_min, np.inf)  # no fallback mass where l_min excludes the bounds
+            fallback = np.where(A > a_min, 1.0 / width, 0.0)
             with np.errstate(divide="ignore"):
                 out += np.log((branch + (1.0 - p_in) * fallback) * (hi - lo))
-        elif name not in ("N_pin", "D", "sigma_theta_deg", "sigma_K"):
+        elif name not in UNIFORM_DRAWS:
             raise KeyError(f"no draw density for parameter {name!r}")
     return np.where(inside, out, -np.inf)
 
@@ -114,9 +120,10 @@ def _prior_transform(name: str, values, Ms, bounds, inverse: bool) -> np.ndarray
     x, Ms = np.broadcast_arrays(np.clip(np.asarray(values, float), 0.0, 1.0), np.asarray(Ms, float))
     if name == "K_u":
         return np.sqrt(x) if inverse else x**2
-    if name != "A_ex":
-        draw_log_density(np.zeros((1, 1)), (name,), 1e6)  # KeyError for a parameter without a draw density
+    if name in UNIFORM_DRAWS:
         return x.copy()
+    if name != "A_ex":
+        raise KeyError(f"no draw density for parameter {name!r}")
     out = np.empty(x.shape)
     for value in np.unique(Ms):
         at = Ms == value
@@ -139,4 +146,4 @@ def draw_prior_ppf(name: str, v, Ms, bounds=None) -> np.ndarray:
 
 
 __all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "draw_log_density",
-           "draw_prior_quantiles", "draw_prior_cdf", "draw_prior_ppf", "normalize", "denormalize"]
+           "UNIFORM_DRAWS", "draw_prior_quantiles", "draw_prior_cdf", "draw_prior_ppf", "normalize", "denormalize"]

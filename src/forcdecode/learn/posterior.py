@@ -111,9 +111,6 @@ def from_latent(z) -> np.ndarray:
     return np.clip((s - SQUEEZE) / (1.0 - 2.0 * SQUEEZE), 0.0, 1.0)
 
 
-COORDINATES = ("box", "prior")
-
-
 def to_coordinates(u, Ms, names, bounds, coordinates: str) -> np.ndarray:
     """u (…, d) → the coordinates the flow models: ``box``, u itself; ``prior``, v_j = F_j(u_j | M_s),
     the CDF of the draw prior given M_s (``dataset.params.draw_prior_cdf``): the prior becomes uniform,
@@ -322,12 +319,7 @@ class PosteriorEstimator:
             return np.zeros(len(u))
         from ..dataset.params import draw_log_density
 
-        Ms = np.broadcast_to(self._Ms(ms_norm), (len(u),))
-        out = np.empty(len(u))
-        for value in np.unique(Ms):
-            at = Ms == value
-            out[at] = draw_log_density(u[at], self.names, float(value), self.bounds or None)
-        return out
+        return draw_log_density(u, self.names, self._Ms(ms_norm), self.bounds or None)
 
     def save(self, path, **metadata) -> None:
         """Atomic write of the weights, architecture, names, bounds and ``metadata`` (plain values)."""

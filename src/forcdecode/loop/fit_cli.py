@@ -19,6 +19,10 @@ from pathlib import Path
 import numpy as np
 
 
+PRIORS = ("draw", "uniform")
+"""The refinement's priors: the dataset's draw prior given M_s, or the uniform box."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="dataset.h5 (with --sample-id) or a measured FORC file")
     parser.add_argument("--sample-id", type=int, help="sample of dataset.h5 (its M_s and, for scoring, its truth)")
@@ -29,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-size", type=int, default=25, help="simulations per round (default 25)")
     parser.add_argument("--workers", type=int, default=1, help="processes simulating in parallel")
     parser.add_argument("--seed", type=int, default=0, help="seed of the draws and of the proposal rounds")
-    parser.add_argument("--prior", choices=("draw", "uniform"), default="draw",
+    parser.add_argument("--prior", choices=PRIORS, default="draw",
                         help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
     parser.add_argument("--out", required=True, help="output directory (fit.json)")
 
@@ -68,9 +72,6 @@ def observation(path, sample_id, cfg, ms_kA_m):
 def family_key(label: str) -> int:
     """The disorder key of a refinement (common random numbers) from a label naming its family."""
     return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
-
-
-PRIORS = ("draw", "uniform")
 
 
 def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), prior="draw"):
@@ -132,27 +133,10 @@ def prior_logpdf(state, bounds):
     return lambda u: draw_log_density(u, state.names, ctx["Ms"], bounds)
 
 
-def observation_rms(state) -> dict:
-    """The posterior-predictive check the particles give for free: each candidate's observation RMS
-    against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the
-    common disorder realisation) over the floor √σ² (the RMS the true Hamiltonian reaches on another
-    realisation). ``amortized``: median over round 1 (draws of the amortized posterior);
-    ``refined``: weighted median over every particle at the final β."""
-    from .fit import _normalized, weighted_quantiles
-
-    ok = np.isfinite(state.loglik)
-    ratio = np.sqrt(np.clip(-2.0 * state.loglik[ok] * state.sigma2 / state.n_curves, 0, None)) / np.sqrt(state.sigma2)
-    first = np.zeros(len(state.loglik), bool)
-    first[: state.round_size] = True
-    weights = _normalized(state.logw)[ok]
-    return {"floor_rms": float(np.sqrt(state.sigma2)),
-            "amortized_over_floor": float(np.median(ratio[first[ok]])) if first[ok].any() else float("nan"),
-            "refined_over_floor": float(weighted_quantiles(ratio, weights, [0.5])[0]) if weights.sum() > 0
-            else float("nan")}
-
-
 def finish_fit(state) -> dict:
     """fit.json's content (plain values) from a finished refinement state."""
+    from .fit import observation_rms
+
     ctx = state.context
     result = state.result()
     return {"names": ctx["names"], "Ms": ctx["Ms"], "prior": ctx.get("prior", "uniform"), "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
@@ -193,6 +177,9 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
         state = Refinement.load(state_path)
         if state.round_size != round_size:
             raise ConfigError(f"{state_path}: saved with rounds of {state.round_size}, asked for {round_size}")
+        if state.context.get("prior", "uniform") != prior:
+            raise ConfigError(f"{state_path}: refined with the {state.context.get('prior', 'uniform')} prior, "
+                              f"asked for {prior}")
         state.extend(budget, checkpoints)  # nested rounds: a longer budget continues the saved run
     else:
         state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
