@@ -50,3 +50,12 @@ def test_bad_config_json_exit_2(tmp_path, capsys):
     (tmp_path / "config.json").write_text("{")
     assert main(["dataset", "draw", "--config", str(tmp_path / "config.json"), "--out", str(tmp_path / "p.parquet")]) == 2
     assert "is not valid JSON" in capsys.readouterr().err
+
+
+def test_posterior_tune_candidates_that_are_not_a_list_of_settings_exit_2(tmp_path, capsys):
+    (tmp_path / "learning.json").write_text(json.dumps({"seed": 1}))
+    for bad, says in (("[oops", "not a JSON list"), ('{"coordinates": "box"}', "non-empty JSON list"), ("[]", "non-empty")):
+        code = main(["learn", "posterior-tune", "--config", str(tmp_path / "learning.json"), "--dataset",
+                     str(tmp_path / "none.h5"), "--out", str(tmp_path / "o.json"), "--candidates", bad])
+        err = capsys.readouterr().err
+        assert code == 2 and err.startswith("error: --candidates") and says in err, err

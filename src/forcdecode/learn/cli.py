@@ -118,6 +118,8 @@ def run(args) -> int:
             candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
         except JSONDecodeError as error:
             raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
+        if not candidates or not all(isinstance(c, dict) for c in candidates):
+            raise ConfigError(f"--candidates must be a non-empty JSON list of settings mappings, got {args.candidates}")
         result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
                                 cfg["seed"], candidates=candidates, out=args.out, log=_log,
                                 weight_seeds=tuple(range(max(1, args.weight_seeds))))
