@@ -231,6 +231,14 @@ class PosteriorEstimator:
     history: dict = field(default_factory=dict)
     best_epoch: int = -1
     metadata: dict = field(default_factory=dict)
+    members: list = field(default_factory=list)
+    """Further networks of a deep ensemble (``net`` is the first): the posterior is the equal mixture of
+    the members' flows, each fitted from its own weight seed on the same data."""
+
+    @property
+    def nets(self) -> list:
+        """Every member of the ensemble, ``net`` first (one network: ``[net]``)."""
+        return [self.net, *self.members]
 
     @property
     def image_size(self) -> int:
@@ -262,22 +270,38 @@ class PosteriorEstimator:
 
     @_float32
     def sample(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64) -> np.ndarray:
-        """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``."""
+        """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``. An
+        ensemble of K members is sampled stratified: draw d comes from member d mod K (every prefix of
+        the draws is a balanced mixture); member 0 uses ``seed`` itself, so K = 1 is the single flow."""
         x, ms = self._inputs(x, ms_norm)
         if n_draws < 1:
             raise ConfigError(f"n_draws must be positive, got {n_draws}")
-        self.net.eval()
+        nets = self.nets
+        per_member = -(-n_draws // len(nets))
+        draws = np.zeros((x.shape[0], n_draws, len(self.names)))
+        for k, net in enumerate(nets):
+            taken = len(range(k, n_draws, len(nets)))
+            if taken == 0:
+                continue
+            member_seed = int(seed) if k == 0 else stream_seed(int(seed), "posterior", "ensemble_member", k)
+            draws[:, k::len(nets)] = self._sample_net(net, x, ms, per_member, member_seed, chunk)[:, :taken]
+        return self.from_coordinates(draws, ms.double().numpy()[:, None])
+
+    @staticmethod
+    def _sample_net(net, x, ms, n_draws: int, seed: int, chunk: int) -> np.ndarray:
+        """One member's draws in the flow's coordinates (before ``from_coordinates``), (n_obs, n_draws, d)."""
+        net.eval()
         out = []
         with torch.no_grad(), torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(seed))
             for start in range(0, x.shape[0], chunk):
-                ctx = self.net.context(x[start:start + chunk], ms[start:start + chunk])
-                z = self.net.flow(ctx).sample((n_draws,))          # (n_draws, chunk, dim)
-                z = z * self.net.z_std + self.net.z_mean
+                ctx = net.context(x[start:start + chunk], ms[start:start + chunk])
+                z = net.flow(ctx).sample((n_draws,))          # (n_draws, chunk, dim)
+                z = z * net.z_std + net.z_mean
                 out.append(from_latent(z.transpose(0, 1).double().numpy()))
         if not out:
-            return np.zeros((0, n_draws, len(self.names)))
-        return self.from_coordinates(np.concatenate(out), ms.double().numpy()[:, None])
+            return np.zeros((0, n_draws, net.z_mean.numel()))
+        return np.concatenate(out)
 
     @_float32
     def log_prob(self, u, x, ms_norm) -> np.ndarray:
@@ -289,13 +313,19 @@ class PosteriorEstimator:
         u = self.to_coordinates(u, ms_np)
         z = to_latent(u)
         s = SQUEEZE + (1.0 - 2.0 * SQUEEZE) * u
-        # du → dz: dz/du = (1 − 2ε)/(s(1 − s)); standardization: 1/σ_z
+        # du → dz: dz/du = (1 − 2ε)/(s(1 − s)); standardization: 1/σ_z (per member)
         log_jac = (np.log1p(-2.0 * SQUEEZE) - np.log(s) - np.log1p(-s)).sum(axis=1)
-        log_jac -= float(torch.log(self.net.z_std).sum())
-        zs = torch.as_tensor((z - self.net.z_mean.numpy()) / self.net.z_std.numpy(), dtype=torch.float32)
-        self.net.eval()
-        with torch.no_grad():
-            return self.net.log_prob(zs, x, ms).double().numpy() + log_jac + log_prior
+        members = []
+        for net in self.nets:
+            zs = torch.as_tensor((z - net.z_mean.numpy()) / net.z_std.numpy(), dtype=torch.float32)
+            net.eval()
+            with torch.no_grad():
+                members.append(net.log_prob(zs, x, ms).double().numpy() - float(torch.log(net.z_std).sum()))
+        # the ensemble's density: the mean of the members' densities
+        from scipy.special import logsumexp
+
+        mixture = logsumexp(np.stack(members), axis=0) - np.log(len(members))
+        return mixture + log_jac + log_prior
 
     # the flow's coordinates: "box" (u itself) or "prior" (v = F(u | M_s), the draw prior's CDF)
     @property
@@ -325,7 +355,8 @@ class PosteriorEstimator:
         """Atomic write of the weights, architecture, names, bounds and ``metadata`` (plain values)."""
         payload = {"format": FORMAT, "architecture": dict(self.architecture), "names": list(self.names),
                    "bounds": {k: [float(v[0]), float(v[1])] for k, v in self.bounds.items()},
-                   "best_epoch": int(self.best_epoch), "state": self.net.state_dict(), "metadata": metadata}
+                   "best_epoch": int(self.best_epoch), "state": self.net.state_dict(),
+                   "member_states": [m.state_dict() for m in self.members], "metadata": metadata}
         with io.atomic_path(path) as tmp:
             torch.save(payload, tmp)
 
@@ -341,13 +372,16 @@ class PosteriorEstimator:
         if not isinstance(payload, dict) or payload.get("format") != FORMAT:
             found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
             raise ModelFileError(f"{path} is not a forcdecode posterior model (format {found!r})")
-        net = PosteriorNet(payload["architecture"])
-        try:
-            net.load_state_dict(payload["state"])
-        except RuntimeError as error:
-            raise ModelFileError(f"posterior model {path} does not match its architecture: {error}") from None
-        return cls(net.eval(), payload["architecture"], tuple(payload["names"]), payload["bounds"],
-                   best_epoch=payload["best_epoch"], metadata=payload.get("metadata", {}))
+        nets = []
+        for state in [payload["state"], *payload.get("member_states", [])]:
+            net = PosteriorNet(payload["architecture"])
+            try:
+                net.load_state_dict(state)
+            except RuntimeError as error:
+                raise ModelFileError(f"posterior model {path} does not match its architecture: {error}") from None
+            nets.append(net.eval())
+        return cls(nets[0], payload["architecture"], tuple(payload["names"]), payload["bounds"],
+                   best_epoch=payload["best_epoch"], metadata=payload.get("metadata", {}), members=nets[1:])
 
 
 @_float32
@@ -355,8 +389,33 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
                   embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
     """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
     of the epoch with the lowest validation negative log-likelihood; ``x`` are uint8 images (cnn) or
-    float vectors (mlp), ``u`` the targets in [0, 1], shape (n, len(names))."""
+    float vectors (mlp), ``u`` the targets in [0, 1], shape (n, len(names)).
+
+    ``settings["ensemble"]`` = K > 1 fits K members from independent weight seeds (member 0 from
+    ``seed`` itself, the others from the ``posterior`` stream's ``ensemble_fit`` keys) on the same
+    split; the posterior is their equal mixture (a deep ensemble: members that agree where the data
+    speak and disagree where they do not, so the mixture is wider exactly where one flow's
+    maximum-likelihood fit on a few hundred families is over-sure)."""
     settings = posterior_settings(settings)
+    members = []
+    for k in range(int(settings["ensemble"])):
+        member_seed = seed if k == 0 else stream_seed(seed, "posterior", "ensemble_fit", k)
+        if log is not None and settings["ensemble"] > 1:
+            log(f"posterior ensemble member {k + 1}/{settings['ensemble']}")
+        members.append(_fit_member(x, ms_norm, u, train, val, names=names, settings=settings, seed=member_seed,
+                                   embedding=embedding, bounds=bounds, log=log))
+    est = members[0]
+    est.members = [m.net for m in members[1:]]
+    if len(members) > 1:
+        est.history["ensemble_best_epochs"] = [int(m.best_epoch) for m in members]
+        est.history["ensemble_val_nll"] = [float(m.history["val_nll"][m.best_epoch]) for m in members]
+        est.history["train_seconds"] = float(sum(m.history["train_seconds"] for m in members))
+    return est
+
+
+def _fit_member(x, ms_norm, u, train, val, *, names, settings: dict, seed: int, embedding: str,
+                bounds: dict | None, log) -> PosteriorEstimator:
+    """One flow (and its embedding) fitted from the weight seed ``seed``: see :func:`fit_posterior`."""
     u = np.asarray(u, dtype=float)
     train, val = np.asarray(train), np.asarray(val)
     if u.ndim != 2 or u.shape[1] != len(names) or u.shape[0] != len(np.asarray(x)):
