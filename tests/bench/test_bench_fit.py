@@ -29,3 +29,11 @@ def test_a_refinement_that_halves_every_error_is_scored_as_better():
     assert out["mae_prior"]["K_u"] == pytest.approx(np.mean(np.abs(2**-0.5 - truths)), abs=1e-3)
     assert any("beta = 1 in 12 of 12" in line for line in summary_lines(out))
     assert out["observation_rms_over_floor"] == {"amortized": [3.0, 3.0, 3.0], "refined": [1.0, 1.0, 1.0]}
+
+
+@pytest.mark.parametrize("flags", [["--first-family", "-1"], ["--families", "0"]])
+def test_a_family_range_that_cannot_exist_is_one_clear_error(flags, capsys):
+    from forcdecode.cli import main
+
+    assert main(["bench", "fit", *flags]) == 2
+    assert "--first-family must be >= 0 and --families >= 1" in capsys.readouterr().err

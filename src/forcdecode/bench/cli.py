@@ -51,6 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
     fit.add_argument("--posterior", default="results/posterior/model.pt", help="fit: the amortized posterior")
     fit.add_argument("--families", type=int, default=5, help="fit: test families refined")
+    fit.add_argument("--first-family", type=int, default=0,
+                     help="fit: start at this position of the split (runs on disjoint families, e.g. on several "
+                          "machines, write files that one later run over all of them reads back)")
     fit.add_argument("--budgets", type=int, nargs="+", default=[50, 200, 500], help="fit: nested budgets (simulations)")
     fit.add_argument("--round-size", type=int, default=25, help="fit: simulations per round")
     fit.add_argument("--fit-workers", type=int, default=2, help="fit: processes simulating in parallel")
@@ -249,6 +252,8 @@ def _bench_fit(args, say) -> int:
     from ..loop.fit_cli import fit_one
 
     budgets = sorted(set(args.budgets))
+    if args.first_family < 0 or args.families < 1:
+        raise ConfigError(f"--first-family must be >= 0 and --families >= 1 (got {args.first_family}, {args.families})")
     if any(b % args.round_size for b in budgets):
         raise ConfigError(f"--budgets {budgets} must be multiples of --round-size {args.round_size} (nested rounds)")
     cfg = load_config(args.config or shipped_config("config"))
@@ -257,7 +262,10 @@ def _bench_fit(args, say) -> int:
     data = load_dataset(args.dataset)
     est = PosteriorEstimator.load(args.posterior)
     held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
-    chosen = held_out[: args.families]
+    if args.first_family + args.families > len(held_out):
+        raise ConfigError(f"the {args.split} split has {len(held_out)} families: --first-family {args.first_family} "
+                          f"+ --families {args.families} is beyond it")
+    chosen = held_out[args.first_family: args.first_family + args.families]
     rows = []
     import h5py
 
