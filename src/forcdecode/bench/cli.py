@@ -11,7 +11,7 @@ import os
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..loop.fit_cli import PRIORS
 
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -62,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
+    ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
+    ood.add_argument("--ood-cases", nargs="+", help="ood: cases (default: all; magnumnp needs the reference extra)")
+    ood.add_argument("--ood-dir", default="results/bench/ood", help="ood: images per case (resumable) and summary.json")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -91,6 +94,8 @@ def run(args) -> int:
         return _bench_film_learning(args, say)
     if args.target == "fit":
         return _bench_fit(args, say)
+    if args.target == "ood":
+        return _bench_ood(args, say)
     from . import engine
 
     if args.target == "effects" and args.independent:
@@ -295,4 +300,40 @@ def _bench_fit(args, say) -> int:
         say(line)
     write_json(f"{args.fit_dir}/summary.json", out)
     print(json.dumps(out))
+    return 0
+
+
+def _bench_ood(args, say) -> int:
+    """Flag rate of the posterior's OOD check on held-out Hamiltonians made in and out of the prior."""
+    from ..core.errors import ConfigError
+    from ..core.io import read_json, write_json
+    from ..learn.data import load_dataset
+    from ..learn.posterior import PosteriorEstimator
+    from ..learn.splits import assign_splits
+    from .ood import CASES, bench_ood, ood_lines
+
+    if args.families < 1 or args.workers < 1:
+        raise ConfigError(f"--families and --workers must be >= 1 (got {args.families}, {args.workers})")
+    import h5py
+
+    stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
+    from ..config import defaults
+
+    learning = {**defaults("learning"), **stage.get("learning", {})}
+    data = load_dataset(args.dataset)
+    with h5py.File(args.dataset, "r") as h5:
+        cfg = json.loads(h5.attrs["config_json"])
+    est = PosteriorEstimator.load(args.posterior)
+    held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
+    chosen = held_out[: args.families]
+    names = ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")
+    rows = [{n: (int(data.values[n][k]) if n == "N_pin" else float(data.values[n][k])) for n in names} for k in chosen]
+    result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
+                       cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say)
+    result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))
+    for line in ood_lines(result):
+        say(line)
+    write_json(f"{args.ood_dir}/summary.json", result)
+    if args.json:
+        print(json.dumps({case: row["flagged_fraction"] for case, row in result["cases"].items()}))
     return 0

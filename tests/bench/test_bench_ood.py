@@ -1,0 +1,75 @@
+"""``bench ood``: the exact binomial interval, the films each case builds, and the flag rates it
+reports from images whose status is known (families of the training generator vs another one)."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from forcdecode.bench.ood import CASES, bench_ood, case_film, clopper_pearson, ood_lines
+from forcdecode.core.errors import ConfigError
+from forcdecode.learn.posterior import PosteriorEstimator, train_posterior
+from forcdecode.learn.scoring import binomial_band
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "learn"))
+from test_posterior import LEARNING, SEED, SETTINGS, bar_dataset  # noqa: E402
+
+
+def test_clopper_pearson_matches_its_closed_forms():
+    # k = 0: upper = 1 − (tail)^(1/n); k = n: lower = (tail)^(1/n) (tail = 0.05 at 90 %)
+    assert clopper_pearson(0, 10) == pytest.approx((0.0, 1 - 0.05 ** 0.1), abs=1e-9)
+    assert clopper_pearson(10, 10) == pytest.approx((0.05 ** 0.1, 1.0), abs=1e-9)
+    low, high = clopper_pearson(5, 20)
+    assert low < 0.25 < high and high - low < 0.4
+
+
+def test_each_case_changes_only_what_it_names():
+    cfg = {"n_grains": 16, "bounds": {"N_pin": [0, 255]}}
+    params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 3e5, "D": 1e-3, "N_pin": 100, "sigma_theta_deg": 2.0, "sigma_K": 0.1}
+    assert case_film(cfg, params, "control") == (cfg, params)
+    assert case_film(cfg, params, "no_pinning")[1]["N_pin"] == 0
+    c, p = case_film(cfg, params, "pinning_beyond_prior")
+    assert p["N_pin"] == 765 and c == cfg
+    c, p = case_film(cfg, params, "grains_8nm")
+    assert c["n_grains"] == 255 and p == params and cfg["n_grains"] == 16
+    with pytest.raises(ConfigError, match="unknown OOD case"):
+        case_film(cfg, params, "magnumnp")
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("ood_bench")
+    train_posterior(bar_dataset(n=400), {**SETTINGS, "epochs": 40}, LEARNING, SEED, out / "model.pt",
+                    out / "metrics.json", out / "fig.png", log=lambda *_: None)
+    return PosteriorEstimator.load(out / "model.pt")
+
+
+def test_flag_rates_of_known_families_from_the_stored_images(model, tmp_path):
+    fresh = bar_dataset(n=60, seed=42)               # the training generator: in distribution
+    rng = np.random.default_rng(1)
+    other = np.zeros((60, 16, 16), np.uint8)         # bars grown from the side: another generator
+    for k in range(60):
+        other[k, :, : rng.integers(2, 15)] = 235
+    other = (other + rng.integers(0, 20, other.shape)).astype(np.uint8)
+    np.savez_compressed(tmp_path / "control.npz", images=fresh.images)
+    np.savez_compressed(tmp_path / "grains_8nm.npz", images=other)
+    rows = [{"Ms": 8e5}] * 60
+    # cfg None: a case without stored images would have to simulate, and fail
+    result = bench_ood(model, None, rows, range(60), fresh.ms_norm, cases=("control", "grains_8nm"),
+                       out_dir=tmp_path, say=lambda *_: None)
+    control, other_row = result["cases"]["control"], result["cases"]["grains_8nm"]
+    assert control["flagged_fraction"] <= binomial_band(60, 0.05)[1], control
+    assert other_row["flagged_fraction"] >= 0.8, other_row
+    assert control["interval_90"][0] <= control["flagged_fraction"] <= control["interval_90"][1]
+    assert len(ood_lines(result)) == 4
+
+
+def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path):
+    with pytest.raises(ConfigError, match="unknown OOD case"):
+        bench_ood(model, None, [], [], [], cases=("tilted",), out_dir=tmp_path)
+    bare = PosteriorEstimator(model.net, model.architecture, model.names, model.bounds)
+    with pytest.raises(ConfigError, match="no OOD reference"):
+        bench_ood(bare, None, [], [], [], cases=CASES[:1], out_dir=tmp_path)
