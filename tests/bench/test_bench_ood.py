@@ -59,12 +59,16 @@ def test_flag_rates_of_known_families_from_the_stored_images(model, tmp_path):
     rows = [{"Ms": 8e5}] * 60
     # cfg None: a case without stored images would have to simulate, and fail
     result = bench_ood(model, None, rows, range(60), fresh.ms_norm, cases=("control", "grains_8nm"),
-                       out_dir=tmp_path, say=lambda *_: None)
+                       out_dir=tmp_path, say=lambda *_: None, dataset_images=fresh.images)
     control, other_row = result["cases"]["control"], result["cases"]["grains_8nm"]
     assert control["flagged_fraction"] <= binomial_band(60, 0.05)[1], control
     assert other_row["flagged_fraction"] >= 0.8, other_row
     assert control["interval_90"][0] <= control["flagged_fraction"] <= control["interval_90"][1]
     assert len(ood_lines(result)) == 4
+    # distance to the dataset's family of the same Hamiltonian: none for the family itself, the bars'
+    # whole area for the other generator (their columns vs its rows)
+    assert control["median_grey_levels_from_dataset_family"] == 0.0
+    assert other_row["median_grey_levels_from_dataset_family"] > 30
 
 
 def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path):

@@ -17,7 +17,7 @@ from forcdecode.learn.scoring import binomial_band
 
 SIGMA = 0.08
 N_TRAIN, N_VAL, N_TEST = 1600, 400, 500
-SETTINGS = {"coordinates": "box", "width": 32, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 64, "lr": 3e-3,
+SETTINGS = {"coordinates": "box", "ensemble": 1, "width": 32, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 64, "lr": 3e-3,
             "transforms": 3, "hidden": 32}
 
 

@@ -19,7 +19,7 @@ from forcdecode.learn.posterior import fit_posterior, from_coordinates, to_coord
 from forcdecode.learn.scoring import binomial_band
 
 N_TRAIN, N_VAL, N_TEST = 1200, 300, 300
-SETTINGS = {"width": 32, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 64, "lr": 3e-3,
+SETTINGS = {"ensemble": 1, "width": 32, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 64, "lr": 3e-3,
             "transforms": 3, "hidden": 32}
 NAMES = ("A_ex", "K_u")
 

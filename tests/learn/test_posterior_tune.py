@@ -12,7 +12,7 @@ from forcdecode.learn.splits import assign_splits
 
 from test_posterior import LEARNING, SEED, SETTINGS, bar_dataset
 
-QUICK = {**SETTINGS, "epochs": 30, "patience": 8}
+QUICK = {**SETTINGS, "epochs": 30, "patience": 8, "ensemble": 1}
 CANDIDATES = ({"transforms": 2, "width": 16}, {"transforms": 1, "width": 1, "hidden": 2, "epochs": 1})
 
 

@@ -121,7 +121,7 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     # the refinement of one family, one workflow job per round (workflow/rules/fit.smk; posterior tiny)
     fit_config = tmp_path / "fit.yaml"
     fit_config.write_text(json.dumps({
-        "posterior": {"epochs": 5, "patience": 2, "draws": 50, "width": 8, "hidden": 8, "transforms": 1},
+        "posterior": {"epochs": 5, "patience": 2, "draws": 50, "width": 8, "hidden": 8, "transforms": 1, "ensemble": 2},
         "fit": {"input": "results/dataset.h5", "sample_id": sample, "budget": 4, "round_size": 2, "workers": 1}}))
     fit_run = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
                         f"results/fit/dataset_sample{sample}/fit.json", timeout=600)

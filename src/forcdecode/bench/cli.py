@@ -329,7 +329,8 @@ def _bench_ood(args, say) -> int:
     names = ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")
     rows = [{n: (int(data.values[n][k]) if n == "N_pin" else float(data.values[n][k])) for n in names} for k in chosen]
     result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
-                       cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say)
+                       cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say,
+                       dataset_images=data.images[chosen])
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))
     for line in ood_lines(result):
         say(line)
