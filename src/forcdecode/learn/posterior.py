@@ -611,6 +611,42 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
 
 
 # ---------------------------------------------------------------- the workflow stage
+def split_diagnostics(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int) -> dict:
+    """Where a miscalibration comes from, per split and parameter: the KS p-value of the randomized
+    PIT of the truth (uniform when calibrated; uniform on train but not on held-out splits is an
+    overfit to the training families) with its counts per fifth, and the truths' marginal in the
+    flow's coordinates (``prior``: uniform under the draw prior; the screening and the split's own
+    sampling tilt it) with the two-sample KS p-value of train against the held-out splits: a training
+    marginal unlike the held-out one is what a posterior that learns little from the image returns."""
+    from scipy import stats
+
+    from .calibration import sbc_ks_pvalues, sbc_ranks
+
+    out = {"pit": {}, "coordinates_marginal": {}}
+    v_of = {}
+    for k, name in enumerate(SPLITS):
+        idx = np.asarray(splits[name])
+        if len(idx) < 2:
+            continue
+        samples = est.sample(data.images[idx], data.ms_norm[idx], draws, seed=stream_seed(seed, "posterior", "diagnose", k))
+        ranks = sbc_ranks(samples, u[idx])
+        p = sbc_ks_pvalues(ranks, draws, stream_rng(seed, "posterior", "diagnose_pit", k))
+        v = est.to_coordinates(u[idx], data.ms_norm[idx])
+        v_of[name] = v
+        out["pit"][name] = {n: {"ks_p": float(p[j]), "per_fifth": np.histogram(ranks[:, j] / draws, bins=5,
+                                                                               range=(0, 1))[0].tolist()}
+                            for j, n in enumerate(est.names)}
+        out["coordinates_marginal"][name] = {n: {"ks_p_uniform": float(stats.kstest(v[:, j], "uniform").pvalue),
+                                                 "per_fifth": np.histogram(v[:, j], bins=5, range=(0, 1))[0].tolist()}
+                                             for j, n in enumerate(est.names)}
+    held = [v_of[n] for n in SPLITS if n != "train" and n in v_of]
+    if "train" in v_of and held:
+        held = np.concatenate(held)
+        out["train_vs_held_out_ks_p"] = {n: float(stats.ks_2samp(v_of["train"][:, j], held[:, j]).pvalue)
+                                         for j, n in enumerate(est.names)}
+    return out
+
+
 def _regression_summary(history: dict) -> dict | None:
     """Best epoch, epochs run and validation MSE (standardized logits) of the summary regression."""
     if "regression_best_epoch" not in history:
@@ -680,6 +716,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
             for j, name in enumerate(names):
                 calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
                 calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
+    diagnostics = split_diagnostics(est, data, u, splits, draws, seed) if learning["protocol"] == "holdout" else None
     calibration_s = time.perf_counter() - started
     metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
                "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
@@ -692,6 +729,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
                "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
                "test_and_calibration_splits": pooled,
+               "split_diagnostics": diagnostics,
                "conformal": conformal,
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
@@ -707,8 +745,14 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
         log(f"posterior {name}: MAE mean {row['mae_mean']:.3f} median {row['mae_median']:.3f}; SBC KS p {row['sbc_ks_p']:.3f}; "
             f"coverage 50/68/90 {row.get('coverage_50', float('nan')):.2f}/{row.get('coverage_68', float('nan')):.2f}/"
             f"{row.get('coverage_90', float('nan')):.2f}; width 90 {row.get('width_90', float('nan')):.3f}")
+    if diagnostics and "train_vs_held_out_ks_p" in diagnostics:
+        log("posterior split diagnostics (train vs held-out marginal KS p; PIT KS p train/validation/calibration/test): "
+            + "; ".join(f"{n} {diagnostics['train_vs_held_out_ks_p'][n]:.3f} ("
+                        + "/".join(f"{diagnostics['pit'][k][n]['ks_p']:.3f}" for k in SPLITS if k in diagnostics["pit"])
+                        + ")" for n in names))
     return metrics
 
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "summarize", "posterior_prediction", "train_posterior"]
+           "PosteriorEstimator", "fit_posterior", "summarize", "posterior_prediction", "split_diagnostics",
+           "train_posterior"]
