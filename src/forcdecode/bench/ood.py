@@ -1,8 +1,8 @@
-"""Does the posterior's out-of-distribution check (``learn/ood.py``) flag the films it says it flags?
+"""Does the posterior's out-of-distribution check (``learn/ood.py``) flag the films it should?
 
-The check claims that a film whose pinning density or grain size lies outside the training prior, or
-another code's discretization of the same physics, is flagged, while families like the training
-ones are flagged at most at its level α. This bench measures it on FORC families made for the
+The issue asks that a film whose pinning density or grain size lies outside the training prior, or
+another code's discretization of the same physics, be flagged, while families like the training ones
+are flagged at most at the check's level α. This bench measures it on FORC families made for the
 purpose, from the Hamiltonians of held-out families (test split by default: in the prior, screened),
 each on a new disorder realisation:
 
