@@ -9,13 +9,13 @@ coordinate the data do not tell (θ_b never enters x) it must be at least as wid
 import numpy as np
 import pytest
 import torch
-from scipy import stats
 
 from forcdecode.learn.calibration import calibration_metrics
 from forcdecode.learn.posterior import PosteriorEstimator, fit_posterior
 from forcdecode.learn.scoring import binomial_band
 
-SIGMA = 0.08
+from test_posterior_gaussian import SIGMA, exact_mean, fit_gaussian_problem
+
 N_TRAIN, N_VAL, N_TEST = 800, 200, 400
 SETTINGS = {"coordinates": "box", "width": 32, "dropout": 0.0, "epochs": 60, "patience": 10, "batch_size": 64, "lr": 3e-3,
             "transforms": 2, "hidden": 32, "ensemble": 3}
@@ -23,16 +23,8 @@ SETTINGS = {"coordinates": "box", "width": 32, "dropout": 0.0, "epochs": 60, "pa
 
 @pytest.fixture(scope="module")
 def fitted():
-    torch.set_num_threads(1)
-    rng = np.random.default_rng(5)
-    theta = rng.random((N_TRAIN + N_VAL + N_TEST, 2))
-    x = theta + SIGMA * rng.standard_normal(theta.shape)
-    index = np.arange(len(theta))
-    train, val, test = index[:N_TRAIN], index[N_TRAIN:N_TRAIN + N_VAL], index[N_TRAIN + N_VAL:]
-    est = fit_posterior(x, np.zeros(len(x)), theta, train, val, names=("a", "b"), settings=SETTINGS, seed=2,
-                        embedding="mlp")
-    draws = est.sample(x[test], np.zeros(len(test)), 600, seed=4)
-    return est, x[test], theta[test], draws
+    est, x, theta = fit_gaussian_problem(SETTINGS, N_TRAIN, N_VAL, N_TEST, data_seed=5, fit_seed=2)
+    return est, x, theta, est.sample(x, np.zeros(len(x)), 600, seed=4)
 
 
 def test_three_members_fitted_from_different_weights(fitted):
@@ -45,9 +37,7 @@ def test_three_members_fitted_from_different_weights(fitted):
 
 def test_the_mixture_is_still_the_exact_posterior(fitted):
     _, x, theta, draws = fitted
-    a, b = (0 - x) / SIGMA, (1 - x) / SIGMA
-    exact = stats.truncnorm.mean(a, b, loc=x, scale=SIGMA)
-    error = np.abs(draws.mean(axis=1) - exact)
+    error = np.abs(draws.mean(axis=1) - exact_mean(x))
     assert (error.mean(axis=0) < 0.25 * SIGMA).all(), error.mean(axis=0) / SIGMA
     metrics = calibration_metrics(draws, theta, ["a", "b"], np.random.default_rng(1))
     for level in (0.5, 0.68, 0.9):

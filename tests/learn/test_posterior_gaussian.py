@@ -21,25 +21,35 @@ SETTINGS = {"coordinates": "box", "ensemble": 1, "width": 32, "dropout": 0.0, "e
             "transforms": 3, "hidden": 32}
 
 
-@pytest.fixture(scope="module")
-def fitted():
+def fit_gaussian_problem(settings, n_train, n_val, n_test, data_seed, fit_seed):
+    """θ ~ U[0, 1]², x = θ + σ ε; the posterior fitted on the first n_train draws (early stopping on
+    the next n_val); returns (estimator, x and θ of the last n_test draws)."""
     torch.set_num_threads(1)
-    rng = np.random.default_rng(0)
-    theta = rng.random((N_TRAIN + N_VAL + N_TEST, 2))
+    rng = np.random.default_rng(data_seed)
+    theta = rng.random((n_train + n_val + n_test, 2))
     x = theta + SIGMA * rng.standard_normal(theta.shape)
     index = np.arange(len(theta))
-    train, val, test = index[:N_TRAIN], index[N_TRAIN:N_TRAIN + N_VAL], index[N_TRAIN + N_VAL:]
-    est = fit_posterior(x, np.zeros(len(x)), theta, train, val, names=("a", "b"), settings=SETTINGS, seed=1,
+    train, val, test = index[:n_train], index[n_train:n_train + n_val], index[n_train + n_val:]
+    est = fit_posterior(x, np.zeros(len(x)), theta, train, val, names=("a", "b"), settings=settings, seed=fit_seed,
                         embedding="mlp")
-    draws = est.sample(x[test], np.zeros(len(test)), 500, seed=3)
-    return est, x[test], theta[test], draws
+    return est, x[test], theta[test]
+
+
+def exact_mean(x):
+    """Mean of the exact posterior N(x, σ²) truncated to [0, 1], per coordinate."""
+    return stats.truncnorm.mean((0 - x) / SIGMA, (1 - x) / SIGMA, loc=x, scale=SIGMA)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    est, x, theta = fit_gaussian_problem(SETTINGS, N_TRAIN, N_VAL, N_TEST, data_seed=0, fit_seed=1)
+    return est, x, theta, est.sample(x, np.zeros(len(x)), 500, seed=3)
 
 
 def test_the_posterior_mean_is_the_exact_one(fitted):
     _, x, _, draws = fitted
     a, b = (0 - x) / SIGMA, (1 - x) / SIGMA
-    exact = stats.truncnorm.mean(a, b, loc=x, scale=SIGMA)
-    error = np.abs(draws.mean(axis=1) - exact)
+    error = np.abs(draws.mean(axis=1) - exact_mean(x))
     assert (error.mean(axis=0) < 0.25 * SIGMA).all(), error.mean(axis=0) / SIGMA
     assert (error.max(axis=0) < 0.75 * SIGMA).all(), error.max(axis=0) / SIGMA
     # and the spread: the exact posterior's standard deviation, within 20 % on average
