@@ -48,14 +48,12 @@ def test_the_mixture_is_still_the_exact_posterior(fitted):
 
 def test_draws_are_the_stratified_mixture_of_the_members(fitted):
     est, x, _, _ = fitted
-    ms = torch.zeros(5)
-    inputs = torch.as_tensor(x[:5], dtype=torch.float32)
     draws = est.sample(x[:5], np.zeros(5), 30, seed=9)
     from forcdecode.core.streams import stream_seed
 
     for k, net in enumerate(est.nets):
         seed = 9 if k == 0 else stream_seed(9, "posterior", "ensemble_member", k)
-        own = PosteriorEstimator._sample_net(net, inputs, ms, 10, seed, 64)
+        own = PosteriorEstimator(net, est.architecture, est.names).sample(x[:5], np.zeros(5), 10, seed=seed)
         np.testing.assert_allclose(draws[:, k::3], own, atol=1e-12)
 
 
