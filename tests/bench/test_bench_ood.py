@@ -69,6 +69,8 @@ def test_flag_rates_of_known_families_from_the_stored_images(model, tmp_path):
     # whole area for the other generator (their columns vs its rows)
     assert control["median_grey_levels_from_dataset_family"] == 0.0
     assert other_row["median_grey_levels_from_dataset_family"] > 30
+    with pytest.raises(ConfigError, match="holds 60 families, not the 10"):
+        bench_ood(model, None, rows[:10], range(10), fresh.ms_norm[:10], cases=("control",), out_dir=tmp_path)
 
 
 def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path):

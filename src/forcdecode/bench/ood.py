@@ -138,6 +138,9 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
         started = time.perf_counter()
         if path is not None and path.exists():
             images = np.load(path)["images"]
+            if len(images) != len(rows):
+                raise ConfigError(f"{path} holds {len(images)} families, not the {len(rows)} asked for: "
+                                  "use another --ood-dir or the same --families")
         else:
             say(f"ood: simulating {len(rows)} families of case {case}")
             images = make_case(case, cfg, rows, list(sample_ids), workers)
