@@ -243,17 +243,31 @@ def _bench_films(args, say) -> int:
     return 0
 
 
+def _held_out_families(args):
+    """(the workflow's learning.json, the dataset, the posterior, indices of the ``--split`` families)
+    for the benches that run on held-out families of a trained posterior."""
+    from ..config import defaults
+    from ..core.io import read_json
+    from ..learn.data import load_dataset
+    from ..learn.posterior import PosteriorEstimator
+    from ..learn.splits import assign_splits
+
+    stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
+    learning = {**defaults("learning"), **stage.get("learning", {})}
+    data = load_dataset(args.dataset)
+    est = PosteriorEstimator.load(args.posterior)
+    held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
+    return stage, data, est, held_out
+
+
 def _bench_fit(args, say) -> int:
     """Refined vs amortized posterior on held-out test families with known truth (nested budgets)."""
     import numpy as np
 
-    from ..config import defaults, load_config, shipped_config
+    from ..config import load_config, shipped_config
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..learn.data import load_dataset
-    from ..learn.posterior import PosteriorEstimator
-    from ..learn.splits import assign_splits
     from ..loop.fit_cli import fit_one
 
     budgets = sorted(set(args.budgets))
@@ -262,11 +276,7 @@ def _bench_fit(args, say) -> int:
     if any(b % args.round_size for b in budgets):
         raise ConfigError(f"--budgets {budgets} must be multiples of --round-size {args.round_size} (nested rounds)")
     cfg = load_config(args.config or shipped_config("config"))
-    stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
-    learning = {**defaults("learning"), **stage.get("learning", {})}
-    data = load_dataset(args.dataset)
-    est = PosteriorEstimator.load(args.posterior)
-    held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
+    stage, data, est, held_out = _held_out_families(args)
     if args.first_family + args.families > len(held_out):
         raise ConfigError(f"the {args.split} split has {len(held_out)} families: --first-family {args.first_family} "
                           f"+ --families {args.families} is beyond it")
@@ -306,28 +316,19 @@ def _bench_fit(args, say) -> int:
 def _bench_ood(args, say) -> int:
     """Flag rate of the posterior's OOD check on held-out Hamiltonians made in and out of the prior."""
     from ..core.errors import ConfigError
-    from ..core.io import read_json, write_json
-    from ..learn.data import load_dataset
-    from ..learn.posterior import PosteriorEstimator
-    from ..learn.splits import assign_splits
+    from ..core.io import write_json
+    from ..core.parameters import NAMES
     from .ood import CASES, bench_ood, ood_lines
 
     if args.families < 1 or args.workers < 1:
         raise ConfigError(f"--families and --workers must be >= 1 (got {args.families}, {args.workers})")
     import h5py
 
-    stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
-    from ..config import defaults
-
-    learning = {**defaults("learning"), **stage.get("learning", {})}
-    data = load_dataset(args.dataset)
+    _, data, est, held_out = _held_out_families(args)
     with h5py.File(args.dataset, "r") as h5:
         cfg = json.loads(h5.attrs["config_json"])
-    est = PosteriorEstimator.load(args.posterior)
-    held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
     chosen = held_out[: args.families]
-    names = ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")
-    rows = [{n: (int(data.values[n][k]) if n == "N_pin" else float(data.values[n][k])) for n in names} for k in chosen]
+    rows = [{n: (int(data.values[n][k]) if n == "N_pin" else float(data.values[n][k])) for n in NAMES} for k in chosen]
     result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
                        cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say,
                        dataset_images=data.images[chosen])

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.parameters import DEFAULT_BOUNDS
 
 CASES = ("control", "no_pinning", "pinning_beyond_prior", "grains_8nm", "magnumnp")
 DISORDER_KEY_OFFSET = 1_000_000
@@ -53,7 +54,7 @@ def case_film(cfg: dict, params: dict, case: str) -> tuple[dict, dict]:
     if case == "no_pinning":
         params["N_pin"] = 0
     elif case == "pinning_beyond_prior":
-        high = float(cfg.get("bounds", {}).get("N_pin", [0, 255])[1])
+        high = float(cfg.get("bounds", {}).get("N_pin", DEFAULT_BOUNDS["N_pin"])[1])
         params["N_pin"] = int(round(PINNING_FACTOR * high))
     elif case == "grains_8nm":
         cfg["n_grains"] = GRAINS_8NM
