@@ -65,6 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
     ood.add_argument("--ood-cases", nargs="+", help="ood: cases (default: all; magnumnp needs the reference extra)")
     ood.add_argument("--ood-dir", default="results/bench/ood", help="ood: images per case (resumable) and summary.json")
+    ood.add_argument("--predictive-budget", type=int, default=0,
+                     help="ood: also refine every family for this many simulations and apply the posterior-predictive "
+                          "check (loop/predictive_check.py), calibrated on --calibration-families validation families "
+                          "(0: off; uses --round-size, --fit-workers, --prior)")
+    ood.add_argument("--predictive-cases", nargs="+", help="ood: the cases the predictive check runs on (default: "
+                     "every case asked for)")
+    ood.add_argument("--calibration-families", type=int, default=20,
+                     help="ood: validation families the predictive check is calibrated on (>= 19 for alpha 0.05)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -313,6 +321,44 @@ def _bench_fit(args, say) -> int:
     return 0
 
 
+def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
+    """Settings of the predictive check and its reference: the statistic of ``--calibration-families``
+    validation families (our film made them; the posterior never trained on them), refined with the
+    same budget, round size and prior. Written to ``OOD_DIR/predictive_reference.json``."""
+    import h5py
+    import numpy as np
+
+    from ..config import defaults
+    from ..core.errors import ConfigError
+    from ..core.io import write_json
+    from ..learn.splits import assign_splits
+    from ..loop.predictive_check import make_reference, predictive_statistic
+    from .ood import predictive_statistics
+
+    learning = {**defaults("learning"), **stage.get("learning", {})}
+    if args.predictive_budget < args.round_size or args.predictive_budget % args.round_size:
+        raise ConfigError(f"--predictive-budget {args.predictive_budget} must be a positive multiple of --round-size "
+                          f"{args.round_size}")
+    validation = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])["validation"]
+    if args.calibration_families < 1 or args.calibration_families > len(validation):
+        raise ConfigError(f"--calibration-families must be 1..{len(validation)} (the validation split)")
+    chosen = validation[: args.calibration_families]
+    settings = {"budget": args.predictive_budget, "round_size": args.round_size, "workers": args.fit_workers,
+                "seed": stage["seed"], "prior": args.prior, "fit_dir": f"{args.ood_dir}/predictive"}
+    with h5py.File(args.dataset, "r") as h5:
+        curves = [h5["curves_mz"][k].astype(float) for k in chosen]
+    sids = [int(data.sample_id[k]) for k in chosen]
+    say(f"predictive check: calibrating on {len(chosen)} validation families ({args.predictive_budget} simulations each)")
+    results = predictive_statistics(est, cfg, data.images[chosen], curves, data.values["Ms"][chosen], sids, settings,
+                                    f"{args.ood_dir}/predictive/validation", say)
+    values = [predictive_statistic(r, args.predictive_budget) for r in results]
+    reference = make_reference(values, budget=args.predictive_budget, round_size=args.round_size, prior=args.prior,
+                               sample_ids=sids)
+    write_json(f"{args.ood_dir}/predictive_reference.json", reference)
+    say(f"predictive check: validation T median {np.median(values):.2f}, max {np.max(values):.2f}")
+    return {**settings, "reference": reference, "cases": tuple(args.predictive_cases or args.ood_cases or ())}
+
+
 def _bench_ood(args, say) -> int:
     """Flag rate of the posterior's OOD check on held-out Hamiltonians made in and out of the prior."""
     from ..core.errors import ConfigError
@@ -324,14 +370,19 @@ def _bench_ood(args, say) -> int:
         raise ConfigError(f"--families and --workers must be >= 1 (got {args.families}, {args.workers})")
     import h5py
 
-    _, data, est, held_out = _held_out_families(args)
+    stage, data, est, held_out = _held_out_families(args)
     with h5py.File(args.dataset, "r") as h5:
         cfg = json.loads(h5.attrs["config_json"])
     chosen = held_out[: args.families]
     rows = [{n: (int(data.values[n][k]) if n == "N_pin" else float(data.values[n][k])) for n in NAMES} for k in chosen]
+    predictive = None
+    if args.predictive_budget:
+        predictive = _predictive_reference(args, stage, data, est, cfg, say)
     result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
                        cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say,
-                       dataset_images=data.images[chosen])
+                       dataset_images=data.images[chosen], predictive=predictive)
+    if predictive is not None:
+        result["predictive_reference"] = predictive["reference"]
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))
     for line in ood_lines(result):
         say(line)

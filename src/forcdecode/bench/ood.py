@@ -63,19 +63,19 @@ def case_film(cfg: dict, params: dict, case: str) -> tuple[dict, dict]:
     return cfg, params
 
 
-def our_family(job) -> np.ndarray:
-    """uint8 image of one family on our engine: job = (cfg, params, disorder key)."""
+def our_family(job) -> tuple[np.ndarray, np.ndarray]:
+    """(uint8 image, grid family m_z (n, n)) of one family on our engine: job = (cfg, params, disorder key)."""
     from ..dataset.simulate import simulate
 
     cfg, params, key = job
     out = simulate(cfg, params, key)
     if out["status"] != "ok":
         raise RuntimeError(f"family (key {key}) failed: {out['reason']}")
-    return out["image"]
+    return out["image"], np.asarray(out["curves_mz"], dtype=float)
 
 
-def magnumnp_image(job) -> np.ndarray:
-    """uint8 image of one magnum.np family on the training field grid: job = (cfg, params, seed)."""
+def magnumnp_image(job) -> tuple[np.ndarray, np.ndarray]:
+    """(uint8 image, grid family) of one magnum.np family on the training field grid: job = (cfg, params, seed)."""
     from ..forc.raster import rasterize_grid_family
     from ..reference.independent import IndependentFilm, magnumnp_family
 
@@ -92,11 +92,12 @@ def magnumnp_image(job) -> np.ndarray:
     curves = np.full((len(grid), len(grid)), np.nan)
     for k, values in enumerate(family.curves):
         curves[k, k:] = values
-    return rasterize_grid_family(curves)
+    return rasterize_grid_family(curves), curves
 
 
-def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: int = 1) -> np.ndarray:
-    """Images (n, side, side) of ``case`` for the Hamiltonians ``rows`` (SI dicts), new disorder per key."""
+def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Images (n, side, side) and grid families (n, n_fields, n_fields) of ``case`` for the Hamiltonians
+    ``rows`` (SI dicts), new disorder per key."""
     if case == "magnumnp":
         from ..reference.magnumnp_film import magnumnp_available
 
@@ -114,18 +115,22 @@ def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: 
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(workers) as pool:
-            return np.stack(list(pool.map(worker, jobs)))
-    return np.stack([worker(j) for j in jobs])
+            done = list(pool.map(worker, jobs))
+    else:
+        done = [worker(j) for j in jobs]
+    return np.stack([d[0] for d in done]), np.stack([d[1] for d in done])
 
 
 def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES, workers: int = 1,
-              out_dir=None, say=print, dataset_images=None) -> dict:
+              out_dir=None, say=print, dataset_images=None, predictive: dict | None = None) -> dict:
     """Flag rate of the OOD check per case (module docstring); ``rows`` the held-out Hamiltonians (SI,
     with Ms), ``ms_norm`` their normalized M_s. With ``dataset_images`` (the dataset's own images of
     the same Hamiltonians, another disorder realisation) each case also reports how far its images
     lie from them (mean |Δ| in grey levels): for ``control`` that is the realisation floor, and a case
     whose images differ by no more than the floor cannot be told from an in-prior film by any check
-    of the image."""
+    of the image. With ``predictive`` (budget, round_size, workers, seed, prior, fit_dir and the
+    validation ``reference`` of ``loop.predictive_check``; ``cases``: those it runs on, empty for all)
+    every family is also refined and judged by the posterior-predictive check."""
     from ..learn.ood import ood_check
 
     unknown = [c for c in cases if c not in CASES]
@@ -137,18 +142,26 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
     for case in cases:
         path = Path(out_dir) / f"{case}.npz" if out_dir else None
         started = time.perf_counter()
+        use_predictive = predictive is not None and (not predictive.get("cases") or case in predictive["cases"])
+        images = curves = None
         if path is not None and path.exists():
-            images = np.load(path)["images"]
+            stored = np.load(path)
+            images = stored["images"]
+            curves = stored["curves"] if "curves" in stored.files else None
             if len(images) != len(rows):
                 raise ConfigError(f"{path} holds {len(images)} families, not the {len(rows)} asked for: "
                                   "use another --ood-dir or the same --families")
-        else:
+        if images is None or (use_predictive and curves is None):
             say(f"ood: simulating {len(rows)} families of case {case}")
-            images = make_case(case, cfg, rows, list(sample_ids), workers)
+            fresh, curves = make_case(case, cfg, rows, list(sample_ids), workers)
+            if images is not None and not np.array_equal(fresh, images):
+                raise ConfigError(f"{path}: its images are not what this code makes for them (another config or "
+                                  "code version): use another --ood-dir")
+            images = fresh
             if path is not None:
                 path.parent.mkdir(parents=True, exist_ok=True)
                 tmp = path.with_suffix(".tmp.npz")
-                np.savez_compressed(tmp, images=images)
+                np.savez_compressed(tmp, images=images, curves=curves.astype(np.float32))
                 tmp.replace(path)
         checks = ood_check(est, images, ms_norm)
         flagged = sum(r["out_of_distribution"] for r in checks)
@@ -161,9 +174,56 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
             diff = np.abs(images.astype(float) - np.asarray(dataset_images, dtype=float)).mean(axis=(1, 2))
             row["grey_levels_from_dataset_family"] = diff.tolist()
             row["median_grey_levels_from_dataset_family"] = float(np.median(diff))
-        out["cases"][case] = row
         say(f"ood {case}: {flagged}/{len(checks)} flagged [{low:.2f}, {high:.2f}], median p {np.median(p):.3f}")
+        if use_predictive:
+            row["predictive"] = predictive_case(est, cfg, images, curves, [r["Ms"] for r in rows], list(sample_ids),
+                                                predictive, Path(predictive["fit_dir"]) / case, say,
+                                                ood_flags=[r["out_of_distribution"] for r in checks])
+        out["cases"][case] = row
     return out
+
+
+def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
+    """Refine each family for ``settings["budget"]`` simulations (``loop.fit_cli.fit_one``; one
+    fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
+    from ..core.io import read_json, write_json
+    from ..loop.fit_cli import fit_one
+
+    fit_dir = Path(fit_dir)
+    fit_dir.mkdir(parents=True, exist_ok=True)
+    results = []
+    for n, (image, family, ms, key) in enumerate(zip(images, curves, Ms, keys), 1):
+        path = fit_dir / f"sample_{int(key)}.json"
+        result = read_json(path, what="fit result") if path.exists() else None
+        budget = int(settings["budget"])
+        if result is None or str(budget) not in result["observation_rms"].get("best_over_floor_by_budget", {}):
+            say(f"predictive check: refining family {n}/{len(keys)} (key {key}), {budget} simulations")
+            result = fit_one(cfg, est, image, np.asarray(family, float), float(ms), budget=budget,
+                             round_size=int(settings["round_size"]), workers=int(settings["workers"]),
+                             seed=int(settings["seed"]), key=int(key), checkpoints=(budget,),
+                             state_path=str(fit_dir / f"state_{int(key)}.npz"), prior=settings["prior"])
+            write_json(path, result)
+        results.append(result)
+    return results
+
+
+def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
+    """The predictive check on one case's families against ``settings["reference"]`` (validation)."""
+    from ..loop.predictive_check import predictive_check
+
+    results = predictive_statistics(est, cfg, images, curves, Ms, keys, settings, fit_dir, say)
+    checks = [predictive_check(r, settings["reference"]) for r in results]
+    flagged = [c["misspecified"] for c in checks]
+    either = flagged if ood_flags is None else [a or b for a, b in zip(flagged, ood_flags)]
+    low, high = clopper_pearson(sum(flagged), len(flagged))
+    lo2, hi2 = clopper_pearson(sum(either), len(either))
+    row = {"flagged": int(sum(flagged)), "n": len(flagged), "flagged_fraction": sum(flagged) / len(flagged),
+           "interval_90": [low, high], "statistics": [c["statistic"] for c in checks],
+           "p_values": [c["p_value"] for c in checks], "median_statistic": float(np.median([c["statistic"] for c in checks])),
+           "flagged_by_either": int(sum(either)), "either_interval_90": [lo2, hi2]}
+    say(f"  predictive check: {row['flagged']}/{row['n']} flagged [{low:.2f}, {high:.2f}], median T "
+        f"{row['median_statistic']:.2f}; with the training-data check: {row['flagged_by_either']}/{row['n']}")
+    return row
 
 
 def ood_lines(result: dict) -> list[str]:
@@ -176,8 +236,22 @@ def ood_lines(result: dict) -> list[str]:
         delta = row.get("median_grey_levels_from_dataset_family", float("nan"))
         lines.append(f"{case:24s} {row['flagged']:>4d}/{row['n']:<4d} {f'[{lo:.2f}, {hi:.2f}]':>15s} "
                      f"{row['median_p']:9.3f} {delta:22.1f}")
+    if any("predictive" in row for row in result["cases"].values()):
+        ref = result.get("predictive_reference", {})
+        lines += ["", f"posterior-predictive check (best of {ref.get('budget', '?')} simulations / realisation floor; "
+                      f"calibrated on {len(ref.get('values', []))} validation families, median "
+                      f"{np.median(ref.get('values', [np.nan])):.2f}, max {np.max(ref.get('values', [np.nan])):.2f})",
+                  f"{'case':24s} {'flagged':>9s} {'90 % interval':>15s} {'median T':>9s} {'either check':>13s}"]
+        for case, row in result["cases"].items():
+            pr = row.get("predictive")
+            if pr is None:
+                continue
+            lo, hi = pr["interval_90"]
+            lines.append(f"{case:24s} {pr['flagged']:>4d}/{pr['n']:<4d} {f'[{lo:.2f}, {hi:.2f}]':>15s} "
+                         f"{pr['median_statistic']:9.2f} {pr['flagged_by_either']:>8d}/{pr['n']:<4d}")
     return lines
 
 
-__all__ = ["CASES", "bench_ood", "case_film", "clopper_pearson", "make_case", "ood_lines"]
+__all__ = ["CASES", "bench_ood", "case_film", "clopper_pearson", "make_case", "ood_lines", "predictive_case",
+           "predictive_statistics"]
 

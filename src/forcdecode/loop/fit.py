@@ -350,16 +350,23 @@ def observation_rms(state) -> dict:
     against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the
     common disorder realisation) over the floor √σ² (the RMS the true Hamiltonian reaches on another
     realisation). ``amortized``: median over round 1 (draws of the amortized posterior);
-    ``refined``: weighted median over every particle at the final β."""
+    ``refined``: weighted median over every particle at the final β; ``best_over_floor_by_budget``:
+    per round boundary b, the smallest ratio among the first b candidates (the statistic of the
+    calibrated misspecification check, ``loop.predictive_check``: it does not depend on the budget
+    run beyond b)."""
     ok = np.isfinite(state.loglik)
-    ratio = np.sqrt(np.clip(-2.0 * state.loglik[ok] * state.sigma2 / state.n_curves, 0, None)) / np.sqrt(state.sigma2)
+    ratio_all = np.sqrt(np.clip(-2.0 * np.where(ok, state.loglik, -np.inf) * state.sigma2 / state.n_curves, 0, None)) \
+        / np.sqrt(state.sigma2)
+    ratio = ratio_all[ok]
     first = np.zeros(len(state.loglik), bool)
     first[: state.round_size] = True
     weights = _normalized(state.logw)[ok]
+    best = {str(b): float(np.min(ratio_all[:b])) for b in range(state.round_size, len(state.loglik) + 1, state.round_size)}
     return {"floor_rms": float(np.sqrt(state.sigma2)),
             "amortized_over_floor": float(np.median(ratio[first[ok]])) if first[ok].any() else float("nan"),
             "refined_over_floor": float(weighted_quantiles(ratio, weights, [0.5])[0]) if weights.sum() > 0
-            else float("nan")}
+            else float("nan"),
+            "best_over_floor_by_budget": best}
 
 
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
