@@ -64,6 +64,15 @@ def measured(tmp_path_factory):
     return write_micromag_0015(tmp / "film.frc", fields, curves), tmp / "cfg.yaml"
 
 
+def write_reference(path, value):
+    """A predictive-check reference of 20 validation families, all with statistic ``value`` (budget 3):
+    the smallest p it can give is 1/21 < 0.05."""
+    from forcdecode.loop.predictive_check import make_reference
+
+    path.write_text(json.dumps(make_reference([value] * 20, budget=3, round_size=3, prior="draw", sample_ids=range(20))))
+    return path
+
+
 def test_a_family_unlike_the_training_data_is_not_decoded(posterior, measured, tmp_path, capsys):
     path, cfg = measured
     out = tmp_path / "loop"
@@ -95,9 +104,15 @@ def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_pat
     refined posterior at every round's budget (nested)."""
     path, cfg = measured
     out = tmp_path / "fit"
+    reference = write_reference(tmp_path / "loose.json", 1e6)  # every validation family fitted worse: not flagged
     assert main(["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg),
-                 "--budget", "6", "--round-size", "3", "--out", str(out)]) == 0
+                 "--budget", "6", "--round-size", "3", "--out", str(out), "--predictive-reference", str(reference)]) == 0
     result = json.loads((out / "fit.json").read_text())
+    check = result["predictive_check"]
+    assert not check["misspecified"] and check["p_value"] == 1.0 and check["budget"] == 3
+    assert check["statistic"] == result["observation_rms"]["best_over_floor_by_budget"]["3"]
+    assert set(result["observation_rms"]["best_over_floor_by_budget"]) == {"3", "6"}
+    assert result["observation_rms"]["best_over_floor_by_budget"]["6"] <= check["statistic"]
     assert set(result["refined_by_budget"]) == {"3", "6"} and result["sigma2"] > 0
     final = result["refined_by_budget"]["6"]
     assert 1.0 <= final["ess"] <= 6.0
@@ -125,6 +140,20 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
         assert report["parameters"][name] == pytest.approx(expected, rel=1e-9), name  # what was re-simulated
     assert report["parameters"]["Ms"] == pytest.approx(6e5)
     assert "Refined by 6 simulations" in (out / "report.md").read_text()
+    # with a reference whose validation families all came closer, the family is flagged, in the report too
+    reference = write_reference(tmp_path / "tight.json", 1e-6)
+    flagged = tmp_path / "flagged"
+    assert main(["loop", str(path), "--out", str(flagged), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--profiles", "1", "--no-physics",
+                 "--no-measured-protocol", "--force", "--refine", "6", "--refine-round-size", "3",
+                 "--predictive-reference", str(reference)]) == 0
+    check = json.loads((flagged / "report.json").read_text())["refined"]["predictive_check"]
+    assert check["misspecified"] and check["p_value"] == pytest.approx(1 / 21)
+    assert "**Misspecified: no film inside the prior" in (flagged / "report.md").read_text()
+    # a reference made with other rounds cannot judge this refinement: a clear error before any simulation
+    assert main(["loop", str(path), "--out", str(tmp_path / "y"), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
+                 "--refine-round-size", "2", "--predictive-reference", str(reference)]) == 2
     # refinement starts from the joint posterior: Alice, or a given Hamiltonian, is refused with exit 2
     assert main(["loop", str(path), "--out", str(tmp_path / "x"), "--config", str(cfg), "--Ms-kA-m", "600",
                  "--refine", "6"]) == 2

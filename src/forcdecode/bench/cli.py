@@ -72,7 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ood.add_argument("--predictive-cases", nargs="+", help="ood: the cases the predictive check runs on (default: "
                      "every case asked for)")
     ood.add_argument("--calibration-families", type=int, default=20,
-                     help="ood: validation families the predictive check is calibrated on (>= 19 for alpha 0.05)")
+                     help="ood: validation families the predictive check is calibrated on (>= 20 for alpha 0.05)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "

@@ -22,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "film (forcdecode fit) and analyse the residual of the refined medians")
     parser.add_argument("--refine-round-size", type=int, default=25, help="simulations per refinement round (default 25)")
     parser.add_argument("--refine-workers", type=int, default=1, help="processes simulating the refinement")
+    parser.add_argument("--predictive-reference", help="with --refine: the posterior-predictive check's reference "
+                        "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`, B <= --refine): "
+                        "flags a family no film inside the prior reproduces")
     parser.add_argument("--params", help="JSON file with a Hamiltonian to re-simulate (SI) instead of predicting one")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, help="known M_s (kA/m): no sweep")
     parser.add_argument("--Ms-sweep-kA-m", dest="ms_sweep", type=float, nargs=3, default=[470.0, 1400.0, 6],
@@ -84,7 +87,7 @@ def run(args) -> int:
                                 measured_max_step_T=args.measured_max_step_mT * 1e-3, estimator=args.estimator,
                                 posterior_path=args.posterior, fixed_point=args.fixed_point,
                                 refine_budget=args.refine, refine_round_size=args.refine_round_size,
-                                refine_workers=args.refine_workers)
+                                refine_workers=args.refine_workers, predictive_reference=args.predictive_reference)
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":

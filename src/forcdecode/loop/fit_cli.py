@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the draws and of the proposal rounds")
     parser.add_argument("--prior", choices=PRIORS, default="draw",
                         help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
+    parser.add_argument("--predictive-reference", help="the posterior-predictive check's reference "
+                        "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`): fit.json then "
+                        "says whether a film inside the prior reproduces this family")
     parser.add_argument("--out", required=True, help="output directory (fit.json)")
 
 
@@ -202,6 +205,13 @@ def run(args) -> int:
     if args.budget < args.round_size or args.round_size < 2 or args.workers < 1:
         raise ConfigError("--budget must be at least one round (--round-size >= 2) and --workers >= 1")
     cfg = load_config(args.config or shipped_config("config"))
+    reference = None
+    if args.predictive_reference:
+        from ..core.io import read_json
+        from .predictive_check import check_reference
+
+        reference = read_json(args.predictive_reference, what="predictive-check reference")
+        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=args.budget)
     est = PosteriorEstimator.load(args.posterior)
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
@@ -210,6 +220,10 @@ def run(args) -> int:
                      checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
                      log=lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True))
     result["truth"] = truth
+    if reference is not None:
+        from .predictive_check import predictive_check
+
+        result["predictive_check"] = predictive_check(result, reference)
     write_json(Path(args.out) / "fit.json", result)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     print(f"{'parameter':16s} {'amortized median':>17s} {'refined median':>15s}  refined 90 % interval (normalized)")
@@ -219,4 +233,6 @@ def run(args) -> int:
     print(f"effective sample size {final['ess']:.1f} of {args.budget} simulations; {result['wall_s']:.0f} s")
     if final.get("tempered"):
         print(f"warning: {final['note']}")
+    if reference is not None:
+        print(("warning: " if result["predictive_check"]["misspecified"] else "") + result["predictive_check"]["verdict"])
     return 0

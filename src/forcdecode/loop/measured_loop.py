@@ -82,10 +82,11 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     return best, rows
 
 
-def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log):
+def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None):
     """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
-    the tempering reached the full likelihood."""
+    the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
+    ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check."""
     from ..core.parameters import denormalize
     from .fit_cli import family_key, fit_one
     from .posterior_predictive import draws_as_hamiltonians
@@ -108,6 +109,12 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log)
         entry["parameters"][n] = row
     log(f"refined by {budget} simulations: ESS {final['ess']:.1f}"
         + ("" if result["reached_full_likelihood"] else " (tempered: not the full posterior)"))
+    entry["observation_rms"] = result["observation_rms"]
+    if predictive_reference is not None:
+        from .predictive_check import predictive_check
+
+        entry["predictive_check"] = predictive_check(result, predictive_reference)
+        log(f"posterior-predictive check: {entry['predictive_check']['verdict']}")
     return entry, params
 
 
@@ -202,7 +209,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
                        null_realisations: int = 2, refine_budget: int = 0, refine_round_size: int = 25,
-                       refine_workers: int = 1, log=_progress) -> dict:
+                       refine_workers: int = 1, predictive_reference=None, log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -232,7 +239,10 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     posterior estimator): refine the amortized posterior of this family by that many simulations of
     the film at the chosen M_s (``loop.fit``, rounds of ``refine_round_size``, ``refine_workers``
     processes); the refined medians are the Hamiltonian re-simulated, so the residual analysis runs on
-    the refined re-simulation; report key ``refined``."""
+    the refined re-simulation; report key ``refined``. ``predictive_reference`` (a JSON path, with
+    ``refine_budget``): the calibrated posterior-predictive check (``loop.predictive_check``) of the
+    refinement; a family no in-prior film reproduces is flagged in the report (key
+    ``refined.predictive_check``)."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
@@ -244,6 +254,15 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
+    reference = None
+    if predictive_reference is not None:
+        if not refine_budget:
+            raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
+        from ..core.io import read_json
+        from .predictive_check import check_reference
+
+        reference = read_json(predictive_reference, what="predictive-check reference")
+        check_reference(reference, round_size=refine_round_size, prior="draw", budget_run=refine_budget)
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
                           "networks, not a given Hamiltonian (--params)")
@@ -310,7 +329,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
             resim, spread = best["family"], best["spread"]
         if refine_budget:
             report["refined"], params = _refine(cfg, est, image, family, best["Ms"], path, refine_budget,
-                                                refine_round_size, refine_workers, log)
+                                                refine_round_size, refine_workers, log, reference)
             report["parameters"] = params
             resim = None  # re-simulate the refined Hamiltonian
     if resim is None:
@@ -443,6 +462,10 @@ def _markdown(path, report, analysis) -> str:
             for name, row in refined["parameters"].items():
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
+            check = refined.get("predictive_check")
+            if check:
+                lines += ["", ("**Misspecified: " if check["misspecified"] else "Posterior-predictive check: ")
+                          + check["verdict"] + (".**" if check["misspecified"] else ".")]
         if report.get("ood"):
             lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:

@@ -16,7 +16,7 @@ above. The threshold is not guessed: T is computed the same way (same budget b, 
 same prior) for held-out validation families, which our film made and the posterior never trained on,
 and the check is conformal: p = (1 + #{validation T ≥ T_obs}) / (n + 1), flagged at p < α. Under
 exchangeability with the validation families the false-alarm rate is at most α; with n validation
-families nothing below 1/(n + 1) can be resolved (n ≥ 19 for α = 0.05).
+families nothing below 1/(n + 1) can be resolved (n ≥ 20 for α = 0.05).
 
 The statistic is the minimum over the first b candidates, not the weighted median of the particles:
 it depends on the first b simulations only, so a refinement run to any budget ≥ b gives the same T
