@@ -79,3 +79,31 @@ def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path)
     bare = PosteriorEstimator(model.net, model.architecture, model.names, model.bounds)
     with pytest.raises(ConfigError, match="no OOD reference"):
         bench_ood(bare, None, [], [], [], cases=CASES[:1], out_dir=tmp_path)
+
+
+def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
+    """With ``predictive`` settings each case's families are judged by ``loop.predictive_check``
+    against the validation reference; saved fit results are reused (nothing is simulated here: cfg
+    None would fail), and the table gains the check's rows."""
+    import json
+
+    from forcdecode.loop.predictive_check import make_reference
+
+    fresh = bar_dataset(n=20, seed=43)
+    curves = np.zeros((20, 16, 16), np.float32)
+    np.savez_compressed(tmp_path / "pinning_beyond_prior.npz", images=fresh.images, curves=curves)
+    statistics = [5.0] * 15 + [0.5] * 5  # 15 families no in-prior film reproduces, 5 it does
+    for key, t in enumerate(statistics):
+        path = tmp_path / "fits" / "pinning_beyond_prior" / f"sample_{key}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"prior": "draw", "observation_rms": {"best_over_floor_by_budget": {"25": t}}}))
+    reference = make_reference(np.linspace(0.4, 1.2, 20), budget=25, round_size=25, prior="draw", sample_ids=range(20))
+    settings = {"budget": 25, "round_size": 25, "workers": 1, "seed": 0, "prior": "draw",
+                "fit_dir": str(tmp_path / "fits"), "reference": reference, "cases": ("pinning_beyond_prior",)}
+    result = bench_ood(model, None, [{"Ms": 8e5}] * 20, range(20), fresh.ms_norm, cases=("pinning_beyond_prior",),
+                       out_dir=tmp_path, say=lambda *_: None, predictive=settings)
+    row = result["cases"]["pinning_beyond_prior"]["predictive"]
+    assert row["flagged"] == 15 and row["n"] == 20 and row["median_statistic"] == 5.0
+    assert row["flagged_by_either"] >= 15 and row["p_values"][0] == pytest.approx(1 / 21)
+    result["predictive_reference"] = reference
+    assert any("posterior-predictive check" in line for line in ood_lines(result))

@@ -388,5 +388,8 @@ def _bench_ood(args, say) -> int:
         say(line)
     write_json(f"{args.ood_dir}/summary.json", result)
     if args.json:
-        print(json.dumps({case: row["flagged_fraction"] for case, row in result["cases"].items()}))
+        line = {case: row["flagged_fraction"] for case, row in result["cases"].items()}
+        line.update({f"{case}_predictive": row["predictive"]["flagged_fraction"]
+                     for case, row in result["cases"].items() if "predictive" in row})
+        print(json.dumps(line))
     return 0
