@@ -37,3 +37,36 @@ def test_a_family_range_that_cannot_exist_is_one_clear_error(flags, capsys):
 
     assert main(["bench", "fit", *flags]) == 2
     assert "--first-family must be >= 0 and --families >= 1" in capsys.readouterr().err
+
+
+def test_case_observations_take_the_stored_families_and_the_cases_truth(tmp_path):
+    """``bench fit --case``: the families of a ``bench ood`` case, matched to the split's positions,
+    with the case's Hamiltonian as the truth (magnumnp: no pinning; beyond the prior: 3× the bound)."""
+    from types import SimpleNamespace
+
+    from forcdecode.bench.cli import _case_observations
+    from forcdecode.core.errors import ConfigError
+
+    names = ["Ms", "N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K"]
+    values = {n: np.arange(5, dtype=float) + 1 for n in names}
+    data = SimpleNamespace(values=values)
+    held_out = np.array([4, 2, 0])
+    images = np.arange(3)[:, None, None] * np.ones((3, 4, 4), np.uint8)
+    curves = np.arange(3)[:, None, None] * np.ones((3, 4, 4), np.float32)
+    args = SimpleNamespace(case="magnumnp", ood_dir=str(tmp_path), first_family=1, families=2)
+    with pytest.raises(ConfigError, match="not found"):
+        _case_observations(args, {}, data, held_out, held_out[1:])
+    np.savez_compressed(tmp_path / "magnumnp.npz", images=images)
+    with pytest.raises(ConfigError, match="images only"):
+        _case_observations(args, {}, data, held_out, held_out[1:])
+    np.savez_compressed(tmp_path / "magnumnp.npz", images=images, curves=curves)
+    out = _case_observations(args, {}, data, held_out, held_out[1:])
+    assert [int(o[0][0, 0]) for o in out] == [1, 2] and [float(o[1][0, 0]) for o in out] == [1.0, 2.0]
+    assert out[0][2]["N_pin"] == 0 and out[0][2]["K_u"] == values["K_u"][2]
+    np.savez_compressed(tmp_path / "pinning_beyond_prior.npz", images=images, curves=curves)
+    args.case = "pinning_beyond_prior"
+    out = _case_observations(args, {"bounds": {"N_pin": [0, 255]}}, data, held_out, held_out[1:])
+    assert out[1][2]["N_pin"] == 765
+    args.families = 3
+    with pytest.raises(ConfigError, match="holds 3 families"):
+        _case_observations(args, {}, data, held_out, held_out)

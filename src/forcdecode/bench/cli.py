@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--round-size", type=int, default=25, help="fit: simulations per round")
     fit.add_argument("--fit-workers", type=int, default=2, help="fit: processes simulating in parallel")
     fit.add_argument("--fit-dir", default="results/bench/fit", help="fit: one fit.json per family (resumable)")
+    fit.add_argument("--case", help="fit: refine the families of this `bench ood` case instead of the dataset's "
+                     "(OOD_DIR/CASE.npz with curves, e.g. magnumnp: another code's films of the held-out "
+                     "Hamiltonians; the truth is the case's Hamiltonian)")
     fit.add_argument("--prior", choices=PRIORS, default="draw",
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
@@ -289,6 +292,7 @@ def _bench_fit(args, say) -> int:
         raise ConfigError(f"the {args.split} split has {len(held_out)} families: --first-family {args.first_family} "
                           f"+ --families {args.families} is beyond it")
     chosen = held_out[args.first_family: args.first_family + args.families]
+    observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
     rows = []
     import h5py
 
@@ -301,24 +305,63 @@ def _bench_fit(args, say) -> int:
                 raise ConfigError(f"{path} was refined with the {result.get('prior', 'uniform')} prior, not "
                                   f"--prior {args.prior}: use another --fit-dir")
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
-                say(f"family {n}/{len(chosen)} (sample {sid}): budget {budgets[-1]}")
-                result = fit_one(cfg, est, data.images[k], h5["curves_mz"][k].astype(float), float(data.values["Ms"][k]),
+                say(f"family {n}/{len(chosen)} (sample {sid}{', case ' + args.case if args.case else ''}): "
+                    f"budget {budgets[-1]}")
+                if observations is None:
+                    image, family, truth = (data.images[k], h5["curves_mz"][k].astype(float),
+                                            {p: data.values[p][k] for p in data.values})
+                else:
+                    image, family, truth = observations[n - 1]
+                result = fit_one(cfg, est, image, family, float(data.values["Ms"][k]),
                                  budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
                                  seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
                                  state_path=f"{args.fit_dir}/state_{sid}.npz", prior=args.prior)
-                result["truth_normalized"] = {p: float(np.clip(normalize(p, data.values[p][k], data.bounds), 0, 1))
+                result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0, 1))
                                               for p in result["names"]}
+                if args.case:
+                    result["case"] = args.case
                 write_json(path, result)
             rows.append(result)
     from .fit import fit_summary, summary_lines
 
-    out = {"split": args.split, "prior": args.prior, "sample_ids": [int(data.sample_id[k]) for k in chosen],
+    out = {"split": args.split, "prior": args.prior, "case": args.case, "sample_ids": [int(data.sample_id[k]) for k in chosen],
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
     for line in summary_lines(out):
         say(line)
     write_json(f"{args.fit_dir}/summary.json", out)
     print(json.dumps(out))
     return 0
+
+
+def _case_observations(args, cfg, data, held_out, chosen) -> list:
+    """(image, grid family, truth SI) of the ``--case`` families stored by ``bench ood`` for ``chosen``
+    (the first families of the split, as ``bench ood`` took them); the truth is the case's Hamiltonian
+    (N_pin 0 for magnumnp and no_pinning, three times the prior's bound beyond it)."""
+    import numpy as np
+
+    from ..core.errors import ConfigError
+    from ..core.parameters import NAMES
+    from .ood import CASES, case_film
+
+    if args.case not in CASES:
+        raise ConfigError(f"unknown case {args.case!r} (one of {', '.join(CASES)})")
+    path = os.path.join(args.ood_dir, f"{args.case}.npz")
+    if not os.path.exists(path):
+        raise ConfigError(f"{path} not found: make the case's families first (forcdecode bench ood --ood-cases "
+                          f"{args.case} --predictive-budget ...)")
+    stored = np.load(path)
+    if "curves" not in stored.files:
+        raise ConfigError(f"{path} holds images only: run bench ood with --predictive-budget on it to keep its families")
+    if args.first_family + args.families > len(stored["images"]):
+        raise ConfigError(f"{path} holds {len(stored['images'])} families: --first-family {args.first_family} + "
+                          f"--families {args.families} is beyond it")
+    out = []
+    for k in chosen:
+        n = int(np.flatnonzero(held_out == k)[0])
+        truth = {p: (int(data.values[p][k]) if p == "N_pin" else float(data.values[p][k])) for p in NAMES}
+        truth = {**truth, "N_pin": 0} if args.case == "magnumnp" else case_film(dict(cfg), truth, args.case)[1]
+        out.append((stored["images"][n], stored["curves"][n].astype(float), truth))
+    return out
 
 
 def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
