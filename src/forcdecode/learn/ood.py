@@ -23,8 +23,9 @@ training image are flagged; a film outside the prior whose family still looks li
 not. On the laptop film, pinning three times denser than the prior allows changes the image by 4×
 the realisation floor and is flagged in 0 of 12 families (the image moves along the training
 manifold, as a harder film's would); 8 nm grains and magnum.np's discretization change it by no more
-than the floor, so no check of the image can tell them. A posterior-predictive check (the refined
-re-simulation against the floor) is the test that can.
+than the floor, so no check of the image can tell them. The posterior-predictive check of
+``loop.predictive_check`` asks the question in observation space instead: does any simulated in-prior
+Hamiltonian reproduce the family to within the realisation floor, judged against validation families.
 """
 
 from __future__ import annotations
