@@ -67,6 +67,8 @@ def test_p_value_is_conformal_and_settings_must_match(reference):
     result = family_result(0)
     with pytest.raises(ConfigError, match="draw prior"):
         predictive_check({**result, "prior": "draw"}, reference)
+    with pytest.raises(ConfigError, match="rounds of 50"):  # a run in other rounds: its first b differ
+        predictive_check(result, {**reference, "round_size": 50})
     short = {**reference, "budget": 200}
     with pytest.raises(ConfigError, match="at least 200"):
         predictive_check(result, short)

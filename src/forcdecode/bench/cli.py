@@ -254,21 +254,26 @@ def _bench_films(args, say) -> int:
     return 0
 
 
+def _workflow_splits(stage: dict, data) -> dict:
+    """Index arrays per split of the dataset, as the workflow's learning stage (``stage``) drew them."""
+    from ..config import defaults
+    from ..learn.splits import assign_splits
+
+    learning = {**defaults("learning"), **stage.get("learning", {})}
+    return assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])
+
+
 def _held_out_families(args):
     """(the workflow's learning.json, the dataset, the posterior, indices of the ``--split`` families)
     for the benches that run on held-out families of a trained posterior."""
-    from ..config import defaults
     from ..core.io import read_json
     from ..learn.data import load_dataset
     from ..learn.posterior import PosteriorEstimator
-    from ..learn.splits import assign_splits
 
     stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
-    learning = {**defaults("learning"), **stage.get("learning", {})}
     data = load_dataset(args.dataset)
     est = PosteriorEstimator.load(args.posterior)
-    held_out = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])[args.split]
-    return stage, data, est, held_out
+    return stage, data, est, _workflow_splits(stage, data)[args.split]
 
 
 def _bench_fit(args, say) -> int:
@@ -371,18 +376,15 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
     import h5py
     import numpy as np
 
-    from ..config import defaults
     from ..core.errors import ConfigError
     from ..core.io import write_json
-    from ..learn.splits import assign_splits
     from ..loop.predictive_check import make_reference, predictive_statistic
     from .ood import predictive_statistics
 
-    learning = {**defaults("learning"), **stage.get("learning", {})}
     if args.predictive_budget < args.round_size or args.predictive_budget % args.round_size:
         raise ConfigError(f"--predictive-budget {args.predictive_budget} must be a positive multiple of --round-size "
                           f"{args.round_size}")
-    validation = assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])["validation"]
+    validation = _workflow_splits(stage, data)["validation"]
     if args.calibration_families < 1 or args.calibration_families > len(validation):
         raise ConfigError(f"--calibration-families must be 1..{len(validation)} (the validation split)")
     chosen = validation[: args.calibration_families]

@@ -34,11 +34,17 @@ ALPHA = 0.05
 STATISTIC = "min over the first b candidates of observation RMS / realisation floor"
 
 
-def predictive_statistic(fit_result: dict, budget: int) -> float:
-    """T at ``budget`` from a fit result (``loop.fit_cli.finish_fit``'s dict)."""
+def _best_by_budget(fit_result: dict) -> dict:
+    """The fit result's T per round boundary ({"b": T}); its keys are the multiples of the round size."""
     by_budget = fit_result.get("observation_rms", {}).get("best_over_floor_by_budget")
     if not by_budget:
         raise ConfigError("the fit result has no best_over_floor_by_budget (a refinement from before the check: run it again)")
+    return by_budget
+
+
+def predictive_statistic(fit_result: dict, budget: int) -> float:
+    """T at ``budget`` from a fit result (``loop.fit_cli.finish_fit``'s dict)."""
+    by_budget = _best_by_budget(fit_result)
     if str(int(budget)) not in by_budget:
         raise ConfigError(f"the refinement ran {max(int(b) for b in by_budget)} simulations in rounds "
                           f"{sorted(int(b) for b in by_budget)}; the check needs the first {budget}")
@@ -82,9 +88,9 @@ def predictive_p_value(statistic: float, reference_values) -> float:
 def predictive_check(fit_result: dict, reference: dict, alpha: float | None = None) -> dict:
     """Verdict of the check for one refined family (module docstring)."""
     budget = int(reference["budget"])
-    budget_run = max(int(b) for b in fit_result.get("observation_rms", {}).get("best_over_floor_by_budget", {"0": 0}))
-    check_reference(reference, round_size=int(reference["round_size"]), prior=fit_result.get("prior", "uniform"),
-                    budget_run=budget_run)
+    boundaries = [int(b) for b in _best_by_budget(fit_result)]  # round_size, 2·round_size, …
+    check_reference(reference, round_size=min(boundaries), prior=fit_result.get("prior", "uniform"),
+                    budget_run=max(boundaries))
     alpha = float(reference.get("alpha", ALPHA) if alpha is None else alpha)
     t = predictive_statistic(fit_result, budget)
     p = predictive_p_value(t, reference["values"])
