@@ -116,3 +116,12 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     assert points["rms_over_noise"] == pytest.approx(1.0, abs=0.25)
     assert points["rms_Am2"] == pytest.approx(noise * moment, rel=0.25)
     assert "% measured" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("tolerance", ["-0.01", "1.5"])
+def test_a_moment_tolerance_outside_its_range_is_refused_before_any_work(tmp_path, capsys, tolerance):
+    code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), "--moment-tolerance",
+                 tolerance])
+    assert code != 0
+    assert "moment tolerance" in capsys.readouterr().err
+    assert not (tmp_path / "loop" / "report.json").exists()

@@ -108,12 +108,17 @@ def test_undeclared_measured_side_effect_is_named_and_sized(film, tmp_path, effe
 
 
 @pytest.mark.parametrize("effect,size,fraction,expected", [
-    ("K_2", 0.2 * K_U, None, {"K_2_J_per_m3": (0.2 * K_U, 1.0)}),
-    ("bias_field", 0.02, None, {"B_bias_T": (0.02, 1e-9)}),
+    ("K_2", 0.2 * K_U, None, {"K_2_J_per_m3": (0.2 * K_U, 0.01 * K_U)}),
+    # between grid nodes (0.1, 0.2) and between the base (size 0) and the node −0.1: the family is
+    # interpolated between nodes, so the size is read off the grid, not snapped to the nearest node
+    ("K_2", 0.15 * K_U, None, {"K_2_J_per_m3": (0.15 * K_U, 0.025 * K_U)}),
+    ("K_2", -0.05 * K_U, None, {"K_2_J_per_m3": (-0.05 * K_U, 0.025 * K_U)}),
+    ("bias_field", 0.02, None, {"B_bias_T": (0.02, 0.001)}),
     ("bias_field", 0.025, None, {"B_bias_T": (0.025, 0.0051)}),  # between grid values (0.02, 0.03)
     ("second_phase", 0.1 * K_U, 0.3, {"K_u_soft_J_per_m3": (0.1 * K_U, 1.0), "fraction": (0.3, 0.01)}),
     ("second_phase", 0.15 * K_U, 0.2, {"K_u_soft_J_per_m3": (0.15 * K_U, 0.051 * K_U)}),  # between grid values
-], ids=["K_2", "bias_on_grid", "bias_off_grid", "second_phase_on_grid", "second_phase_off_grid"])
+], ids=["K_2", "K_2_between_nodes", "K_2_between_base_and_node", "bias_on_grid", "bias_off_grid",
+        "second_phase_on_grid", "second_phase_off_grid"])
 def test_undeclared_physics_effect_is_found_by_resimulation(film, tmp_path, effect, size, fraction, expected):
     truth = physics_truth(film, effect, size, fraction)
     measured = measured_family(film, tmp_path, truth, seed=5)
@@ -121,7 +126,10 @@ def test_undeclared_physics_effect_is_found_by_resimulation(film, tmp_path, effe
     alternatives = {k: round(v["heldout_rms"], 4) for k, v in result["candidates"].items()}
     assert result["chosen"] == effect, alternatives
     assert result["kind"] == "physics"
-    assert result["heldout_reduction_ci90"][0] > 0.3, (result["heldout_reduction"], result["heldout_reduction_ci90"])
+    # between nodes a linear interpolation of two families with avalanches leaves part of the
+    # residual (measured: held-out cuts 0.28 and 0.38 there, against > 0.5 on the nodes)
+    least = 0.1 if size in (0.15 * K_U, -0.05 * K_U) else 0.3
+    assert result["heldout_reduction_ci90"][0] > least, (result["heldout_reduction"], result["heldout_reduction_ci90"])
     for name, (value, tolerance) in expected.items():
         assert result["parameters"][name] == pytest.approx(value, abs=tolerance), result["parameters"]
         assert abs(result["parameters"][name] - value) <= result["uncertainties"][name] + tolerance

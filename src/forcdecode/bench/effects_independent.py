@@ -187,8 +187,13 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "field_shift": {k: shift[k] for k in ("offset_T", "se_T", "z", "chi2", "consistent", "significant")},
             "drift": drift,
             "sample_s": sample_s, "case_s": time.perf_counter() - start,
-            "candidates": {k: {"heldout_rms": v["heldout_rms"], "accepted": v["accepted"]}
-                           for k, v in result["candidates"].items()}}
+            "candidates": {k: {key: v.get(key) for key in _EVIDENCE} for k, v in result["candidates"].items()}}
+
+
+_EVIDENCE = ("heldout_rms", "heldout_mse_per_curve", "accepted", "kind", "n_parameters", "parameters", "uncertainties",
+             "relative_gain", "gain_mse_mean", "null_gain",
+             "beats_null", "within_moment_tolerance", "shift_evidence", "drift_evidence", "at_grid_edge")
+"""What each candidate's row keeps: the selection's evidence, so a decision can be re-read from the file."""
 
 
 def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,

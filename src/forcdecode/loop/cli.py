@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--null-realisations", type=int, default=2,
                         help="with --refit: other disorder realisations of the refitted Hamiltonian; an effect must "
                              "gain more than it gains on them (the realisation floor; 0: off)")
+    parser.add_argument("--moment-tolerance", type=float, default=None, metavar="FRACTION",
+                        help="relative uncertainty of the moment normalization (M_s·V, calibration) inside which a "
+                             "fitted scale is not named an effect (default 0.02; 0: name every scale that earns it)")
     parser.add_argument("--fixed-point", action="store_true",
                         help="needs --refit (and a prediction, not --params): after a measured-side effect is chosen, "
                              "predict the Hamiltonian again from the family with the effect removed and iterate to a "
@@ -87,7 +90,8 @@ def run(args) -> int:
                                 measured_max_step_T=args.measured_max_step_mT * 1e-3, estimator=args.estimator,
                                 posterior_path=args.posterior, fixed_point=args.fixed_point,
                                 refine_budget=args.refine, refine_round_size=args.refine_round_size,
-                                refine_workers=args.refine_workers, predictive_reference=args.predictive_reference)
+                                refine_workers=args.refine_workers, predictive_reference=args.predictive_reference,
+                                **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":

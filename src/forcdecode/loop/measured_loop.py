@@ -21,6 +21,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
+from .physics_effects import MOMENT_TOLERANCE
 from .report_page import diagrams_figure, write_report_page
 
 
@@ -209,7 +210,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
                        null_realisations: int = 2, refine_budget: int = 0, refine_round_size: int = 25,
-                       refine_workers: int = 1, predictive_reference=None, log=_progress) -> dict:
+                       refine_workers: int = 1, predictive_reference=None, moment_tolerance: float = MOMENT_TOLERANCE,
+                       log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -242,7 +244,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     the refined re-simulation; report key ``refined``. ``predictive_reference`` (a JSON path, with
     ``refine_budget``): the calibrated posterior-predictive check (``loop.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
-    ``refined.predictive_check``)."""
+    ``refined.predictive_check``). ``moment_tolerance``: relative uncertainty of the moment
+    normalization inside which a fitted scale is not named an effect
+    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc
 
@@ -266,6 +270,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
                           "networks, not a given Hamiltonian (--params)")
+    if not 0.0 <= moment_tolerance < 1.0:
+        raise ConfigError(f"moment tolerance {moment_tolerance!r} (--moment-tolerance) must lie in [0, 1): a relative "
+                          "uncertainty of the moment normalization, e.g. 0.02 for ±2 %")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     data = read_forc(path)
@@ -353,7 +360,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         analysis = predict_correct_iterate(cfg, predictor, family, fields, names=tuple(refit), budget=refit_budget,
                                            noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
                                            physics=physics, log=log, null_realisations=null_realisations,
-                                           field_shift=shift, drift=drift,
+                                           field_shift=shift, drift=drift, moment_tolerance=moment_tolerance,
                                            progress=counter("Hamiltonian refit", "re-simulations"))
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
@@ -364,6 +371,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                       null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
                                       noise_sigma=noise, field_shift=shift, drift=drift,
+                                      moment_tolerance=moment_tolerance,
                                       progress=counter("Hamiltonian refit", "re-simulations"))
     if refit:
         final_params = analysis["hamiltonian"]["refit_without_effect"]
@@ -374,7 +382,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                       if physics else {})
         analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
                                     floor_variance=spread, n_profiles=profiles, field_shift=shift, drift=drift,
-                                    **candidates)
+                                    moment_tolerance=moment_tolerance, **candidates)
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
                   per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],

@@ -160,7 +160,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     base = refit["family"]
     candidates = {}
     if physics:
-        candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, **(physics_grids or {}))
+        candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, key="refit",
+                                                **(physics_grids or {}))
     options = dict(every_k=every_k, cross_fit=False, seed=cfg["seed"] if seed is None else seed,
                    n_profiles=n_profiles, **candidates, **analysis)
     null = None
