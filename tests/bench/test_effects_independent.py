@@ -55,3 +55,19 @@ def test_bad_options_are_clear_errors(argv, message, capsys):
 
     assert main(["bench", "effects", "--independent", *argv]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_signature_validation_films_are_apart_from_the_bench():
+    """The model-free shift test is validated on films the bench does not score: other disorder
+    seeds, other shift sizes, and films without a shift outnumbering the shifted ones."""
+    from forcdecode.bench.effects_independent import SIGNATURE_VALIDATION
+
+    bench_seeds = {r["seed"] for r in plan()}
+    bench_sizes = {v for physics, settings in CASES.values()
+                   for v in (physics.get("B_bias_T"), settings.get("field_offset_T"))}
+    shifted = 0
+    for h, seed, physics, settings in SIGNATURE_VALIDATION:
+        assert seed not in bench_seeds
+        assert not {physics.get("B_bias_T"), settings.get("field_offset_T")} & bench_sizes - {None}
+        shifted += bool(physics.get("B_bias_T") or settings.get("field_offset_T"))
+    assert len(SIGNATURE_VALIDATION) - shifted > shifted

@@ -20,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects-out", default="results/bench/effects_independent",
                         help="effects --independent: cases.jsonl (resumable), summary.json and the instrument files")
     parser.add_argument("--cases", nargs="+", help="effects --independent: run only these cases (names as in the table)")
+    parser.add_argument("--signatures", action="store_true",
+                        help="effects --independent: validate the model-free field-shift test instead, on magnum.np "
+                             "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
     parser.add_argument("--patches", type=int, default=1,
                         help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
     parser.add_argument("--model-profiles", type=int, default=1,
@@ -150,6 +153,19 @@ def _bench_effects_independent(args, say) -> int:
     from ..core.progress import progress
     from .effects_independent import independent_confusion, plan, summary_lines
 
+    if args.signatures:
+        from .effects_independent import signature_lines, signature_validation
+
+        out = Path(args.effects_out) / "signatures"
+        result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files",
+                                      progress=lambda f: say(f"H{f['hamiltonian']} seed {f['seed']}: shift "
+                                                             f"{f['offset_T']}, claimed {f['significant']}"))
+        write_json(out / "summary.json", result)
+        for line in signature_lines(result):
+            say(line)
+        if args.json:
+            print(json.dumps({k: v for k, v in result.items() if k != "films"}))
+        return 0
     if args.patches < 1 or args.model_profiles < 1:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     rows = plan()

@@ -20,8 +20,12 @@ over the local slope, and the interpolation: |m''|(x − x₀)(x₁ − x)/2 ove
 linear interpolation with the curvature m'' taken as the larger second difference at the interval's
 ends, or Δ/√12 where that error at the interval's middle would exceed a quarter of it (the branch is
 not resolved: a step anywhere in an interval of width Δ — a pure step gives Δ/8 there, above the
-quarter, Δ/13.9; also at the branch's ends). The levels share intervals, so their
-errors are treated as fully correlated: the reported standard error is the mean of the levels'.
+quarter, Δ/13.9; also at the branch's ends). Two levels that cross a branch inside the same
+interval share that interval's error (fully correlated); crossings in different intervals are
+independent (the position of a step in one interval says nothing about another). The offset is the
+mean of the centres weighted by their inverse variances, its standard error computed with that
+covariance (before: the levels' mean error, as if every level shared one interval, which over-states
+the error of a loop that switches over several intervals by up to √(number of intervals)).
 A field shift is claimed when |b| / se > ``Z_SHIFT`` and the levels agree with one constant shift
 (χ² of c_L about their mean, with the per-level errors, below its 99 % point): a vertical
 asymmetry (an additive drift) moves the centres by v / slope, different at every level. A vertical
@@ -63,7 +67,7 @@ def _curvature(fields, values, i):
 
 def _crossing(fields, values, level, rising: bool, sigma: float):
     """First crossing of ``level`` along the branch (``fields`` in traversal order): (field T,
-    uncertainty T) or None if the branch never crosses it."""
+    uncertainty T, index of the interval) or None if the branch never crosses it."""
     for i in range(len(fields) - 1):
         y0, y1 = values[i], values[i + 1]
         if not (np.isfinite(y0) and np.isfinite(y1)):
@@ -82,7 +86,7 @@ def _crossing(fields, values, level, rising: bool, sigma: float):
             # a resolved smooth branch: linear interpolation errs by |m''| (x − x0)(x1 − x) / 2 in m
             u_interp = max(curvatures) * abs((x - x0) * (x1 - x)) / 2.0 / abs(slope)
         u_noise = np.sqrt(2.0) * sigma / abs(slope)
-        return float(x), float(np.hypot(u_interp, u_noise))
+        return float(x), float(np.hypot(u_interp, u_noise)), i
     return None
 
 
@@ -128,7 +132,7 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
     significant."""
     d_fields, d_m = map(np.asarray, descending)
     a_fields, a_m = map(np.asarray, ascending)
-    used, centres, errors = [], [], []
+    used, centres, errors, crossings = [], [], [], []
     for level in levels:
         a = _crossing(a_fields, a_m, level, True, noise_sigma)
         d = _crossing(d_fields, d_m, -level, False, noise_sigma)
@@ -137,6 +141,7 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
         used.append(float(level))
         centres.append(0.5 * (a[0] + d[0]))
         errors.append(0.5 * float(np.hypot(a[1], d[1])))
+        crossings.append((a, d))
     rule = (f"|offset| > {Z_SHIFT:g} se (errors fully correlated between levels), the levels consistent "
             "with one shift (χ² below its 99 % point) and the saturated ends mirror images")
     if len(used) < 2:
@@ -147,7 +152,8 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
     centres_arr, errors_arr = np.array(centres), np.maximum(np.array(errors), 1e-9)
     weights = 1.0 / errors_arr**2
     offset = float(np.sum(weights * centres_arr) / np.sum(weights))
-    se = float(np.mean(errors_arr))
+    covariance = _centre_covariance(crossings)
+    se = float(np.sqrt(weights @ covariance @ weights) / np.sum(weights))
     chi2 = float(np.sum(((centres_arr - offset) / errors_arr) ** 2))
     limit = _CHI2_99.get(len(used) - 1, float(len(used) - 1 + 3.0 * np.sqrt(2.0 * (len(used) - 1))))
     z = abs(offset) / se
@@ -155,6 +161,21 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
     return {"offset_T": offset, "se_T": se, "z": float(z), "levels": used, "centres_T": centres,
             "errors_T": errors, "chi2": chi2, "chi2_limit": limit, "vertical": vertical, "consistent": bool(consistent),
             "significant": bool(z > Z_SHIFT and consistent), "rule": rule}
+
+
+def _centre_covariance(crossings) -> np.ndarray:
+    """Covariance (T²) of the levels' centres c_L = (B_a + B_d)/2 from their crossings [(ascending,
+    descending)], each (field, uncertainty, interval). Two crossings inside the same interval of a
+    branch share its unknown (the position of a step in it, the same two noisy points): fully
+    correlated; crossings in different intervals are independent."""
+    k = len(crossings)
+    covariance = np.zeros((k, k))
+    for i, (a_i, d_i) in enumerate(crossings):
+        for j, (a_j, d_j) in enumerate(crossings):
+            same_a = a_i[2] == a_j[2]
+            same_d = d_i[2] == d_j[2]
+            covariance[i, j] = 0.25 * (same_a * a_i[1] * a_j[1] + same_d * d_i[1] * d_j[1])
+    return covariance
 
 
 def field_shift_of(data, moment: float, noise_sigma: float, moment_offset: float = 0.0) -> dict:
