@@ -73,3 +73,44 @@ def test_a_gain_inside_the_moment_tolerance_is_not_named(gain, named):
         loose = analyse_residual(measured, base, fields, thermal=False, noise_sigma=0.002, n_boot=500,
                                  moment_tolerance=0.0)
         assert loose["chosen"] == "scale"
+
+
+def squeezed(size, fields, base):
+    """A change of shape no coercivity shift makes: the switched part of every curve scaled by (1 + size)."""
+    return np.where(np.isfinite(base), base + size * (base - np.nanmax(base)), np.nan)
+
+
+def test_a_physics_candidate_must_beat_the_hamiltonians_own_neighbourhood():
+    """A K_u left slightly off by the refit moves switching fields; a physics candidate that also moves
+    them (here one that shifts the coercivity, as K_2, a tilt or thermal activation do) is not named
+    when K_u moved along its neighbourhood explains the family as well. One that changes the family
+    in a way K_u cannot is named."""
+    fields, base = synthetic_family()
+    neighbourhood = {c: family_with(c, fields, base) for c in (-0.06, -0.03, 0.03, 0.06)}
+    coercive = {s: family_with(s, fields, base) for s in (-0.1, 0.1, 0.2)}
+    shape = {s: squeezed(s, fields, base) for s in (-0.1, 0.1, 0.2)}
+    options = dict(physics_families={"K_2": coercive, "bias_field": shape}, thermal=False, n_boot=500,
+                   measured_candidates=["scale"], hamiltonian_families=neighbourhood)
+    rng = np.random.default_rng(4)
+    off_K_u = family_with(0.045, fields, base) + 0.002 * rng.normal(size=base.shape)
+    result = analyse_residual(off_K_u, base, fields, **options)
+    assert result["chosen"] == "none", result["chosen"]
+    assert result["candidates"]["K_2"]["beats_hamiltonian"] is False
+    assert result["hamiltonian_neighbourhood"]["K_u_change"] == pytest.approx(0.045, abs=0.01)
+    without_gate = analyse_residual(off_K_u, base, fields, **{**options, "hamiltonian_families": None})
+    assert without_gate["chosen"] == "K_2"  # what the gate prevents: a K_u error named an effect
+    other = squeezed(0.15, fields, base) + 0.002 * rng.normal(size=base.shape)
+    named = analyse_residual(other, base, fields, **options)
+    assert named["chosen"] == "bias_field" and named["candidates"]["bias_field"]["beats_hamiltonian"]
+
+
+def test_a_term_that_only_carries_a_normalization_error_is_not_named():
+    """A 0.45 % gain and a background of χ = 3e-4 /T (the bench's square-film control, in effect):
+    the background candidate must beat the base with its normalization free inside the tolerance."""
+    fields, base = synthetic_family()
+    H = np.broadcast_to(fields[None, :], base.shape)
+    noise = 0.002 * np.random.default_rng(5).normal(size=base.shape)
+    tiny = analyse_residual(0.9955 * base + 3e-4 * H + noise, base, fields, thermal=False, n_boot=500)
+    assert tiny["chosen"] == "none" and tiny["candidates"]["background"]["beats_normalization"] is False
+    real = analyse_residual(0.9955 * base + 0.05 * H + noise, base, fields, thermal=False, n_boot=500)
+    assert real["chosen"] == "background" and real["candidates"]["background"]["beats_normalization"]
