@@ -136,12 +136,13 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
 
 
 def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
-             null_realisations: int = 2, patches: int = 1, profiles: int = 1) -> dict:
+             null_realisations: int | None = None, patches: int = 1, profiles: int = 1) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
     measured rule, Hamiltonian refitted, candidates judged. ``patches``: magnum.np patches averaged in
     the sample; ``profiles``: disorder profiles averaged in every re-simulation of the model (the
     realisation floor falls as 1/√n on each side). Returns the JSON-ready row."""
     from ..forc.raster import measured_image
+    from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit
     from ..loop.signatures import drift_evidence_of, field_shift_of
     from ..measured import read_forc
@@ -172,7 +173,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     drift = drift_evidence_of(data, moment, noise)
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,
-                                null_realisations=null_realisations, field_shift=shift, drift=drift)
+                                null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
+                                field_shift=shift, drift=drift)
     refit = result["hamiltonian"]["refit_without_effect"]
     return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],

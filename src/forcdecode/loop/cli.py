@@ -10,6 +10,8 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .physics_effects import NULL_REALISATIONS
+
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
@@ -39,9 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
                                                           "before the effect selection, comma-separated (e.g. K_u,A_ex)")
     parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
-    parser.add_argument("--null-realisations", type=int, default=2,
+    parser.add_argument("--null-realisations", type=int, default=NULL_REALISATIONS,
                         help="with --refit: other disorder realisations of the refitted Hamiltonian; an effect must "
-                             "gain more than it gains on them (the realisation floor; 0: off)")
+                             "gain more than it gains on them (the realisation floor; 0: off; default %(default)s)")
     parser.add_argument("--moment-tolerance", type=float, default=None, metavar="FRACTION",
                         help="relative uncertainty of the moment normalization (M_s·V, calibration) inside which a "
                              "fitted scale is not named an effect (default 0.02; 0: name every scale that earns it)")

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import ConfigError
+from .physics_effects import NULL_REALISATIONS
 
 
 def image_of_family(family) -> np.ndarray:
@@ -62,7 +63,7 @@ def _relative_change(new: dict, old: dict) -> dict:
 
 
 def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u",), budget: int = 20,
-                            max_iterations: int = 4, tolerance: float = 0.02, null_realisations: int = 2,
+                            max_iterations: int = 4, tolerance: float = 0.02, null_realisations: int = NULL_REALISATIONS,
                             noise_sigma: float | None = None, order=None, progress=None, log=None,
                             **analysis) -> dict:
     """The iteration of the module docstring.

@@ -21,7 +21,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
-from .physics_effects import MOMENT_TOLERANCE
+from .physics_effects import MOMENT_TOLERANCE, NULL_REALISATIONS
 from .report_page import diagrams_figure, write_report_page
 
 
@@ -209,7 +209,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
-                       null_realisations: int = 2, refine_budget: int = 0, refine_round_size: int = 25,
+                       null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
                        refine_workers: int = 1, predictive_reference=None, moment_tolerance: float = MOMENT_TOLERANCE,
                        log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
