@@ -176,3 +176,19 @@ def test_drift_candidates_need_the_drift_evidence():
     result = analyse_residual(measured, base, fields, thermal=False, drift=gain)
     assert result["candidates"]["multiplicative_drift"]["drift_evidence"] is True
     assert result["candidates"]["additive_drift"]["drift_evidence"] is False
+
+
+def test_levels_in_one_interval_share_its_error_and_levels_in_others_do_not():
+    """The centres' covariance: two levels crossing the descending branch in the same interval are
+    fully correlated there, a level in another interval is independent; (field, error, interval)."""
+    from forcdecode.loop.signatures import _centre_covariance
+
+    a = [(0.30, 0.004, 10), (0.32, 0.004, 11), (0.35, 0.004, 12)]
+    d = [(-0.30, 0.02, 5), (-0.32, 0.02, 5), (-0.40, 0.02, 6)]
+    cov = _centre_covariance(list(zip(a, d)))
+    assert cov[0, 0] == pytest.approx(0.25 * (0.004**2 + 0.02**2))
+    assert cov[0, 1] == pytest.approx(0.25 * 0.02**2)  # the shared descending interval only
+    assert cov[0, 2] == 0.0 and cov[1, 2] == 0.0
+    # a loop switching over several intervals: the offset's error falls below one level's error
+    result = field_shift(*branches(0.3), noise_sigma=0.002)
+    assert result["se_T"] < 0.8 * np.mean(result["errors_T"])
