@@ -149,7 +149,6 @@ def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
     from ..core.errors import ConfigError
-    from ..core.io import write_json
     from ..core.progress import progress
     from .effects_independent import independent_confusion, plan, summary_lines
 
@@ -160,12 +159,7 @@ def _bench_effects_independent(args, say) -> int:
         result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files",
                                       progress=lambda f: say(f"H{f['hamiltonian']} seed {f['seed']}: shift "
                                                              f"{f['offset_T']}, claimed {f['significant']}"))
-        write_json(out / "summary.json", result)
-        for line in signature_lines(result):
-            say(line)
-        if args.json:
-            print(json.dumps({k: v for k, v in result.items() if k != "films"}))
-        return 0
+        return _finish(out, result, signature_lines(result), args.json, say, omit="films")
     if args.patches < 1 or args.model_profiles < 1:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     rows = plan()
@@ -183,11 +177,18 @@ def _bench_effects_independent(args, say) -> int:
 
         result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
                                        files_dir=out / "files", patches=args.patches, profiles=args.model_profiles)
+    return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
+
+
+def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
+    """Write ``out``/summary.json, print the table, end with the JSON line (without the ``omit`` list)."""
+    from ..core.io import write_json
+
     write_json(out / "summary.json", result)
-    for line in summary_lines(result):
+    for line in lines:
         say(line)
-    if args.json:
-        print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
+    if as_json:
+        print(json.dumps({k: v for k, v in result.items() if k != omit}))
     return 0
 
 
