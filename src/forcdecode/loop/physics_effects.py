@@ -42,6 +42,7 @@ PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_ti
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
 
 SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
+"""Candidates no FORC measurement can tell apart."""
 
 NULL_REALISATIONS = 10
 """Other disorder realisations of the refitted Hamiltonian whose gains make the realisation floor.
@@ -57,7 +58,6 @@ film (area × a thickness of a few nm) and a VSM's absolute calibration are rare
 ±2 %: a gain inside that band is the normalization's own error, which no FORC measurement can tell
 from an instrument effect. Declared here, not chosen on any benchmark; ``analyse_residual(moment_tolerance=)``
 and ``forcdecode loop --moment-tolerance`` change it (0 names every scale that beats the floor)."""
-"""Candidates no FORC measurement can tell apart."""
 
 
 def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.15, 0.3, 0.45),
@@ -248,6 +248,8 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     if noise_sigma:
         rng = stream_rng(seed, "null_noise", "null_gains")
         pseudo = [p + float(noise_sigma) * rng.normal(size=p.shape) for p in pseudo]
+    # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here
+    analysis = {**analysis, "hamiltonian_families": None, "moment_tolerance": 0.0}
     gains: dict = {}
     for family in pseudo:
         result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
@@ -370,7 +372,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     slightly off (on a 24-field grid a blend of two families places a jump between grid fields,
     which no single re-simulation does): it is offered only if it beats, on held-out curves, K_u
     moved along its interpolated neighbourhood (the rule of ``effects.choose_candidate``; records:
-    ``beats_hamiltonian``; the neighbourhood's own held-out RMS: ``hamiltonian_heldout_rms``).
+    ``beats_hamiltonian``; the neighbourhood's fitted K_u change and held-out RMS: result key
+    ``hamiltonian_neighbourhood``).
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -436,7 +439,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     if soft_phase_families:
         records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
                                                        in (min(soft_phase_families), max(soft_phase_families)))
-    nuisance_mse = heldout_mse(measured, lambda rows: normalization_fit(rows) * base_family, folds)
+    nuisance_mse = (heldout_mse(measured, lambda rows: normalization_fit(rows) * base_family, folds)
+                    if moment_tolerance > 0 else None)
     knob_mse, hamiltonian = None, None
     if hamiltonian_families:
         def knob(rows):
@@ -454,15 +458,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         records[name]["gain_mse_mean"] = gain_mse
         records[name]["relative_gain"] = gain_mse / none_mse if none_mse > 0 else 0.0
         records[name]["heldout_mse_per_curve"] = [None if not np.isfinite(v) else float(v) for v in mse[name]]
-        if null_gain is not None and name != "none":
+        if name == "none":
+            continue
+        if null_gain is not None:
             # recorded for every candidate (the gates below may spare one the floor)
             null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
             records[name]["null_gain"] = dict(null)
             records[name]["beats_null"] = bool(
                 records[name]["relative_gain"] > max(null["relative"], 0.0) + null_margin
                 and gain_mse > max(null["mse"], 0.0) * (1 + null_margin))
-        if name == "none":
-            continue
         if name in EFFECTS and "scale" in EFFECTS[name].components:
             scale = records[name]["parameters"].get("scale", 1.0)
             records[name]["within_moment_tolerance"] = bool(abs(scale - 1.0) <= moment_tolerance)
@@ -484,7 +488,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             if not drift_ok:
                 offered.pop(name, None)  # the saturated end points do not drift that way
             continue
-        if records[name]["kind"] == "measured" and "scale" in records[name]["parameters"] and moment_tolerance > 0:
+        if nuisance_mse is not None and records[name]["kind"] == "measured" and "scale" in records[name]["parameters"]:
             # a candidate with its own scale must also beat the base whose normalization is free inside
             # the tolerance (else its other terms only carry a normalization error, e.g. a background
             # of χ = 3e-4 /T beside a 0.45 % gain)

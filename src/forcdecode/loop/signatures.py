@@ -142,8 +142,8 @@ def field_shift(descending, ascending, noise_sigma: float, levels=LEVELS) -> dic
         centres.append(0.5 * (a[0] + d[0]))
         errors.append(0.5 * float(np.hypot(a[1], d[1])))
         crossings.append((a, d))
-    rule = (f"|offset| > {Z_SHIFT:g} se (errors fully correlated between levels), the levels consistent "
-            "with one shift (χ² below its 99 % point) and the saturated ends mirror images")
+    rule = (f"|offset| > {Z_SHIFT:g} se (errors correlated between levels crossing a branch in one interval), the "
+            "levels consistent with one shift (χ² below its 99 % point) and the saturated ends mirror images")
     if len(used) < 2:
         return {"offset_T": None, "se_T": None, "z": None, "levels": used, "centres_T": centres, "errors_T": errors,
                 "chi2": None, "chi2_limit": None, "vertical": None, "consistent": False, "significant": False,
