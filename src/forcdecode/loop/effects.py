@@ -327,13 +327,6 @@ def _grid_resolution(values, best) -> float:
     return abs(values[hi] - values[lo]) / (hi - lo) / 2
 
 
-def fit_grid_effect(measured, families: dict, train):
-    """The grid value whose family fits the training curves best; (value, half grid spacing)."""
-    train_error = {v: np.nanmean(_per_curve_mse(measured, fam, train)) for v, fam in families.items()}
-    best = min(train_error, key=train_error.get)
-    return best, _grid_resolution(list(families), best)
-
-
 def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
                   candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05,
                   cross_fit: bool = False) -> dict:
@@ -370,25 +363,4 @@ def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: i
                                       equivalence)
     results = {k: {**fits[k], **scores[k]} for k in names}
     return {"chosen": chosen, "candidates": results, "heldout_curves": [i for _, held in folds for i in held],
-            "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}
-
-
-def select_physics_effect(measured, base_family, candidate_families: dict, every_k: int = 4, n_boot: int = 2000,
-                          seed: int = 0, min_relative_gain: float = 0.05) -> dict:
-    """Physics-side candidates: for each effect, re-simulated families over a grid of its size
-    (``candidate_families[name] = {value: family}``). The size is chosen on the training curves, the
-    effect judged on the held-out curves against ``base_family`` (paired bootstrap, as above)."""
-    measured = np.asarray(measured, float)
-    train, held = _heldout_split(measured, every_k)
-    mse = {"none": _per_curve_mse(measured, base_family, held)}
-    fitted = {"none": {"value": None}}
-    for name, families in candidate_families.items():
-        value, step = fit_grid_effect(measured, families, train)
-        mse[name] = _per_curve_mse(measured, families[value], held)
-        fitted[name] = {"value": float(value), "uncertainty": float(step)}
-    chosen, scores = choose_candidate(mse, {k: int(k != "none") for k in mse},
-                                      stream_rng(seed, "bootstrap", "select_physics_effect"), n_boot,
-                                      min_relative_gain)
-    results = {k: {**fitted[k], **scores[k]} for k in mse}
-    return {"chosen": chosen, "candidates": results, "heldout_curves": held,
             "heldout_rms_before": results["none"]["heldout_rms"], "heldout_rms_after": results[chosen]["heldout_rms"]}
