@@ -207,6 +207,7 @@ class PathMemory:
         self.states: dict = {}  # (direction, node, path) -> state
         self.at: dict = {}  # (direction, node) -> [(path, <m_z>)]
         self.paths: dict = {}  # path -> [(direction, node)], in filing order
+        self.aliases: dict = {}  # (direction, node, path) -> the path it followed there
         self.nbytes = 0
 
     def add(self, direction: int, node: int, path: int, state: np.ndarray):
@@ -224,8 +225,22 @@ class PathMemory:
             self.nbytes -= self.states.pop((direction, node, path)).nbytes
             self.at[(direction, node)] = [entry for entry in self.at[(direction, node)] if entry[0] != path]
 
+    def follow(self, direction: int, node: int, path: int, joined: int):
+        """Record that ``path`` passed ``node`` on ``joined``'s path (its state there is that path's)."""
+        self.aliases[(direction, node, path)] = joined
+
+    def owner(self, direction: int, node: int, path):
+        """The path whose own state ``path`` has at ``node`` (through the paths it joined), or None."""
+        for _ in range(64):
+            if path is None or (direction, node, path) in self.states:
+                return path
+            path = self.aliases.get((direction, node, path))
+        return None
+
     def get(self, direction: int, node: int, path):
-        return self.states.get((direction, node, path))
+        """The state of ``path`` at ``node`` (through the paths it joined), or None."""
+        owner = self.owner(direction, node, path)
+        return None if owner is None else self.states[(direction, node, owner)]
 
     def find(self, direction: int, node: int, m: np.ndarray, tol: float):
         """A path whose state at this node is within ``tol`` (max cell |Δm|) of ``m``, or None."""
@@ -244,7 +259,8 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
     stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0, "curves_merged": 0,
              "nodes_relaxed": 0, "nodes_followed": 0, "snapshots": 0, "snapshots_reused": 0}
     memory = PathMemory(memory_MB * 2**20) if memory_MB > 0 and same_state_tol > 0 else None
-    snapshots: dict = {}  # (direction, node, path, field) -> recorded value
+    snapshots: dict = {}  # (direction, node, path owning the node's state, field quantum) -> recorded value
+    quantum = max(float(field_tol_T), 1e-12)  # fields within it are one field
     new_path = itertools.count()
     s = node_step_T
 
@@ -259,16 +275,25 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
         return n if abs(B - n * s) <= 1e-9 * s else None
 
     class Sweep:
-        """The sweep's state ``m`` at ``field`` (on node ``node``, or None), on path ``path``."""
+        """A sweep at ``field`` (on node ``node``, or None) on path ``path``; its state is ``m``, or,
+        while it follows a path already simulated, that path's stored state at the node (``shared``)."""
 
         def __init__(self, m, B):
             self.m, self.field, self.node, self.dir = m, float(B), on_node(B), 0
-            self.path, self.own = None, None
+            self.path, self.own, self.shared = None, None, None
+
+        def state(self) -> np.ndarray:
+            """The state now (in double precision; do not modify)."""
+            if self.shared is not None:
+                self.m[...] = self.shared
+                self.shared = None
+            return self.m
 
         def advance(self, B) -> bool:
             """Sweep over the nodes towards B (B itself included if it is a node); True if B is a node."""
             d = 1 if B > self.field else -1
             if d != self.dir:
+                self.state()
                 self.dir, self.path, self.own = d, None, next(new_path)
             first = np.floor(self.field / s + 1e-9) + 1 if d > 0 else np.ceil(self.field / s - 1e-9) - 1
             target = on_node(B)
@@ -280,52 +305,55 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
         def to(self, B) -> np.ndarray:
             """The state at the measured field B: the sweep's own on a node, else a snapshot."""
             if B == self.field or self.advance(B):
-                return self.m.copy()
-            snap = self.m.copy()
+                return self.state().copy()
+            snap = self.state().copy()
             relax(snap, B)
             stats["snapshots"] += 1
             return snap
 
         def value(self, B) -> float:
-            """The recorded value at B; a snapshot taken before from the same node of the same path is reused."""
+            """The recorded value at B; a snapshot taken before from the same node state is reused."""
             if B == self.field or self.advance(B):
-                return record(self.m)
-            key = (self.dir, self.node, self.path, B) if self.node is not None and self.path is not None else None
+                return record(self.state())
+            owner = memory.owner(self.dir, self.node, self.path) if memory is not None and self.node is not None else None
+            key = (self.dir, self.node, owner, round(B / quantum)) if owner is not None else None
             if key is not None and key in snapshots:
                 stats["snapshots_reused"] += 1
                 return snapshots[key]
-            snap = self.m.copy()
+            snap = self.state().copy()
             relax(snap, B)
             stats["snapshots"] += 1
             if not np.all(np.isfinite(snap)):
                 raise SimulationError(f"non-finite magnetization at {B:+.4f} T")
             value = record(snap)
-            if key is not None and memory is not None:
+            if key is not None:
                 snapshots[key] = value
             return value
 
         def step(self, n):
             d = self.dir
-            stored = memory.get(d, n, self.path) if memory is not None and self.path is not None else None
-            if stored is not None:
-                self.m[...] = stored
+            owner = memory.owner(d, n, self.path) if memory is not None and self.path is not None else None
+            if owner is not None:  # on a path already simulated: its state, without relaxing
+                self.shared = memory.states[(d, n, owner)]
+                memory.follow(d, n, self.own, owner)
                 stats["nodes_followed"] += 1
             else:
-                relax(self.m, n * s)
-                self.m[...] = self.m.astype(np.float32)
+                m = self.state()
+                relax(m, n * s)
+                m[...] = m.astype(np.float32)
                 stats["nodes_relaxed"] += 1
-                if not np.all(np.isfinite(self.m)):
+                if not np.all(np.isfinite(m)):
                     raise SimulationError(f"non-finite magnetization at {n * s:+.4f} T")
-                joined = memory.find(d, n, self.m, same_state_tol) if memory is not None else None
+                joined = memory.find(d, n, m, same_state_tol) if memory is not None else None
                 if joined is not None:
-                    if joined != self.path:
-                        stats["curves_merged"] += 1
-                    self.m[...] = memory.get(d, n, joined)
+                    stats["curves_merged"] += 1
+                    self.shared = memory.states[(d, n, joined)]
+                    memory.follow(d, n, self.own, joined)
                     self.path = joined
                 else:
                     self.path = self.own
                     if memory is not None:
-                        memory.add(d, n, self.own, self.m.astype(np.float32))
+                        memory.add(d, n, self.own, m.astype(np.float32))
             self.field, self.node = n * s, n
 
     top = max(float(reversal.max()), max(float(f.max()) for f in curve_fields))
