@@ -146,3 +146,25 @@ def test_curves_reversed_from_saturation_follow_one_path(avalanche_film):
     assert family.stats["curves_merged"] >= reversal.size - 1
     # the branch has an avalanche to decide (a jump of more than 0.2 between neighbouring points)
     assert np.abs(np.diff(values[0])).max() > 0.2
+
+
+def test_path_memory_follows_joined_paths_and_forgets_the_oldest_sweep():
+    """A path that joined another has that path's states from the join on; a full memory drops the
+    sweep filed first, and a path that joined it then has no state there (it is relaxed again)."""
+    from forcdecode.forc.measured_protocol import PathMemory
+
+    state = [np.full((3, 1, 2, 2), v, dtype=np.float32) for v in (0.1, 0.2, 0.3, 0.4)]
+    memory = PathMemory(budget_bytes=3 * state[0].nbytes)
+    memory.add(1, 0, 0, state[0])
+    memory.add(1, 1, 0, state[1])
+    assert memory.find(1, 1, state[1] + 0.005, tol=0.02) == 0
+    assert memory.find(1, 1, state[1] + 0.05, tol=0.02) is None
+    assert memory.find(-1, 1, state[1], tol=0.02) is None  # the other direction is another path
+    memory.follow(1, 1, 7, 0)  # sweep 7 joined sweep 0 at node 1
+    np.testing.assert_array_equal(memory.get(1, 1, 7), state[1])
+    assert memory.owner(1, 1, 7) == 0 and memory.get(1, 2, 7) is None
+    memory.add(1, 2, 5, state[2])
+    memory.add(1, 3, 5, state[3])  # over budget: sweep 0, filed first, is forgotten
+    assert memory.get(1, 1, 7) is None and memory.find(1, 1, state[1], tol=0.02) is None
+    np.testing.assert_array_equal(memory.get(1, 3, 5), state[3])
+    assert memory.nbytes == 2 * state[0].nbytes
