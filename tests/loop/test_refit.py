@@ -102,3 +102,21 @@ def test_refitted_null_is_a_lower_floor_than_the_unrefitted_one(film):
         gains[refit_null] = result["refit"]["null_gain"]
     best = {r: max(g["mse"] for g in gains[r].values()) for r in gains}
     assert best[True] < 0.5 * best[False], best  # measured: field_offset 0.026 unrefitted, ~0 refitted
+
+
+def test_the_null_films_are_the_structure_tests_disorder_floor(film):
+    """A strongly disordered film of the predicted Hamiltonian on its own disorder (no effect): against
+    the noise alone its residual is structured (another realisation moves switching fields), against
+    the floor the null films measure it is not, and the verdict is "none", not an "unexplained
+    structured residual"."""
+    disordered = {**PREDICTION, "sigma_theta_deg": 15.0, "sigma_K": 0.3}
+    measured = resimulate(film.cfg, disordered, key="sample") + NOISE * np.random.default_rng(0).normal(size=(32, 32))
+    options = dict(names=("K_u",), budget=8, physics=False, null_realisations=4, noise_sigma=NOISE, thermal=False)
+    with_floor = analyse_with_refit(film.cfg, disordered, measured, film.fields, **options)
+    noise_only = analyse_with_refit(film.cfg, disordered, measured, film.fields, floor_variance=None, **options)
+    print(with_floor["structure"]["chi2_ratio"], noise_only["structure"]["chi2_ratio"], with_floor["verdict"],
+          noise_only["verdict"], with_floor["chosen"], noise_only["chosen"])
+    assert with_floor["chosen"] == noise_only["chosen"] == "none"
+    assert with_floor["structure"]["chi2_ratio"] < noise_only["structure"]["chi2_ratio"]
+    assert noise_only["verdict"] == "unexplained structured residual"
+    assert with_floor["verdict"] == "none", with_floor["verdict_text"]

@@ -143,7 +143,11 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     ``tests/loop/test_fixed_point.py``) and analysed as if it were the measurement (``physics_effects.null_gains``,
     the physics-side candidate families of the real refit reused); a candidate must then beat the gain
     it reaches there, i.e. what a different film of the same Hamiltonian alone gives it
-    (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations.
+    (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations. The same films
+    give the structure test its disorder floor (unless ``analysis`` passes ``floor_variance``): the
+    variance v between single realisations, from E[(pseudo − base)²] = 2v/P for two P-profile averages,
+    so a residual no larger than another film of the same Hamiltonian leaves is not reported as an
+    "unexplained structured residual".
 
     ``field_shift``, ``drift``: the measurement's model-free evidence for a field shift and for a
     drift (``signatures``), which field-shift and drift candidates need (``analyse_residual``); the
@@ -175,12 +179,13 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                    n_profiles=n_profiles, **candidates, **analysis)
     null = None
     if null_realisations > 0:
-        null = {}
+        null, squares = {}, []
         for r in range(null_realisations):
             # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
             # on the same curves (its residual is then the floor after a refit), else against ``base``
             pseudo = resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
                                 first_profile=r * n_profiles)
+            squares.append((pseudo - base) ** 2)
             pseudo_base = base
             if null_refit:
                 pseudo_base = refit_hamiltonian(cfg, params, pseudo, train, names=names, relative_bounds=relative_bounds,
@@ -188,6 +193,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
             null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r))
+        if "floor_variance" not in options:
+            options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN where the curves are
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
                               drift=drift, **options)
     with_effect = None
