@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from forcdecode.bench.ood import CASES, bench_ood, case_film, clopper_pearson, ood_lines
+from forcdecode.bench.ood import CASES, bench_ood, carry_over, case_film, clopper_pearson, ood_lines
 from forcdecode.core.errors import ConfigError
 from forcdecode.learn.posterior import PosteriorEstimator, train_posterior
 from forcdecode.learn.scoring import binomial_band
@@ -107,3 +107,31 @@ def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
     assert row["flagged_by_either"] >= 15 and row["p_values"][0] == pytest.approx(1 / 21)
     result["predictive_reference"] = reference
     assert any("posterior-predictive check" in line for line in ood_lines(result))
+
+
+def test_a_run_over_some_cases_adds_to_the_summary_instead_of_erasing_it():
+    """An earlier run's rows (and its predictive rows, judged against the same reference) survive a
+    run over other cases on the same families; another family set, or another reference, replaces them."""
+    reference = {"budget": 50, "values": [1.0, 2.0]}
+    same = {"split": "test", "sample_ids": [7, 13], "posterior": "p.pt"}
+    earlier = {**same, "predictive_reference": reference,
+               "cases": {"control": {"flagged": 1, "predictive": {"flagged": 2}}, "magnumnp": {"flagged": 0}}}
+    now = {**same, "predictive_reference": reference,
+           "cases": {"magnumnp": {"flagged": 1, "predictive": {"flagged": 1}}}}
+    merged = carry_over(earlier, json_copy(now))
+    assert merged["cases"]["control"] == {"flagged": 1, "predictive": {"flagged": 2}}
+    assert merged["cases"]["magnumnp"] == now["cases"]["magnumnp"]  # this run's row wins
+    # without a predictive reference now, the earlier one comes along with its rows
+    merged = carry_over(earlier, {**same, "cases": {"magnumnp": {"flagged": 1}}})
+    assert merged["predictive_reference"] == reference and merged["cases"]["control"]["predictive"] == {"flagged": 2}
+    # another reference: earlier predictive rows are dropped, the rest kept
+    other = carry_over(earlier, {**json_copy(now), "predictive_reference": {"budget": 200, "values": [1.0]}})
+    assert other["cases"]["control"] == {"flagged": 1}
+    # other families: nothing carried over
+    assert "control" not in carry_over(earlier, {**json_copy(now), "sample_ids": [1, 2]})["cases"]
+
+
+def json_copy(value):
+    import json
+
+    return json.loads(json.dumps(value))

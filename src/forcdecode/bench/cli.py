@@ -424,9 +424,9 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
 def _bench_ood(args, say) -> int:
     """Flag rate of the posterior's OOD check on held-out Hamiltonians made in and out of the prior."""
     from ..core.errors import ConfigError
-    from ..core.io import write_json
+    from ..core.io import read_json, write_json
     from ..core.parameters import NAMES
-    from .ood import CASES, bench_ood, ood_lines
+    from .ood import CASES, bench_ood, carry_over, ood_lines
 
     if args.families < 1 or args.workers < 1:
         raise ConfigError(f"--families and --workers must be >= 1 (got {args.families}, {args.workers})")
@@ -446,6 +446,8 @@ def _bench_ood(args, say) -> int:
     if predictive is not None:
         result["predictive_reference"] = predictive["reference"]
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))
+    previous = os.path.join(args.ood_dir, "summary.json")
+    result = carry_over(read_json(previous, what="OOD summary") if os.path.exists(previous) else None, result)
     for line in ood_lines(result):
         say(line)
     write_json(f"{args.ood_dir}/summary.json", result)

@@ -183,6 +183,24 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
     return out
 
 
+def carry_over(previous: dict | None, result: dict) -> dict:
+    """``result`` with the rows of an earlier run over the same families (same split, sample ids and
+    posterior) that this run did not compute: a run over some cases (``--ood-cases``,
+    ``--predictive-cases``) then adds to summary.json instead of erasing the others. Earlier
+    predictive rows are kept only where they were judged against the same validation reference."""
+    if not previous or any(previous.get(k) != result.get(k) for k in ("split", "sample_ids", "posterior")):
+        return result
+    reference = result.get("predictive_reference", previous.get("predictive_reference"))
+    same_reference = previous.get("predictive_reference") == reference
+    for case, row in previous.get("cases", {}).items():
+        now = result["cases"].setdefault(case, {k: v for k, v in row.items() if k != "predictive" or same_reference})
+        if same_reference and "predictive" in row and "predictive" not in now:
+            now["predictive"] = row["predictive"]
+    if reference is not None and any("predictive" in row for row in result["cases"].values()):
+        result["predictive_reference"] = reference
+    return result
+
+
 def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
     """Refine each family for ``settings["budget"]`` simulations (``loop.fit_cli.fit_one``; one
     fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
