@@ -10,7 +10,7 @@ direction as measured). A relaxation minimizes the energy (``Film.minimize``, to
 the field B·ĥ; the value recorded is ⟨m⟩·ĥ (a vector magnetometer's coils along the applied field).
 With ``max_step_T`` a step larger than it is made in equal sub-steps.
 
-Shared work (as ``quasistatic_family``): where a curve reaches a field within ``field_tol_T`` of an
+Shared work without ``max_step_T`` (as ``quasistatic_family``): where a curve reaches a field within ``field_tol_T`` of an
 already simulated curve's reversal field with a state equal to that curve's starting state (max cell
 |Δm| < ``same_state_tol``), its remaining points are that curve's values at the same fields (linear
 interpolation between them; exact where the fields coincide, as on a grid); with ``merge_curves``
