@@ -130,8 +130,7 @@ def test_where_the_instrument_takes_its_points_does_not_change_the_sweep(avalanc
 def test_curves_reversed_from_saturation_follow_one_path(avalanche_film):
     """Curves reversed anywhere in negative saturation, each measured on its own points (60 fields
     moved by k·0.1 µT for curve k, so no two curves share a field, and 40 points of its own between
-    them), are one ascending branch:
-    their values agree within 0.01 of the loop (the slope over 0.5 µT is far below that). Measured
+    them), are one ascending branch: their values agree within 0.01 of the loop (the slope over 0.5 µT is far below that). Measured
     before the sweep's paths could be joined (each curve stepped through its own points; curves met
     only at equal fields): they parted by up to 0.4 of the half-loop height in the avalanche."""
     rng = np.random.default_rng(5)

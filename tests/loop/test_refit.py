@@ -114,8 +114,6 @@ def test_the_null_films_are_the_structure_tests_disorder_floor(film):
     options = dict(names=("K_u",), budget=8, physics=False, null_realisations=4, noise_sigma=NOISE, thermal=False)
     with_floor = analyse_with_refit(film.cfg, disordered, measured, film.fields, **options)
     noise_only = analyse_with_refit(film.cfg, disordered, measured, film.fields, floor_variance=None, **options)
-    print(with_floor["structure"]["chi2_ratio"], noise_only["structure"]["chi2_ratio"], with_floor["verdict"],
-          noise_only["verdict"], with_floor["chosen"], noise_only["chosen"])
     assert with_floor["chosen"] == noise_only["chosen"] == "none"
     assert with_floor["structure"]["chi2_ratio"] < noise_only["structure"]["chi2_ratio"]
     assert noise_only["verdict"] == "unexplained structured residual"

@@ -446,11 +446,11 @@ def _bench_ood(args, say) -> int:
     if predictive is not None:
         result["predictive_reference"] = predictive["reference"]
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))
-    previous = os.path.join(args.ood_dir, "summary.json")
-    result = carry_over(read_json(previous, what="OOD summary") if os.path.exists(previous) else None, result)
+    summary = os.path.join(args.ood_dir, "summary.json")
+    result = carry_over(read_json(summary, what="OOD summary") if os.path.exists(summary) else None, result)
     for line in ood_lines(result):
         say(line)
-    write_json(f"{args.ood_dir}/summary.json", result)
+    write_json(summary, result)
     if args.json:
         line = {case: row["flagged_fraction"] for case, row in result["cases"].items()}
         line.update({f"{case}_predictive": row["predictive"]["flagged_fraction"]

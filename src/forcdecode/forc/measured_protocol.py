@@ -91,6 +91,13 @@ def _along(rest, curve_fields, curve_values):
     return np.interp(rest, curve_fields[order], curve_values[order])
 
 
+def _saturation_and_levels(reversal, curve_fields, saturation_field_T):
+    """The field the protocol saturates at (its largest field unless given) and the reversal fields
+    in decreasing order (the descending branch's stops)."""
+    top = max(float(reversal.max()), max(float(f.max()) for f in curve_fields))
+    return (top if saturation_field_T is None else float(saturation_field_T)), np.unique(reversal)[::-1]
+
+
 def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curve_fields_T, *,
                              direction=Z, saturation_field_T: float | None = None, torque_tol_T: float = 1e-3,
                              max_iterations: int = 20_000, same_state_tol: float = 0.02, field_tol_T: float = 1e-12,
@@ -126,9 +133,7 @@ def measured_protocol_family(film: Film, m0: np.ndarray, reversal_fields_T, curv
         stats["relaxations"] += 1
         stats["unconverged"] += not result.converged
 
-    top = max(float(reversal.max()), max(float(f.max()) for f in curve_fields))
-    top = top if saturation_field_T is None else float(saturation_field_T)
-    levels = np.unique(reversal)[::-1]  # decreasing
+    top, levels = _saturation_and_levels(reversal, curve_fields, saturation_field_T)
     m = np.array(m0, dtype=np.float64, order="C", copy=True)
     relax(m, top)
     states, descending = {}, np.empty(levels.size)
@@ -302,14 +307,18 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
                 self.step(n)
             return target is not None
 
-        def to(self, B) -> np.ndarray:
-            """The state at the measured field B: the sweep's own on a node, else a snapshot."""
-            if B == self.field or self.advance(B):
-                return self.state().copy()
+        def snapshot(self, B) -> np.ndarray:
+            """The state relaxed at B from the sweep's state (which stays where it is)."""
             snap = self.state().copy()
             relax(snap, B)
             stats["snapshots"] += 1
             return snap
+
+        def to(self, B) -> np.ndarray:
+            """The state at the measured field B: the sweep's own on a node, else a snapshot."""
+            if B == self.field or self.advance(B):
+                return self.state().copy()
+            return self.snapshot(B)
 
         def value(self, B) -> float:
             """The recorded value at B; a snapshot taken before from the same node state is reused."""
@@ -320,9 +329,7 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
             if key is not None and key in snapshots:
                 stats["snapshots_reused"] += 1
                 return snapshots[key]
-            snap = self.state().copy()
-            relax(snap, B)
-            stats["snapshots"] += 1
+            snap = self.snapshot(B)
             if not np.all(np.isfinite(snap)):
                 raise SimulationError(f"non-finite magnetization at {B:+.4f} T")
             value = record(snap)
@@ -340,7 +347,8 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
             else:
                 m = self.state()
                 relax(m, n * s)
-                m[...] = m.astype(np.float32)
+                single = m.astype(np.float32)
+                m[...] = single
                 stats["nodes_relaxed"] += 1
                 if not np.all(np.isfinite(m)):
                     raise SimulationError(f"non-finite magnetization at {n * s:+.4f} T")
@@ -353,12 +361,10 @@ def _sweep_family(film: Film, m0, reversal, curve_fields, *, direction, saturati
                 else:
                     self.path = self.own
                     if memory is not None:
-                        memory.add(d, n, self.own, m.astype(np.float32))
+                        memory.add(d, n, self.own, single)
             self.field, self.node = n * s, n
 
-    top = max(float(reversal.max()), max(float(f.max()) for f in curve_fields))
-    top = top if saturation_field_T is None else float(saturation_field_T)
-    levels = np.unique(reversal)[::-1]  # decreasing
+    top, levels = _saturation_and_levels(reversal, curve_fields, saturation_field_T)
     m = np.array(m0, dtype=np.float64, order="C", copy=True)
     relax(m, top)
     sweep = Sweep(m, top)

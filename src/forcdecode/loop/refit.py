@@ -194,7 +194,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r))
         if "floor_variance" not in options:
-            options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN where the curves are
+            options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
                               drift=drift, **options)
     with_effect = None
