@@ -125,3 +125,12 @@ def test_a_moment_tolerance_outside_its_range_is_refused_before_any_work(tmp_pat
     assert code != 0
     assert "moment tolerance" in capsys.readouterr().err
     assert not (tmp_path / "loop" / "report.json").exists()
+
+
+@pytest.mark.parametrize("step_mT", ["0", "-2"])
+def test_a_measured_protocol_step_that_is_not_positive_is_refused_before_any_work(tmp_path, capsys, step_mT):
+    code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), "--measured-max-step-mT",
+                 step_mT])
+    assert code != 0
+    assert "measured-protocol field step" in capsys.readouterr().err
+    assert not (tmp_path / "loop" / "report.json").exists()

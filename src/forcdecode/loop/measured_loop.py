@@ -273,6 +273,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if not 0.0 <= moment_tolerance < 1.0:
         raise ConfigError(f"moment tolerance {moment_tolerance!r} (--moment-tolerance) must lie in [0, 1): a relative "
                           "uncertainty of the moment normalization, e.g. 0.02 for ±2 %")
+    if measured_max_step_T is not None and not measured_max_step_T > 0:
+        raise ConfigError(f"measured-protocol field step {measured_max_step_T!r} T (--measured-max-step-mT) must be "
+                          "> 0: the re-simulation sweeps on a lattice of that step")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     data = read_forc(path)
