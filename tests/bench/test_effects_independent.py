@@ -71,3 +71,30 @@ def test_signature_validation_films_are_apart_from_the_bench():
         assert not {physics.get("B_bias_T"), settings.get("field_offset_T")} & bench_sizes - {None}
         shifted += bool(physics.get("B_bias_T") or settings.get("field_offset_T"))
     assert len(SIGNATURE_VALIDATION) - shifted > shifted
+
+
+def test_a_stored_sample_is_computed_once_and_read_back_equal(tmp_path, monkeypatch):
+    """Cases that differ by the instrument only share one magnum.np run (``stored_sample``); a sample
+    of another protocol or Hamiltonian is computed again."""
+    from forcdecode.bench import effects_independent as bench
+    from forcdecode.reference.independent import IndependentFilm, SampleFamily, measurement_protocol
+
+    calls = []
+
+    def fake(params, physics, seed, cache_dir, protocol, film, patches=1):
+        calls.append(seed)
+        reversal, fields = protocol
+        rng = np.random.default_rng(seed)
+        return SampleFamily(np.asarray(reversal), fields, [rng.uniform(-1, 1, len(f)) for f in fields], {"wall_s": 1.0})
+
+    monkeypatch.setattr(bench, "_sample", fake)
+    film, truth = IndependentFilm(), dict(bench.HAMILTONIANS[0])
+    first = bench.stored_sample(tmp_path, truth, {}, 1, None, measurement_protocol(6), film)
+    again = bench.stored_sample(tmp_path, truth, {}, 1, None, measurement_protocol(6), film)
+    assert calls == [1]
+    assert np.array_equal(first.reversal_fields_T, again.reversal_fields_T)
+    assert all(np.array_equal(a, b) for a, b in zip(first.curves, again.curves))
+    assert all(np.array_equal(a, b) for a, b in zip(first.curve_fields_T, again.curve_fields_T))
+    bench.stored_sample(tmp_path, truth, {}, 1, None, measurement_protocol(8), film)
+    bench.stored_sample(tmp_path, truth, {"B_bias_T": 0.03}, 1, None, measurement_protocol(6), film)
+    assert calls == [1, 1, 1] and len(list(tmp_path.glob("*.npz"))) == 3

@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
     parser.add_argument("--patches", type=int, default=1,
                         help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
+    parser.add_argument("--sample-curves", type=int, default=None,
+                        help="effects --independent: FORCs in each magnum.np sample file (default: "
+                             "bench.effects_independent.SAMPLE_CURVES)")
     parser.add_argument("--model-profiles", type=int, default=1,
                         help="effects --independent: disorder profiles averaged in each re-simulation of the model")
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
@@ -150,13 +153,18 @@ def _bench_effects_independent(args, say) -> int:
 
     from ..core.errors import ConfigError
     from ..core.progress import progress
-    from .effects_independent import independent_confusion, plan, summary_lines
+    from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines
+
+    curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
+    if curves < 4:
+        raise ConfigError(f"--sample-curves ({curves}) must be at least 4")
 
     if args.signatures:
         from .effects_independent import signature_lines, signature_validation
 
         out = Path(args.effects_out) / "signatures"
-        result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files",
+        result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files", sample_curves=curves,
+                                      samples_dir=Path(args.effects_out) / "samples",
                                       progress=lambda f: say(f"H{f['hamiltonian']} seed {f['seed']}: shift "
                                                              f"{f['offset_T']}, claimed {f['significant']}"))
         return _finish(out, result, signature_lines(result), args.json, say, omit="films")
@@ -176,7 +184,8 @@ def _bench_effects_independent(args, say) -> int:
             bar.update()
 
         result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
-                                       files_dir=out / "files", patches=args.patches, profiles=args.model_profiles)
+                                       files_dir=out / "files", patches=args.patches, profiles=args.model_profiles,
+                                       sample_curves=curves, samples_dir=out / "samples")
     return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
 
 

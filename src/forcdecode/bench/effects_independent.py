@@ -48,6 +48,14 @@ resolved by both grids: with A_ex = 2e-12 J/m (walls of 2.2 nm, about one cell) 
 2.5 nm-cell samples ran to K_u + 35 % on both a 32 nm and a 128 nm box (wall pinning on the coarser
 lattice is the likely cause; not separated from the box and disorder here)."""
 
+SAMPLE_CURVES = 48
+"""FORCs in each sample file (reversal fields every 2 B_max/48 = 42 mT over ±1 T, points every 21 mT;
+the fitting grid stays at 24 fields). The real files in ``shared/data/measured`` hold 120–297 curves;
+the first bench used 24, which left the descending major branch known only every 83 mT, so the
+model-free shift test could not resolve a loop centre to better than ±8 mT on the H0 film (results
+in the README). 48 is what the bench's time allows (the magnum.np cost grows with the number of
+curves; samples are shared between cases that differ by the instrument only)."""
+
 PREDICTION_ERROR = {"K_u": 1.08, "A_ex": 0.85, "D": 1.2}
 """The Hamiltonian handed to the loop: the truth times these factors."""
 
@@ -99,6 +107,42 @@ def is_correct(name: str, verdict: str, chosen: str) -> bool:
     return chosen == name or any({name, chosen} <= group for group in SAME_OBSERVABLE)
 
 
+def _sample_key(params, physics, seed, protocol, film, patches) -> str:
+    """A digest of everything the magnum.np sample depends on (the instrument does not enter)."""
+    import hashlib
+    from dataclasses import asdict
+
+    reversal, curves = protocol
+    text = json.dumps({"params": params, "physics": physics, "seed": seed, "patches": patches,
+                       "film": asdict(film), "reversal": np.round(np.asarray(reversal, float), 12).tolist(),
+                       "curves": [np.round(np.asarray(c, float), 12).tolist() for c in curves]}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film, patches: int = 1):
+    """``_sample``, kept in ``samples_dir`` (one .npz per distinct sample, written atomically) so that the
+    cases that differ by the instrument only share one magnum.np run; None: always computed."""
+    from ..core.io import atomic_path
+    from ..reference.independent import SampleFamily
+
+    if samples_dir is None:
+        return _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
+    path = Path(samples_dir) / f"{_sample_key(params, physics, seed, protocol, film, patches)}.npz"
+    if path.exists():
+        with np.load(path) as data:
+            lengths = np.cumsum(data["lengths"])[:-1]
+            return SampleFamily(data["reversal_fields_T"], np.split(data["fields_T"], lengths),
+                                np.split(data["m"], lengths), json.loads(str(data["stats"])) | {"stored": str(path)})
+    sample = _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, reversal_fields_T=np.asarray(sample.reversal_fields_T, float),
+                     lengths=np.array([len(c) for c in sample.curves]),
+                     fields_T=np.concatenate(sample.curve_fields_T), m=np.concatenate(sample.curves),
+                     stats=json.dumps(sample.stats, default=str))
+    return sample
+
+
 def _sample(params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """The magnum.np sample; with ``patches`` > 1 the mean of that many independent patches (disorder
     seeds seed, seed + 100, ...): a macroscopic film averages many patches."""
@@ -136,11 +180,14 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
 
 
 def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
-             null_realisations: int | None = None, patches: int = 1, profiles: int = 1) -> dict:
+             null_realisations: int | None = None, patches: int = 1, profiles: int = 1,
+             sample_curves: int = SAMPLE_CURVES, samples_dir=None) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
     measured rule, Hamiltonian refitted, candidates judged. ``patches``: magnum.np patches averaged in
     the sample; ``profiles``: disorder profiles averaged in every re-simulation of the model (the
-    realisation floor falls as 1/√n on each side). Returns the JSON-ready row."""
+    realisation floor falls as 1/√n on each side); ``sample_curves``: FORCs in the file;
+    ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``). Returns the
+    JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit
@@ -154,8 +201,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     physics = dict(physics)
     film = IndependentFilm(**SAMPLE, anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
     start = time.perf_counter()
-    sample = _sample(truth, physics, seed, cache_dir, measurement_protocol(CONFIG["field"]["n_fields"]), film,
-                     patches=patches)
+    sample = stored_sample(samples_dir, truth, physics, seed, cache_dir, measurement_protocol(sample_curves), film,
+                           patches=patches)
     sample_s = time.perf_counter() - start
     fmt = ["micromag0015", "lakeshore_csv"][(sum(map(ord, name)) + h + seed) % 2]
     stem = "".join(c if c.isalnum() else "_" for c in name).strip("_")
@@ -176,7 +223,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
                                 field_shift=shift, drift=drift)
     refit = result["hamiltonian"]["refit_without_effect"]
-    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "file": str(path),
+    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "sample_curves": sample_curves,
+            "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
             "correct": is_correct(name, result["verdict"], result["chosen"]),
             "parameters": result["parameters"], "heldout_rms_before": result["heldout_rms_before"],
@@ -188,6 +236,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "prediction_relative_error": {k: prediction[k] / truth[k] - 1 for k in REFIT},
             "field_shift": {k: shift[k] for k in ("offset_T", "se_T", "z", "chi2", "consistent", "significant")},
             "drift": drift,
+            "structure_after": {k: result["structure"].get(k) for k in _STRUCTURE},
             "sample_s": sample_s, "case_s": time.perf_counter() - start,
             "candidates": {k: {key: v.get(key) for key in _EVIDENCE} for k, v in result["candidates"].items()}}
 
@@ -198,18 +247,25 @@ _EVIDENCE = ("heldout_rms", "heldout_mse_per_curve", "accepted", "kind", "n_para
              "drift_evidence", "at_grid_edge")
 """What each candidate's row keeps: the selection's evidence, so a decision can be re-read from the file."""
 
+_STRUCTURE = ("structured", "chi2_ratio", "chi2_p", "runs_z", "lag1_z", "n_points", "where")
+"""What a row keeps of the structure test of the chosen model's residual (``loop.structure``)."""
+
 
 def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,
-                          out_jsonl=None, files_dir=None, patches: int = 1, profiles: int = 1) -> dict:
+                          out_jsonl=None, files_dir=None, patches: int = 1, profiles: int = 1,
+                          sample_curves: int = SAMPLE_CURVES, samples_dir=None) -> dict:
     """Run the planned cases (``done``: rows already run are kept; ``out_jsonl``: each finished case is
     appended there and the ones already in it are not run again, so a killed run resumes; ``files_dir``:
-    the instrument files are kept there, one per case, for ``forcdecode loop``);
+    the instrument files are kept there, one per case, for ``forcdecode loop``; ``samples_dir``: the
+    magnum.np samples, shared by cases that differ by the instrument only);
     returns {"cases", "confusion", "correct_fraction", "false_attribution_controls",
     "false_attribution_outside_library", "median_heldout_reduction", "n_cases", "wall_s"}."""
     rows = plan() if rows is None else rows
     finished = list(done or [])
     if out_jsonl is not None and Path(out_jsonl).exists():
-        finished += [json.loads(line) for line in Path(out_jsonl).read_text().splitlines() if line.strip()]
+        earlier = [json.loads(line) for line in Path(out_jsonl).read_text().splitlines() if line.strip()]
+        # a row of another protocol is not this run's (rows before the key existed had 24 curves)
+        finished += [r for r in earlier if r.get("sample_curves", 24) == sample_curves]
     seen = {(r["case"], r["hamiltonian"], r["seed"]) for r in finished}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -219,7 +275,7 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
             if (row["case"], row["hamiltonian"], row["seed"]) in seen:
                 continue
             finished.append(run_case(row, where, cache_dir=cache_dir, budget=budget, patches=patches,
-                                     profiles=profiles))
+                                     profiles=profiles, sample_curves=sample_curves, samples_dir=samples_dir))
             if out_jsonl is not None:
                 Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
                 with open(out_jsonl, "a") as f:
@@ -288,7 +344,8 @@ sizes and seeds the bench does not use) and one with a background and an additiv
 asymmetry that must not be taken for a shift)."""
 
 
-def signature_validation(cache_dir=None, noise: float = 0.002, out_dir=None, progress=None) -> dict:
+def signature_validation(cache_dir=None, noise: float = 0.002, out_dir=None, progress=None,
+                         sample_curves: int = SAMPLE_CURVES, samples_dir=None) -> dict:
     """The model-free field-shift test (``loop.signatures.field_shift_of``) on the magnum.np films of
     ``SIGNATURE_VALIDATION``, recorded by the instrument model and read back from MicroMag files:
     its false claims on films without a shift and what it shows of the shifted ones. Choices about
@@ -306,7 +363,8 @@ def signature_validation(cache_dir=None, noise: float = 0.002, out_dir=None, pro
         for h, seed, physics, settings in SIGNATURE_VALIDATION:
             truth = dict(HAMILTONIANS[h])
             film = IndependentFilm(**SAMPLE)
-            sample = _sample(truth, physics, seed, cache_dir, measurement_protocol(CONFIG["field"]["n_fields"]), film)
+            sample = stored_sample(samples_dir, truth, physics, seed, cache_dir, measurement_protocol(sample_curves),
+                                   film)
             moment = truth["Ms"] * film.moment_Am2
             label = "_".join([f"H{h}", f"s{seed}", *(f"{k}{v:g}" for k, v in {**physics, **settings}.items())])
             path = write_measurement(where / f"{label}.frc", sample, moment, InstrumentModel(noise=noise, **settings),
