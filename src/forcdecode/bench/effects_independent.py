@@ -59,9 +59,12 @@ curves; samples are shared between cases that differ by the instrument only)."""
 PREDICTION_ERROR = {"K_u": 1.08, "A_ex": 0.85, "D": 1.2}
 """The Hamiltonian handed to the loop: the truth times these factors."""
 
-SAMPLE = dict(nx=58, ny=58, cell_nm=2.2, n_grains=254)
+SAMPLE = dict(nx=58, ny=58, cell_nm=2.2, n_grains=254, sweep_step_T=0.005)
 """The magnum.np sample: 127.6 nm box of 2.2 nm cells (ours: 128 nm of 2 nm), grains ≈ 8 nm as the
-fitting film's, drawn by another tessellation."""
+fitting film's, drawn by another tessellation; the field ramped on 5 mT nodes, the points snapshots
+(``IndependentFilm.sweep_step_T``). Before 2026-11-26 the sample stepped through the measured points
+(≤ 50 mT steps), which made an unbiased film's loop look shifted: on the H0 film with 48 curves
++21 mT (seed 4) where the ramped sweep gives +3.0 ± 3.1 mT."""
 
 REFIT = ("K_u", "A_ex", "D")
 REFIT_BOUNDS = 0.3
