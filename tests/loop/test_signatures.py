@@ -192,3 +192,46 @@ def test_levels_in_one_interval_share_its_error_and_levels_in_others_do_not():
     # a loop switching over several intervals: the offset's error falls below one level's error
     result = field_shift(*branches(0.3), noise_sigma=0.002)
     assert result["se_T"] < 0.8 * np.mean(result["errors_T"])
+
+
+def test_the_calibrated_shift_removes_the_protocols_bias_and_takes_its_spread():
+    from forcdecode.loop.signatures import calibrated_shift
+
+    measured = {"offset_T": 0.0040, "se_T": 0.0012, "z": 3.3, "consistent": True, "significant": True}
+    null = [0.0035, 0.0042, 0.0031, 0.0046, 0.0038]  # films without a shift read +3.8 mT on this protocol
+    calibrated = calibrated_shift(measured, null)
+    assert calibrated["offset_T"] == pytest.approx(0.0040 - np.mean(null))
+    assert not calibrated["significant"] and calibrated["raw_offset_T"] == 0.0040
+    spread = np.std(null, ddof=1) * np.sqrt(1.2)
+    shifted = calibrated_shift({**measured, "offset_T": 0.035, "se_T": 0.0001}, null)
+    assert shifted["se_T"] == pytest.approx(spread) and shifted["significant"]
+    assert shifted["offset_T"] == pytest.approx(0.035 - np.mean(null))
+    wide = calibrated_shift({**measured, "offset_T": 0.035}, [0.0, 0.02, -0.02])  # a spread of 20 mT hides it
+    assert not wide["significant"]
+    assert not calibrated_shift({**measured, "consistent": False, "offset_T": 0.035}, null)["significant"]
+    with pytest.raises(ValueError, match="at least 3"):
+        calibrated_shift(measured, [0.001, None])
+
+
+def test_the_shift_tests_null_reads_the_major_loop_alone_as_the_whole_protocol():
+    """The calibration re-simulates only the reversal points and the lowest curve; the sweep sampled at
+    those points is the whole protocol's sweep, so the test reads the same offset (within 1 mT; the
+    path memory's joins differ)."""
+    from pathlib import Path
+
+    import yaml
+
+    from forcdecode.loop.refit import simulated_shift_offsets
+    from forcdecode.loop.resimulate import resimulate_measured
+    from forcdecode.loop.signatures import field_shift, major_branches
+    from forcdecode.reference.independent import measurement_protocol
+
+    cfg = yaml.safe_load((Path(__file__).resolve().parents[2] / "config" / "test.yaml").read_text())
+    cfg["n_grains"] = 32
+    params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 10.0, "sigma_K": 0.2}
+    reversal, curves = measurement_protocol(16)
+    reduced = simulated_shift_offsets(cfg, params, reversal, curves, noise_sigma=0.002, realisations=2)
+    m = resimulate_measured(cfg, params, reversal, curves, first_profile=1, key="shift_null", max_step_T=0.002)
+    whole = field_shift(*major_branches(list(zip(reversal, curves, m)), 1.0), 0.002)["offset_T"]
+    assert abs(reduced[1] - whole) < 1e-3
+    assert abs(reduced[0] - reduced[1]) > 1e-6  # two realisations, two films

@@ -224,7 +224,9 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,
                                 null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
-                                field_shift=shift, drift=drift)
+                                field_shift=shift, drift=drift,
+                                shift_protocol=([c.reversal_field_T for c in data.curves],
+                                                [c.field_T for c in data.curves]))
     refit = result["hamiltonian"]["refit_without_effect"]
     return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "sample_curves": sample_curves,
             "file": str(path),
@@ -237,7 +239,9 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "heldout_rms_prediction": result["refit"]["heldout_rms_prediction"],
             "refit_relative_error": {k: refit[k] / truth[k] - 1 for k in REFIT},
             "prediction_relative_error": {k: prediction[k] / truth[k] - 1 for k in REFIT},
-            "field_shift": {k: shift[k] for k in ("offset_T", "se_T", "z", "chi2", "consistent", "significant")},
+            "field_shift": {k: result["field_shift"].get(k) for k in ("offset_T", "se_T", "z", "chi2", "consistent",
+                                                                      "significant", "raw_offset_T", "analytic_se_T",
+                                                                      "null_offsets_T")},
             "drift": drift,
             "structure_after": {k: result["structure"].get(k) for k in _STRUCTURE},
             "sample_s": sample_s, "case_s": time.perf_counter() - start,

@@ -348,7 +348,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     (``signatures.field_shift``). With it, a candidate that shifts the loop along the field
     (field_offset, bias_field, their combinations) is offered only if the measured loop shows a
     shift (``significant``) and the shift its fitted size implies agrees with it
-    (``signatures.shift_agreement``: within 3 combined standard errors), and then without the
+    (``signatures.shift_agreement``: within 3 combined standard errors, the candidate's including
+    the grid's resolution, spacing/√12: a shift fitted on the grid family), and then without the
     realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
     the data show by themselves is not the difference between two films (records:
     ``shift_evidence``). It still has to beat "none" on held-out curves.
@@ -475,7 +476,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                 continue
         shift_checked = field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None
         if shift_checked:
-            check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"])
+            check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"],
+                                    resolution_T=float(abs(fields[1] - fields[0])) / np.sqrt(12.0))
             records[name]["shift_evidence"] = check
             if not (field_shift["significant"] and check["agrees"]):
                 # the loop's own symmetry shows no shift, or not this one: a fitted shift would cover

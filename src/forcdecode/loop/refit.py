@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import ConfigError
+from .signatures import calibrated_shift
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
 GOLDEN = (np.sqrt(5) - 1) / 2
@@ -122,11 +123,38 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
             "family": family, "model": model, "effect_parameters": theta}
 
 
+SHIFT_NULL_REALISATIONS = 10
+"""Films without a shift whose shift-test offsets calibrate the test (``analyse_with_refit``)."""
+
+
+def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fields_T, *, noise_sigma: float | None,
+                            realisations: int = SHIFT_NULL_REALISATIONS, max_step_T: float = 0.002,
+                            key: str = "shift_null") -> list:
+    """The offsets (T) ``signatures.field_shift`` reads on ``realisations`` films of ``params`` without
+    any shift, each its major loop re-simulated on the file's protocol (the reversal fields and the
+    lowest curve's fields: ``signatures.major_loop_protocol``; a sweep on ``max_step_T`` nodes).
+    ``noise_sigma`` enters the test's error model only (the films are noise-free). None where a film
+    gives too few levels."""
+    from .resimulate import resimulate_measured
+    from .signatures import field_shift, major_branches, major_loop_protocol
+
+    reversal, curves = major_loop_protocol(reversal_fields_T, curve_fields_T)
+    sigma = float(noise_sigma) if noise_sigma else 1e-3
+    offsets = []
+    for r in range(realisations):
+        m = resimulate_measured(cfg, params, reversal, curves, n_profiles=1, first_profile=r, key=key,
+                                max_step_T=max_step_T)
+        offsets.append(field_shift(*major_branches(list(zip(reversal, curves, m)), 1.0), sigma)["offset_T"])
+    return offsets
+
+
 def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
                        null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
-                       drift: dict | None = None, cross_fit: bool = False, progress=None, **analysis) -> dict:
+                       drift: dict | None = None, cross_fit: bool = False, shift_protocol=None,
+                       shift_realisations: int = SHIFT_NULL_REALISATIONS, shift_max_step_T: float = 0.002,
+                       progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
@@ -153,6 +181,13 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     drift (``signatures``), which field-shift and drift candidates need (``analyse_residual``); the
     null films do not get it.
 
+    ``shift_protocol`` (reversal fields, per-curve fields of the file, T): calibrate ``field_shift`` by
+    simulation (``signatures.calibrated_shift``): the refitted Hamiltonian's major loop re-simulated on
+    the file's own protocol (``signatures.major_loop_protocol``, a sweep on ``shift_max_step_T``
+    nodes) for ``shift_realisations`` disorder realisations (stream key "shift_null") gives the shift
+    test's bias and spread on this protocol, which the analytic error model misses. Cost: R sweeps
+    of the major loop (on the bench's laptop film ≈ 1–2 s each).
+
     ``cross_fit``: judge the candidates on every curve, each held out once (the ``every_k`` folds of
     ``analyse_residual``), not only on the refit's held-out curves (the default). The Hamiltonian is
     refitted once, on the first fold's training curves, so in the other folds the base model "none"
@@ -171,6 +206,10 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     refit = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
                               n_profiles=n_profiles, budget=budget, progress=progress)
     base = refit["family"]
+    if field_shift is not None and shift_protocol is not None:
+        field_shift = calibrated_shift(field_shift, simulated_shift_offsets(
+            cfg, refit["params"], *shift_protocol, noise_sigma=noise_sigma, realisations=shift_realisations,
+            max_step_T=shift_max_step_T))
     candidates = {}
     if physics:
         candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, key="refit",
@@ -216,4 +255,4 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["REFITTABLE", "analyse_with_refit", "refit_hamiltonian"]
+__all__ = ["REFITTABLE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit", "refit_hamiltonian", "simulated_shift_offsets"]
