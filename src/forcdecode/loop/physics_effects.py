@@ -352,7 +352,9 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     the grid's resolution, spacing/√12: a shift fitted on the grid family), and then without the
     realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
     the data show by themselves is not the difference between two films (records:
-    ``shift_evidence``). It still has to beat "none" on held-out curves.
+    ``shift_evidence``). It still has to lower the held-out error, by more than ``equivalence``; the
+    bootstrap bound is not asked of it (``choose_candidate(evidenced=)``): its significance is the
+    symmetry test's.
 
     ``drift``: the model-free drift evidence of the measurement (``signatures.drift_evidence``: the
     end moments in positive saturation against the clock, and the mirror sums that tell an additive
@@ -454,6 +456,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
 
     none_mse = float(np.nanmean(mse["none"]))
     offered = dict(mse)
+    evidenced = set()  # shown by the loop's own symmetry: ``choose_candidate(evidenced=)``
     for name in records:
         gain_mse = none_mse - float(np.nanmean(mse[name]))
         records[name]["gain_mse_mean"] = gain_mse
@@ -483,6 +486,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                 # the loop's own symmetry shows no shift, or not this one: a fitted shift would cover
                 # the difference between the model's film and the sample, not an effect
                 offered.pop(name)
+            else:
+                evidenced.add(name)
             continue  # a shift the data show by themselves: no realisation floor, no further gate
         drift_ok = drift_agreement(drift, name) if drift is not None else None
         if drift_ok is not None:
@@ -510,6 +515,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             offered.pop(name)
     rng = stream_rng(seed, "bootstrap", "analyse_residual")
     chosen, scores = choose_candidate(offered, {k: v["n_parameters"] for k, v in records.items()}, rng,
+                                      evidenced=evidenced,
                                       n_boot, min_relative_gain, equivalence)
     for name in set(records) - set(offered):
         scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
