@@ -515,8 +515,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             offered.pop(name)
     rng = stream_rng(seed, "bootstrap", "analyse_residual")
     chosen, scores = choose_candidate(offered, {k: v["n_parameters"] for k, v in records.items()}, rng,
-                                      evidenced=evidenced,
-                                      n_boot, min_relative_gain, equivalence)
+                                      n_boot, min_relative_gain, equivalence, evidenced=evidenced)
     for name in set(records) - set(offered):
         scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
                         "relative_gain_ci90": None, "accepted": False}
