@@ -383,6 +383,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if refit:
         final_params = analysis["hamiltonian"]["refit_without_effect"]
         report["hamiltonian"] = analysis["hamiltonian"]
+        if analysis.get("field_shift") is not None:
+            report["field_shift"] = analysis["field_shift"]  # calibrated by simulation when the refit ran
         report["refit"] = analysis["refit"]
     else:
         candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
@@ -534,8 +536,11 @@ def _markdown(path, report, analysis) -> str:
     if shift and shift.get("offset_T") is not None:
         lines += ["", f"Symmetry of the major loop (model-free evidence for a field shift, `loop.signatures`): centre "
                   f"{1e3 * shift['offset_T']:+.1f} ± {1e3 * shift['se_T']:.1f} mT ({shift['z']:.1f} se, χ² over "
-                  f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}): "
-                  + ("a shift; field-shift candidates are judged without the realisation floor."
+                  f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}"
+                  + (f"; {shift['calibration']}, read {1e3 * shift['raw_offset_T']:+.1f} mT" if "calibration" in shift else "")
+                  + "): "
+                  + ("a shift; field-shift candidates are judged without the realisation floor and need only lower "
+                     "the held-out error."
                      if shift["significant"] else "no shift shown: field-shift candidates (offset, bias) are not offered.")]
     drift = analysis.get("drift")
     if drift and drift.get("trend") is not None:
