@@ -118,19 +118,12 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     assert "% measured" in (out / "report.md").read_text()
 
 
-@pytest.mark.parametrize("tolerance", ["-0.01", "1.5"])
-def test_a_moment_tolerance_outside_its_range_is_refused_before_any_work(tmp_path, capsys, tolerance):
-    code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), "--moment-tolerance",
-                 tolerance])
+@pytest.mark.parametrize("option,value,message", [("--moment-tolerance", "-0.01", "moment tolerance"),
+                                                  ("--moment-tolerance", "1.5", "moment tolerance"),
+                                                  ("--measured-max-step-mT", "0", "measured-protocol field step"),
+                                                  ("--measured-max-step-mT", "-2", "measured-protocol field step")])
+def test_an_option_outside_its_range_is_refused_before_any_work(tmp_path, capsys, option, value, message):
+    code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), option, value])
     assert code != 0
-    assert "moment tolerance" in capsys.readouterr().err
-    assert not (tmp_path / "loop" / "report.json").exists()
-
-
-@pytest.mark.parametrize("step_mT", ["0", "-2"])
-def test_a_measured_protocol_step_that_is_not_positive_is_refused_before_any_work(tmp_path, capsys, step_mT):
-    code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), "--measured-max-step-mT",
-                 step_mT])
-    assert code != 0
-    assert "measured-protocol field step" in capsys.readouterr().err
+    assert message in capsys.readouterr().err
     assert not (tmp_path / "loop" / "report.json").exists()

@@ -539,8 +539,7 @@ def _markdown(path, report, analysis) -> str:
                   f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}"
                   + (f"; {shift['calibration']}, read {1e3 * shift['raw_offset_T']:+.1f} mT" if "calibration" in shift else "")
                   + "): "
-                  + ("a shift; field-shift candidates are judged without the realisation floor and need only lower "
-                     "the held-out error."
+                  + ("a shift; field-shift candidates are judged without the realisation floor."
                      if shift["significant"] else "no shift shown: field-shift candidates (offset, bias) are not offered.")]
     drift = analysis.get("drift")
     if drift and drift.get("trend") is not None:

@@ -133,8 +133,8 @@ def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fi
     """The offsets (T) ``signatures.field_shift`` reads on ``realisations`` films of ``params`` without
     any shift, each its major loop re-simulated on the file's protocol (the reversal fields and the
     lowest curve's fields: ``signatures.major_loop_protocol``; a sweep on ``max_step_T`` nodes).
-    ``noise_sigma`` enters the test's error model only (the films are noise-free). None where a film
-    gives too few levels."""
+    ``noise_sigma`` enters the test's error model only (the films are noise-free; 1e-3 if not given).
+    None where a film gives too few levels."""
     from .resimulate import resimulate_measured
     from .signatures import field_shift, major_branches, major_loop_protocol
 
