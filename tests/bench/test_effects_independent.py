@@ -98,3 +98,43 @@ def test_a_stored_sample_is_computed_once_and_read_back_equal(tmp_path, monkeypa
     bench.stored_sample(tmp_path, truth, {}, 1, None, measurement_protocol(8), film)
     bench.stored_sample(tmp_path, truth, {"B_bias_T": 0.03}, 1, None, measurement_protocol(6), film)
     assert calls == [1, 1, 1] and len(list(tmp_path.glob("*.npz"))) == 3
+
+
+def test_validation_cases_are_apart_from_the_bench_and_cover_every_kind():
+    """Choices about the selection are made on these: other disorder seeds than the bench's cases,
+    other effect sizes, and controls, library and outside-the-library cases all present."""
+    from forcdecode.bench.effects_independent import validation_plan
+
+    bench_seeds = {r["seed"] for r in plan()}
+    bench_sizes = {(k, v) for physics, settings in CASES.values() for k, v in {**physics, **settings}.items()}
+    rows = validation_plan()
+    assert {case_kind(r["case"]) for r in rows} == {"control", "library", "outside"}
+    assert len({(r["case"], r["hamiltonian"], r["seed"]) for r in rows}) == len(rows)  # one file name each
+    for r in rows:
+        assert r["seed"] not in bench_seeds
+        assert not set({**r["physics"], **r["instrument"]}.items()) & bench_sizes
+        assert r["case"] in CASES  # scored by the bench's rules
+
+
+def test_a_resumed_run_keeps_only_rows_of_its_own_selection_options(tmp_path, monkeypatch):
+    """Rows of a run with other selection options (``analysis``) are not this run's: they are run again."""
+    import json
+
+    from forcdecode.bench import effects_independent as bench
+
+    ran = []
+
+    def fake_case(row, where, analysis=None, **kwargs):
+        ran.append(dict(analysis or {}))
+        return {**row, "kind": case_kind(row["case"]), "analysis": dict(analysis or {}), "sample_curves": 48,
+                "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}
+
+    monkeypatch.setattr(bench, "run_case", fake_case)
+    rows = [{"case": "none", "hamiltonian": 0, "seed": 1}]
+    out = tmp_path / "cases.jsonl"
+    out.write_text(json.dumps({**rows[0], "kind": "control", "analysis": {}, "sample_curves": 48, "verdict": "none",
+                               "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
+    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path)
+    assert ran == []  # the default options: resumed
+    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path, analysis={"cross_fit": True})
+    assert ran == [{"cross_fit": True}]

@@ -38,6 +38,24 @@ def test_a_symmetric_loop_shows_no_shift_on_an_asymmetric_lattice(width):
     assert sum(claims) <= 1
 
 
+@pytest.mark.parametrize("lag_points", [0.7, 1.0])
+def test_a_detector_lag_of_the_swept_branch_reads_as_half_its_delay(lag_points):
+    """The symmetry test cannot tell a lag from an offset: the reversal points are measured after a
+    pause (settled), the swept branch through a first-order lag of p averaging times, which delays a
+    smooth branch by its mean a/(1 − a) points (a = e^(−1/p)); the loop then reads as shifted by half
+    that delay, to within the test's own error (on a 0.3 T-wide branch, where the lag's broadening is
+    negligible)."""
+    (d_fields, d_m), (a_fields, a_m) = branches(0.3)
+    a = np.exp(-1.0 / lag_points)
+    lagged = a_m.copy()
+    for i in range(1, lagged.size):
+        lagged[i] = a * lagged[i - 1] + (1 - a) * a_m[i]
+    result = field_shift((d_fields, d_m), (a_fields, lagged), noise_sigma=0.002)
+    half_delay = 0.5 * a / (1 - a) * (a_fields[1] - a_fields[0])
+    assert result["significant"]
+    assert abs(result["offset_T"] - half_delay) < max(3 * result["se_T"], 0.1 * half_delay)
+
+
 def test_a_square_loop_shift_is_found_within_its_error():
     result = field_shift(*branches(0.005, shift=0.031), noise_sigma=0.002)
     assert result["significant"]

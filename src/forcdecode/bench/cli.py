@@ -23,6 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--signatures", action="store_true",
                         help="effects --independent: validate the model-free field-shift test instead, on magnum.np "
                              "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
+    parser.add_argument("--validation", action="store_true",
+                        help="effects --independent: run the validation cases (other seeds and effect sizes), on "
+                             "which choices about the selection are made; the bench's cases are the test")
+    parser.add_argument("--cross-fit", action="store_true",
+                        help="effects --independent: judge candidates on every curve, each held out once")
+    parser.add_argument("--shift-evidence-suffices", action="store_true",
+                        help="effects --independent: a shift the symmetry test shows needs only a lower held-out "
+                             "error (loop.physics_effects.analyse_residual(shift_evidence_suffices=True))")
     parser.add_argument("--patches", type=int, default=1,
                         help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
     parser.add_argument("--sample-curves", type=int, default=None,
@@ -153,7 +161,7 @@ def _bench_effects_independent(args, say) -> int:
 
     from ..core.errors import ConfigError
     from ..core.progress import progress
-    from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines
+    from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines, validation_plan
 
     curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
     if curves < 4:
@@ -170,7 +178,9 @@ def _bench_effects_independent(args, say) -> int:
         return _finish(out, result, signature_lines(result), args.json, say, omit="films")
     if args.patches < 1 or args.model_profiles < 1:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
-    rows = plan()
+    rows = validation_plan() if args.validation else plan()
+    analysis = {k: True for k, on in (("cross_fit", args.cross_fit),
+                                      ("shift_evidence_suffices", args.shift_evidence_suffices)) if on}
     if args.cases:
         unknown = set(args.cases) - {r["case"] for r in rows}
         if unknown:
@@ -185,7 +195,7 @@ def _bench_effects_independent(args, say) -> int:
 
         result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
                                        files_dir=out / "files", patches=args.patches, profiles=args.model_profiles,
-                                       sample_curves=curves, samples_dir=out / "samples")
+                                       sample_curves=curves, samples_dir=out / "samples", analysis=analysis)
     return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
 
 

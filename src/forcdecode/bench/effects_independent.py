@@ -94,6 +94,33 @@ CASES = {
     "outside: detector lag": ({}, {"lag_points": 1.5}),
 }
 
+VALIDATION_CASES = (
+    # (case, Hamiltonian, disorder seed, physics of the sample, instrument): seeds 3-6 and sizes the
+    # bench's cases do not use; the films of SIGNATURE_VALIDATION where they exist (stored samples shared)
+    ("none", 0, 3, {}, {}),
+    ("none", 0, 4, {}, {}),
+    ("none", 1, 3, {}, {}),
+    ("field_offset", 0, 3, {}, {"field_offset_T": 0.024}),
+    ("bias_field", 0, 5, {"B_bias_T": 0.04}, {}),
+    ("background", 0, 4, {}, {"chi_per_T": 0.04}),
+    ("scale", 0, 5, {}, {"scale": 1.06}),
+    ("background+additive_drift", 0, 6, {}, {"chi_per_T": 0.045, "additive_drift": 0.035}),
+    ("field_tilt", 0, 3, {"tilt_deg": 6.0}, {}),
+    ("K_2", 0, 4, {"K_2_over_K_u": -0.12}, {}),
+    ("outside: detector lag", 0, 5, {}, {"lag_points": 1.0}),
+    ("outside: Langevin paramagnet", 0, 3, {}, {"langevin_amplitude": 0.04, "langevin_field_T": 0.12}),
+)
+"""Cases on which choices about the selection are made (``forcdecode bench effects --independent
+--validation``): other disorder realisations and other effect sizes than ``CASES``, so the bench's
+own cases stay a test that is only reported."""
+
+
+def validation_plan() -> list[dict]:
+    """The rows of ``VALIDATION_CASES`` (each carries its physics and instrument)."""
+    return [{"case": name, "hamiltonian": h, "seed": seed, "physics": dict(physics), "instrument": dict(settings)}
+            for name, h, seed, physics, settings in VALIDATION_CASES]
+
+
 SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
 NO_EFFECT_VERDICTS = ("none", "unexplained structured residual")
 
@@ -184,13 +211,16 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
 
 def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
              null_realisations: int | None = None, patches: int = 1, profiles: int = 1,
-             sample_curves: int = SAMPLE_CURVES, samples_dir=None) -> dict:
+             sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
-    measured rule, Hamiltonian refitted, candidates judged. ``patches``: magnum.np patches averaged in
+    measured rule, Hamiltonian refitted, candidates judged. ``row``: {"case", "hamiltonian", "seed"}
+    and, for a case apart from ``CASES`` (``VALIDATION_CASES``), its "physics" and "instrument";
+    ``patches``: magnum.np patches averaged in
     the sample; ``profiles``: disorder profiles averaged in every re-simulation of the model (the
     realisation floor falls as 1/√n on each side); ``sample_curves``: FORCs in the file;
-    ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``). Returns the
-    JSON-ready row."""
+    ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``); ``analysis``:
+    options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g. ``cross_fit``,
+    ``shift_evidence_suffices``), kept in the row. Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit
@@ -199,7 +229,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
 
     name, h, seed = row["case"], row["hamiltonian"], row["seed"]
-    physics, settings = CASES[name]
+    physics, settings = (row["physics"], row["instrument"]) if "physics" in row else CASES[name]
+    analysis = dict(analysis or {})
     truth = dict(HAMILTONIANS[h])
     physics = dict(physics)
     film = IndependentFilm(**SAMPLE, anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
@@ -209,6 +240,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     sample_s = time.perf_counter() - start
     fmt = ["micromag0015", "lakeshore_csv"][(sum(map(ord, name)) + h + seed) % 2]
     stem = "".join(c if c.isalnum() else "_" for c in name).strip("_")
+    if "physics" in row:  # a validation film: its sizes in the name, so two of one case do not collide
+        stem += "".join(f"_{k}{v:g}" for k, v in {**physics, **settings}.items() if not isinstance(v, str))
     suffix = {"micromag0015": "frc", "lakeshore_csv": "csv"}[fmt]
     path = write_measurement(Path(work_dir) / f"{stem}_H{h}_s{seed}.{suffix}", sample,
                              truth["Ms"] * film.moment_Am2, InstrumentModel(noise=noise, **settings), seed=seed, fmt=fmt)
@@ -226,9 +259,9 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
                                 field_shift=shift, drift=drift,
                                 shift_protocol=([c.reversal_field_T for c in data.curves],
-                                                [c.field_T for c in data.curves]))
+                                                [c.field_T for c in data.curves]), **analysis)
     refit = result["hamiltonian"]["refit_without_effect"]
-    return {**row, "kind": case_kind(name), "patches": patches, "profiles": profiles, "sample_curves": sample_curves,
+    return {**row, "kind": case_kind(name), "analysis": analysis, "patches": patches, "profiles": profiles, "sample_curves": sample_curves,
             "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
             "correct": is_correct(name, result["verdict"], result["chosen"]),
@@ -258,9 +291,16 @@ _STRUCTURE = ("structured", "chi2_ratio", "chi2_p", "runs_z", "lag1_z", "n_point
 """What a row keeps of the structure test of the chosen model's residual (``loop.structure``)."""
 
 
+def _row_key(row: dict) -> tuple:
+    """What makes a case the same case on resuming: its name, Hamiltonian, seed and (validation cases)
+    its physics and instrument."""
+    return (row["case"], row["hamiltonian"], row["seed"],
+            json.dumps([row.get("physics"), row.get("instrument")], sort_keys=True))
+
+
 def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,
                           out_jsonl=None, files_dir=None, patches: int = 1, profiles: int = 1,
-                          sample_curves: int = SAMPLE_CURVES, samples_dir=None) -> dict:
+                          sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None) -> dict:
     """Run the planned cases (``done``: rows already run are kept; ``out_jsonl``: each finished case is
     appended there and the ones already in it are not run again, so a killed run resumes; ``files_dir``:
     the instrument files are kept there, one per case, for ``forcdecode loop``; ``samples_dir``: the
@@ -272,17 +312,20 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
     if out_jsonl is not None and Path(out_jsonl).exists():
         earlier = [json.loads(line) for line in Path(out_jsonl).read_text().splitlines() if line.strip()]
         # a row of another protocol is not this run's (rows before the key existed had 24 curves)
-        finished += [r for r in earlier if r.get("sample_curves", 24) == sample_curves]
-    seen = {(r["case"], r["hamiltonian"], r["seed"]) for r in finished}
+        # (and of other selection options: rows before the key existed used the defaults)
+        finished += [r for r in earlier if r.get("sample_curves", 24) == sample_curves
+                     and r.get("analysis", {}) == dict(analysis or {})]
+    seen = {_row_key(r) for r in finished}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         where = tmp if files_dir is None else Path(files_dir)
         Path(where).mkdir(parents=True, exist_ok=True)
         for row in rows:
-            if (row["case"], row["hamiltonian"], row["seed"]) in seen:
+            if _row_key(row) in seen:
                 continue
             finished.append(run_case(row, where, cache_dir=cache_dir, budget=budget, patches=patches,
-                                     profiles=profiles, sample_curves=sample_curves, samples_dir=samples_dir))
+                                     profiles=profiles, sample_curves=sample_curves, samples_dir=samples_dir,
+                                     analysis=analysis))
             if out_jsonl is not None:
                 Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
                 with open(out_jsonl, "a") as f:

@@ -4,10 +4,20 @@ loop, ``field_shift``) and a drift (the end moments in saturation, ``drift_evide
 A film without a bias field has a Hamiltonian symmetric under (m, B) → (−m, −B) (Zeeman, exchange,
 uniaxial anisotropy, DMI, demagnetization and the frozen disorder all are), so its ascending major
 branch is the mirror of its descending one: a(B) = −d(−B). Odd instrument terms (a linear or Langevin
-background, a scale, a detector lag that widens the loop) keep the symmetry; a field offset b of the
-magnet (or a bias field of the film: the same observable) breaks it as a pure horizontal shift,
-a(B) = −d(−B + 2b). The test does not need the re-simulation, so a model that is a different film
-(another disorder realisation, another code) cannot fake it. A field-shift candidate may explain
+background, a scale) keep the symmetry; a field offset b of the magnet (or a bias field of the film:
+the same observable) breaks it as a pure horizontal shift, a(B) = −d(−B + 2b). The test does not need
+the re-simulation, so a model that is a different film (another disorder realisation, another code)
+cannot fake it.
+
+What it cannot tell from an offset: a lag of the swept branch behind the reversal points. In a FORC
+protocol the descending branch is the reversal points, each measured after a pause (settled); the
+ascending branch is swept. A first-order detector lag of p averaging times delays a smooth swept
+branch by a/(1 − a) points (a = e^(−1/p)), and the loop reads as shifted by half that
+(``tests/loop/test_signatures.py``). To first order a lag is an offset of half its delay plus a
+coercivity wider by half its delay, which a refit of the Hamiltonian absorbs; on the independent
+bench a lag of 1.5 points (21 mT points) read +15.3 ± 2.3 mT and its held-out curves favoured a
+field offset more than those of the true 31 mT offset did. A second measurement at another sweep
+rate tells them apart (an offset does not depend on the rate); the report says so. A field-shift candidate may explain
 a residual only where the test finds a shift and the candidate's size agrees with it
 (``shift_agreement``); it is then spared the realisation floor (``physics_effects.analyse_residual``,
 ``field_shift=``).
