@@ -196,6 +196,30 @@ def test_drift_candidates_need_the_drift_evidence():
     assert result["candidates"]["additive_drift"]["drift_evidence"] is False
 
 
+def test_evidence_suffices_spares_only_candidates_the_model_free_tests_support(monkeypatch):
+    """With ``evidence_suffices`` the candidates whose drift (or shift) the model-free evidence supports,
+    and only those, reach the selection as evidenced (judged by the held-out error without the
+    bootstrap bound); without it none does."""
+    from forcdecode.loop import physics_effects
+
+    seen = []
+    real = physics_effects.choose_candidate
+
+    def spy(*args, evidenced=(), **kwargs):
+        seen.append(set(evidenced))
+        return real(*args, evidenced=evidenced, **kwargs)
+
+    monkeypatch.setattr(physics_effects, "choose_candidate", spy)
+    fields, base = family(0.3)
+    measured = realisation(10)
+    additive = {"significant": True, "mirror_sum": 0.05, "additive": True}
+    analyse_residual(measured, base, fields, thermal=False, drift=additive)
+    analyse_residual(measured, base, fields, thermal=False, drift=additive, evidence_suffices=True)
+    assert seen[0] == set()
+    assert seen[1] and all("additive_drift" in name for name in seen[1])
+    assert "additive_drift" in seen[1] and not any("multiplicative" in name for name in seen[1])
+
+
 def test_levels_in_one_interval_share_its_error_and_levels_in_others_do_not():
     """The centres' covariance: two levels crossing the descending branch in the same interval are
     fully correlated there, a level in another interval is independent; (field, error, interval)."""

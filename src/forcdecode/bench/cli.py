@@ -28,9 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "which choices about the selection are made; the bench's cases are the test")
     parser.add_argument("--cross-fit", action="store_true",
                         help="effects --independent: judge candidates on every curve, each held out once")
-    parser.add_argument("--shift-evidence-suffices", action="store_true",
-                        help="effects --independent: a shift the symmetry test shows needs only a lower held-out "
-                             "error (loop.physics_effects.analyse_residual(shift_evidence_suffices=True))")
+    parser.add_argument("--evidence-suffices", action="store_true",
+                        help="effects --independent: a shift or a drift the model-free tests show needs only a "
+                             "lower held-out error (loop.physics_effects.analyse_residual(evidence_suffices=True))")
     parser.add_argument("--patches", type=int, default=1,
                         help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
     parser.add_argument("--sample-curves", type=int, default=None,
@@ -180,7 +180,7 @@ def _bench_effects_independent(args, say) -> int:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     rows = validation_plan() if args.validation else plan()
     analysis = {k: True for k, on in (("cross_fit", args.cross_fit),
-                                      ("shift_evidence_suffices", args.shift_evidence_suffices)) if on}
+                                      ("evidence_suffices", args.evidence_suffices)) if on}
     if args.cases:
         unknown = set(args.cases) - {r["case"] for r in rows}
         if unknown:

@@ -220,7 +220,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     realisation floor falls as 1/√n on each side); ``sample_curves``: FORCs in the file;
     ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``); ``analysis``:
     options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g. ``cross_fit``,
-    ``shift_evidence_suffices``), kept in the row. Returns the JSON-ready row."""
+    ``evidence_suffices``), kept in the row. Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit

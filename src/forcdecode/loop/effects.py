@@ -297,7 +297,8 @@ def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2
     90 % interval, that of the relative gain, and whether the candidate alone would beat ``none``.
 
     ``evidenced``: candidates whose effect a test apart from the held-out curves has shown (a field
-    shift seen in the major loop's own symmetry, calibrated by simulation: ``signatures``). Their
+    shift seen in the major loop's own symmetry, calibrated by simulation, or a drift of the end
+    moments in saturation: ``signatures``). Their
     significance comes from that test, so against the current choice they need only a held-out
     error lower by more than ``equivalence``, not the bootstrap bound: a shift shows on the few
     held-out curves that cross the switching region (on a 24-curve file 1–3 of 6), where a bootstrap

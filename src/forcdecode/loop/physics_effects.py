@@ -292,7 +292,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      n_profiles: int = 1, null_gain: dict | None = None,
                      null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None,
                      physics_reference_family=None, hamiltonian_families=None,
-                     moment_tolerance: float = MOMENT_TOLERANCE, shift_evidence_suffices: bool = False) -> dict:
+                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = False) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -353,18 +353,17 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     realisation floor: another film of the same Hamiltonian is as symmetric as this one, so a shift
     the data show by themselves is not the difference between two films (records:
     ``shift_evidence``). It still has to beat "none" on held-out curves; with
-    ``shift_evidence_suffices`` only by a held-out error lower by more than ``equivalence``, the
+    ``evidence_suffices`` only by a held-out error lower by more than ``equivalence``, the
     bootstrap bound not asked (``choose_candidate(evidenced=)``: its significance is then the symmetry
-    test's). Not the default: measured on the independent bench it names the 31 mT offset and the
-    33 mT bias, but also names a detector lag (outside the library) a field offset, which the
-    symmetry test cannot tell apart (the lag shifts the swept ascending branch, not the reversal
-    points measured after a pause).
+    test's). The symmetry test cannot tell a detector lag of the swept curves from an offset
+    (``signatures``), so with this option a lag that shows as a shift is named a field offset.
 
     ``drift``: the model-free drift evidence of the measurement (``signatures.drift_evidence``: the
     end moments in positive saturation against the clock, and the mirror sums that tell an additive
     drift from a gain drift). A candidate with a drift component is offered only if the evidence
     supports that kind of drift (``signatures.drift_agreement``), and then without the realisation
-    floor, for the same reason (records: ``drift_evidence``).
+    floor, for the same reason (records: ``drift_evidence``); with ``evidence_suffices`` it too needs
+    only a held-out error lower by more than ``equivalence`` than the current choice.
 
     ``moment_tolerance``: the moment normalization is known to ±this. A candidate named for its scale
     whose fitted scale lies inside the band is not named (records: ``within_moment_tolerance``), and a
@@ -490,7 +489,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                 # the loop's own symmetry shows no shift, or not this one: a fitted shift would cover
                 # the difference between the model's film and the sample, not an effect
                 offered.pop(name)
-            elif shift_evidence_suffices:
+            elif evidence_suffices:
                 evidenced.add(name)
             continue  # a shift the data show by themselves: no realisation floor, no further gate
         drift_ok = drift_agreement(drift, name) if drift is not None else None
@@ -498,6 +497,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             records[name]["drift_evidence"] = drift_ok
             if not drift_ok:
                 offered.pop(name, None)  # the saturated end points do not drift that way
+            elif evidence_suffices:
+                evidenced.add(name)
             continue
         if nuisance_mse is not None and records[name]["kind"] == "measured" and "scale" in records[name]["parameters"]:
             # a candidate with its own scale must also beat the base whose normalization is free inside
