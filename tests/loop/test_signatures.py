@@ -197,9 +197,9 @@ def test_drift_candidates_need_the_drift_evidence():
 
 
 def test_evidence_suffices_spares_only_candidates_the_model_free_tests_support(monkeypatch):
-    """With ``evidence_suffices`` the candidates whose drift (or shift) the model-free evidence supports,
-    and only those, reach the selection as evidenced (judged by the held-out error without the
-    bootstrap bound); without it none does."""
+    """With ``evidence_suffices`` (the default) the candidates whose drift (or shift) the model-free
+    evidence supports, and only those, reach the selection as evidenced (judged by the held-out error
+    without the bootstrap bound); without it none does."""
     from forcdecode.loop import physics_effects
 
     seen = []
@@ -213,8 +213,8 @@ def test_evidence_suffices_spares_only_candidates_the_model_free_tests_support(m
     fields, base = family(0.3)
     measured = realisation(10)
     additive = {"significant": True, "mirror_sum": 0.05, "additive": True}
-    analyse_residual(measured, base, fields, thermal=False, drift=additive)
-    analyse_residual(measured, base, fields, thermal=False, drift=additive, evidence_suffices=True)
+    analyse_residual(measured, base, fields, thermal=False, drift=additive, evidence_suffices=False)
+    analyse_residual(measured, base, fields, thermal=False, drift=additive)  # the default
     assert seen[0] == set()
     assert seen[1] and all("additive_drift" in name for name in seen[1])
     assert "additive_drift" in seen[1] and not any("multiplicative" in name for name in seen[1])

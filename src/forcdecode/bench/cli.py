@@ -28,9 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "which choices about the selection are made; the bench's cases are the test")
     parser.add_argument("--cross-fit", action="store_true",
                         help="effects --independent: judge candidates on every curve, each held out once")
-    parser.add_argument("--evidence-suffices", action="store_true",
-                        help="effects --independent: a shift or a drift the model-free tests show needs only a "
-                             "lower held-out error (loop.physics_effects.analyse_residual(evidence_suffices=True))")
+    parser.add_argument("--evidence-needs-bootstrap", action="store_true",
+                        help="effects --independent: a shift or a drift the model-free tests show must also clear "
+                             "the held-out bootstrap bound (analyse_residual(evidence_suffices=False), the rule "
+                             "before 2026-11-26)")
     parser.add_argument("--patches", type=int, default=1,
                         help="effects --independent: magnum.np patches averaged in each sample (a macroscopic film)")
     parser.add_argument("--sample-curves", type=int, default=None,
@@ -179,8 +180,8 @@ def _bench_effects_independent(args, say) -> int:
     if args.patches < 1 or args.model_profiles < 1:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     rows = validation_plan() if args.validation else plan()
-    analysis = {k: True for k, on in (("cross_fit", args.cross_fit),
-                                      ("evidence_suffices", args.evidence_suffices)) if on}
+    analysis = {**({"cross_fit": True} if args.cross_fit else {}),
+                **({"evidence_suffices": False} if args.evidence_needs_bootstrap else {})}
     if args.cases:
         unknown = set(args.cases) - {r["case"] for r in rows}
         if unknown:

@@ -539,7 +539,8 @@ def _markdown(path, report, analysis) -> str:
                   f"{len(shift['levels'])} levels {shift['chi2']:.1f} / limit {shift['chi2_limit']:.1f}"
                   + (f"; {shift['calibration']}, read {1e3 * shift['raw_offset_T']:+.1f} mT" if "calibration" in shift else "")
                   + "): "
-                  + ("a shift; field-shift candidates are judged without the realisation floor. A lag of the "
+                  + ("a shift; field-shift candidates are judged without the realisation floor, and need only a "
+                     "held-out error lower by 5 % (their significance is this test's). A lag of the "
                      "swept curves behind the reversal points (a detector time constant, a sweep-rate effect) reads "
                      "the same, as a shift of half its delay: a measurement at another sweep rate tells it from "
                      "an offset or a bias field, which do not depend on the rate."
