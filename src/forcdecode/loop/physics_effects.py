@@ -357,7 +357,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     the bootstrap bound not asked (``choose_candidate(evidenced=)``: its significance is the symmetry
     test's). Why: at this film size the gain of a shift sits on the few held-out curves that cross
     the switching region, and no bootstrap over curves bounds it; chosen on the validation cases of
-    ``bench.effects_independent`` (in-library 3 → 6 of 7, no control or outside case changed). The
+    ``bench.effects_independent`` (in-library 3 → 5 of 7, no control or outside case changed). The
     symmetry test cannot tell a detector lag of the swept curves from an offset (``signatures``), so
     a lag that shows as a shift is named a field offset; the report says how to tell them apart.
 
