@@ -126,15 +126,35 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_selection_options(tmp_path, mo
 
     def fake_case(row, where, analysis=None, **kwargs):
         ran.append(dict(analysis or {}))
-        return {**row, "kind": case_kind(row["case"]), "analysis": dict(analysis or {}), "sample_curves": 48,
-                "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}
+        return {**row, "kind": case_kind(row["case"]), "analysis": bench.selection_options(analysis),
+                "sample_curves": 48, "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}
 
     monkeypatch.setattr(bench, "run_case", fake_case)
     rows = [{"case": "none", "hamiltonian": 0, "seed": 1}]
     out = tmp_path / "cases.jsonl"
-    out.write_text(json.dumps({**rows[0], "kind": "control", "analysis": {}, "sample_curves": 48, "verdict": "none",
-                               "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
+    out.write_text(json.dumps({**rows[0], "kind": "control", "analysis": bench.selection_options(), "sample_curves": 48,
+                               "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
     bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path)
     assert ran == []  # the default options: resumed
     bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path, analysis={"cross_fit": True})
     assert ran == [{"cross_fit": True}]
+    # a row written before rows kept their options ran the rule of then (evidence needed the bootstrap)
+    out.write_text(json.dumps({**rows[0], "kind": "control", "sample_curves": 48, "verdict": "none",
+                               "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
+    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path)
+    assert ran[-1] == {}
+    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path, analysis={"evidence_suffices": False})
+    assert len(ran) == 2  # resumed: the legacy row is this rule's
+
+
+def test_selection_options_are_the_loops_defaults_and_refuse_unknown_ones():
+    import inspect
+
+    from forcdecode.bench.effects_independent import selection_options
+    from forcdecode.loop.physics_effects import analyse_residual
+
+    options = selection_options()
+    assert options["evidence_suffices"] == inspect.signature(analyse_residual).parameters["evidence_suffices"].default
+    assert selection_options({"cross_fit": True})["cross_fit"] is True
+    with pytest.raises(ValueError, match="unknown selection options"):
+        selection_options({"crossfit": True})

@@ -230,7 +230,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
 
     name, h, seed = row["case"], row["hamiltonian"], row["seed"]
     physics, settings = (row["physics"], row["instrument"]) if "physics" in row else CASES[name]
-    analysis = dict(analysis or {})
+    analysis = selection_options(analysis)
     truth = dict(HAMILTONIANS[h])
     physics = dict(physics)
     film = IndependentFilm(**SAMPLE, anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
@@ -241,7 +241,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     fmt = ["micromag0015", "lakeshore_csv"][(sum(map(ord, name)) + h + seed) % 2]
     stem = "".join(c if c.isalnum() else "_" for c in name).strip("_")
     if "physics" in row:  # a validation film: its sizes in the name, so two of one case do not collide
-        stem += "".join(f"_{k}{v:g}" for k, v in {**physics, **settings}.items() if not isinstance(v, str))
+        stem += "".join(f"_{k}{v:g}" for k, v in {**physics, **settings}.items()
+                        if not isinstance(v, str))
     suffix = {"micromag0015": "frc", "lakeshore_csv": "csv"}[fmt]
     path = write_measurement(Path(work_dir) / f"{stem}_H{h}_s{seed}.{suffix}", sample,
                              truth["Ms"] * film.moment_Am2, InstrumentModel(noise=noise, **settings), seed=seed, fmt=fmt)
@@ -261,8 +262,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 shift_protocol=([c.reversal_field_T for c in data.curves],
                                                 [c.field_T for c in data.curves]), **analysis)
     refit = result["hamiltonian"]["refit_without_effect"]
-    return {**row, "kind": case_kind(name), "analysis": analysis, "patches": patches, "profiles": profiles, "sample_curves": sample_curves,
-            "file": str(path),
+    return {**row, "kind": case_kind(name), "analysis": analysis, "patches": patches, "profiles": profiles,
+            "sample_curves": sample_curves, "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
             "correct": is_correct(name, result["verdict"], result["chosen"]),
             "parameters": result["parameters"], "heldout_rms_before": result["heldout_rms_before"],
@@ -291,6 +292,28 @@ _STRUCTURE = ("structured", "chi2_ratio", "chi2_p", "runs_z", "lag1_z", "n_point
 """What a row keeps of the structure test of the chosen model's residual (``loop.structure``)."""
 
 
+LEGACY_SELECTION = {"cross_fit": False, "evidence_suffices": False}
+"""The selection options of rows written before rows kept them (before 2026-11-26, fourth round)."""
+
+
+def selection_options(analysis: dict | None = None) -> dict:
+    """The selection options a case runs with: ``analysis`` over the defaults of
+    ``loop.refit.analyse_with_refit`` (``cross_fit``) and ``loop.physics_effects.analyse_residual``
+    (``evidence_suffices``), read from their signatures (the one place they are declared), so a row
+    records what it ran with even after a default changes."""
+    import inspect
+
+    from ..loop.physics_effects import analyse_residual
+    from ..loop.refit import analyse_with_refit
+
+    defaults = {"cross_fit": inspect.signature(analyse_with_refit).parameters["cross_fit"].default,
+                "evidence_suffices": inspect.signature(analyse_residual).parameters["evidence_suffices"].default}
+    unknown = set(analysis or {}) - set(defaults)
+    if unknown:
+        raise ValueError(f"unknown selection options {sorted(unknown)}; known: {sorted(defaults)}")
+    return {**defaults, **(analysis or {})}
+
+
 def _row_key(row: dict) -> tuple:
     """What makes a case the same case on resuming: its name, Hamiltonian, seed and (validation cases)
     its physics and instrument."""
@@ -313,8 +336,9 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
         earlier = [json.loads(line) for line in Path(out_jsonl).read_text().splitlines() if line.strip()]
         # a row of another protocol is not this run's (rows before the key existed had 24 curves)
         # (and of other selection options: rows before the key existed used the defaults)
+        options = selection_options(analysis)
         finished += [r for r in earlier if r.get("sample_curves", 24) == sample_curves
-                     and r.get("analysis", {}) == dict(analysis or {})]
+                     and {**LEGACY_SELECTION, **r.get("analysis", {})} == options]
     seen = {_row_key(r) for r in finished}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
