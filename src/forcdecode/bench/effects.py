@@ -104,7 +104,7 @@ def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress
                                                                    rng=stream_rng(seed, "instrument_noise", "bench"),
                                                                    **instrument)
                     data = read_forc(write_micromag_0015(Path(tmp) / "case.frc", reversal, curves))
-                    _, measured, _ = measured_image([c.reversal_field_T for c in data.curves],
+                    _, measured, _ = measured_image(data.reversal_fields_T,
                                                     [(c.field_T, c.moment_Am2) for c in data.curves], moment, 1.0, n)
                     result = analyse_residual(measured, base, fields, seed=seed, **candidates)
                     chosen = result["chosen"]

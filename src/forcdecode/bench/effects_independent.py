@@ -249,7 +249,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     data = read_forc(path)
     B_max, n = CONFIG["field"]["B_max_T"], CONFIG["field"]["n_fields"]
     moment = truth["Ms"] * film.moment_Am2  # the sample's saturation moment is known, as in a calibrated bench
-    _, family, note = measured_image([c.reversal_field_T for c in data.curves],
+    _, family, note = measured_image(data.reversal_fields_T,
                                      [(c.field_T, c.moment_Am2) for c in data.curves], moment, B_max, n)
     prediction = {**truth, **{k: truth[k] * f for k, f in PREDICTION_ERROR.items()}}
     fields = np.linspace(-B_max, B_max, n)
@@ -259,7 +259,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,
                                 null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
                                 field_shift=shift, drift=drift,
-                                shift_protocol=([c.reversal_field_T for c in data.curves],
+                                shift_protocol=(data.reversal_fields_T,
                                                 [c.field_T for c in data.curves]), **analysis)
     refit = result["hamiltonian"]["refit_without_effect"]
     return {**row, "kind": case_kind(name), "analysis": analysis, "patches": patches, "profiles": profiles,

@@ -457,7 +457,7 @@ def domain_of_measurement(data, B_max_T: float = 1.0, n: int = 64) -> MeasuredDo
     if data.calibration:
         moments = [p.moment_Am2 for p in data.calibration]
         calibration = (data.calibration[0].field_T, data.calibration[0].moment_Am2)
-    return analyse_saturation([c.reversal_field_T for c in data.curves], [(c.field_T, c.moment_Am2) for c in data.curves],
+    return analyse_saturation(data.reversal_fields_T, [(c.field_T, c.moment_Am2) for c in data.curves],
                               B_max_T, n, calibration=calibration, calibration_moments=moments)
 
 

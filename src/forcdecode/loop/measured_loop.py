@@ -375,7 +375,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
                                       noise_sigma=noise, field_shift=shift, drift=drift,
                                       moment_tolerance=moment_tolerance,
-                                      shift_protocol=(([c.reversal_field_T for c in data.curves],
+                                      shift_protocol=((data.reversal_fields_T,
                                                        [c.field_T for c in data.curves])
                                                       if shift is not None and protocol_name(cfg) == "quasistatic"
                                                       else None),

@@ -463,7 +463,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
 
     none_mse = float(np.nanmean(mse["none"]))
     offered = dict(mse)
-    evidenced = set()  # shown by the loop's own symmetry: ``choose_candidate(evidenced=)``
+    evidenced = set()  # shown by the model-free shift or drift test: ``choose_candidate(evidenced=)``
     for name in records:
         gain_mse = none_mse - float(np.nanmean(mse[name]))
         records[name]["gain_mse_mean"] = gain_mse

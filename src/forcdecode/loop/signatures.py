@@ -17,10 +17,11 @@ branch by a/(1 − a) points (a = e^(−1/p)), and the loop reads as shifted by 
 coercivity wider by half its delay, which a refit of the Hamiltonian absorbs; on the independent
 bench a lag of 1.5 points (21 mT points) read +15.3 ± 2.3 mT and its held-out curves favoured a
 field offset more than those of the true 31 mT offset did. A second measurement at another sweep
-rate tells them apart (an offset does not depend on the rate); the report says so. A field-shift candidate may explain
-a residual only where the test finds a shift and the candidate's size agrees with it
-(``shift_agreement``); it is then spared the realisation floor (``physics_effects.analyse_residual``,
-``field_shift=``).
+rate tells them apart (an offset does not depend on the rate); the report says so.
+
+A field-shift candidate may explain a residual only where the test finds a shift and the
+candidate's size agrees with it (``shift_agreement``); it is then spared the realisation floor
+(``physics_effects.analyse_residual``, ``field_shift=``).
 
 Estimate. For levels m_L inside both branches, the field B_d(−m_L) where the descending branch
 crosses −m_L and B_a(m_L) where the ascending one crosses m_L (linear interpolation between the
