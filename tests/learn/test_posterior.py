@@ -234,3 +234,97 @@ def test_split_diagnostics_tell_a_training_marginal_unlike_the_held_out_one(stag
     reported = metrics["split_diagnostics"]
     assert set(reported["pit"]) == {"train", "validation", "calibration", "test"}
     assert min(reported["train_vs_held_out_ks_p"].values()) > 0.001, reported["train_vs_held_out_ks_p"]
+
+
+def _fresh(n=400, seed=5, first_id=100_000):
+    """A fresh draw of the same generator: other random numbers, ids outside the training dataset's."""
+    import dataclasses
+
+    data = bar_dataset(n=n, seed=seed)
+    return dataclasses.replace(data, sample_id=np.arange(n) + first_id)
+
+
+class ExactBarPosterior:
+    """The exact posterior of ``bar_dataset``: the bar's height r = round(u_K · 15) leaves u_K uniform on
+    [(r − ½)/15, (r + ½)/15] ∩ [0, 1] (the noise never hides a row), and D uniform on [0, 1]."""
+
+    names = ("K_u", "D")
+
+    def __init__(self, shift=0.0):
+        self.metadata, self.shift = {"config_hash": "bars", "sample_ids_fitted": [3]}, shift
+
+    def sample(self, images, ms_norm, n_draws, seed):
+        rng = np.random.default_rng(seed)
+        rows = (np.asarray(images) > 200).all(axis=2).sum(axis=1) - 1
+        low, high = np.clip((rows - 0.5) / (SIDE - 1), 0, 1), np.clip((rows + 0.5) / (SIDE - 1), 0, 1)
+        k = low[:, None] + (high - low)[:, None] * rng.random((len(rows), n_draws))
+        return np.stack([np.clip(k + self.shift, 0, 1), rng.random((len(rows), n_draws))], axis=2)
+
+
+def test_a_fresh_draw_scores_the_exact_posterior_calibrated_and_a_biased_one_not():
+    from forcdecode.learn.posterior_check import check_lines, fresh_calibration
+
+    fresh = _fresh(n=600)
+    metrics = fresh_calibration(ExactBarPosterior(), fresh, seed=SEED, draws=400, levels=(0.5, 0.9))
+    band = binomial_band(len(fresh), 0.9, level=0.99)
+    for name in ("K_u", "D"):
+        row = metrics["per_parameter"][name]
+        assert band[0] <= row["coverage_90"] <= band[1] and row["sbc_ks_p"] > 0.001, (name, row)
+        assert sum(metrics["pit_histogram"][name]) == len(fresh)
+    assert metrics["n_fresh"] == 600 and metrics["sample_id_range"] == [100_000, 100_599]
+    assert metrics["ood_false_alarm_fraction"] is None          # no OOD reference in this posterior
+    assert any("fresh families" in line for line in check_lines(metrics))
+    # the exact posterior moved up by 0.1 in K_u (1.5 cells): SBC and coverage must both see it
+    biased = fresh_calibration(ExactBarPosterior(shift=0.1), fresh, seed=SEED, draws=400, levels=(0.5, 0.9))
+    assert biased["per_parameter"]["K_u"]["sbc_ks_p"] < 1e-3 and biased["per_parameter"]["K_u"]["coverage_90"] < 0.2
+    assert biased["per_parameter"]["D"] == metrics["per_parameter"]["D"]
+
+
+def test_the_trained_posterior_on_a_fresh_draw(stage):
+    """The toy flow on 400 fresh families: accurate where the image tells, and the OOD check's false
+    alarms on in-distribution families near its α."""
+    from forcdecode.learn.posterior_check import fresh_calibration
+
+    _, _, out = stage
+    metrics = fresh_calibration(PosteriorEstimator.load(out / "model.pt"), _fresh(), seed=SEED, draws=300)
+    assert metrics["per_parameter"]["K_u"]["mae_median"] < 0.04 and metrics["per_parameter"]["D"]["mae_median"] > 0.17
+    assert 0.0 <= metrics["ood_false_alarm_fraction"] <= 0.15
+
+
+def test_a_fresh_draw_must_be_fresh_and_of_the_same_physics(stage):
+    import dataclasses
+
+    from forcdecode.learn.posterior_check import fitted_sample_ids, fresh_calibration
+
+    data, _, out = stage
+    est = PosteriorEstimator.load(out / "model.pt")
+    splits = assign_splits(data.sample_id, SEED, LEARNING["split"])
+    fitted = np.sort(data.sample_id[np.union1d(splits["train"], splits["validation"])])
+    assert np.array_equal(fitted_sample_ids(est), fitted)     # saved with the model
+    with pytest.raises(DatasetError, match="used to fit the posterior"):
+        fresh_calibration(est, data, seed=SEED, draws=20)
+    # families of the test split were not fitted on: allowed
+    test_only = dataclasses.replace(data, images=data.images[splits["test"]], ms_norm=data.ms_norm[splits["test"]],
+                                    values={k: v[splits["test"]] for k, v in data.values.items()},
+                                    sample_id=data.sample_id[splits["test"]])
+    assert fresh_calibration(est, test_only, seed=SEED, draws=20)["n_fresh"] == len(splits["test"])
+    with pytest.raises(DatasetError, match="another configuration"):
+        fresh_calibration(est, dataclasses.replace(_fresh(n=30), config_hash="other"), seed=SEED, draws=20)
+    older = PosteriorEstimator.load(out / "model.pt")
+    older.metadata.pop("sample_ids_fitted")
+    with pytest.raises(DatasetError, match="--training-dataset"):
+        fresh_calibration(older, _fresh(n=30), seed=SEED, draws=20)
+    with pytest.raises(DatasetError, match="used to fit"):       # an older model: every training id excluded
+        fresh_calibration(older, test_only, seed=SEED, draws=20, training_data=data)
+
+
+def test_the_fresh_check_command(stage, tmp_path, capsys):
+    _, _, out = stage
+    write_dataset_h5(tmp_path / "fresh.h5", _fresh(n=60))
+    args = ["learn", "posterior-check", "--posterior", str(out / "model.pt"), "--dataset", str(tmp_path / "fresh.h5"),
+            "--out", str(tmp_path / "fresh.json"), "--figure", str(tmp_path / "fresh.png"), "--draws", "50"]
+    assert main(args) == 0
+    metrics = json.loads((tmp_path / "fresh.json").read_text())
+    assert metrics["n_fresh"] == 60 and set(metrics["per_parameter"]) == {"K_u", "D"}
+    assert (tmp_path / "fresh.png").exists() and "fresh families" in capsys.readouterr().out
+    assert main([*args[:4], "--dataset", str(tmp_path / "missing.h5"), *args[6:]]) != 0

@@ -5,6 +5,7 @@
     learn posterior --config C --dataset dataset.h5 --model results/posterior/model.pt
                     --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
     learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
+    learn posterior-check --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out J.json
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
     predict INPUT --Ms-kA-m 800 --estimator posterior --posterior results/posterior/model.pt [--json]
         INPUT: a FORC file (any format `forcdecode read` knows), a 64×64 image (.npy, uint8 or m in [−1, 1]),
@@ -51,6 +52,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--metrics", default="results/metrics.json", help="Alice's aggregated metrics.json")
     p.add_argument("--posterior", default="results/posterior/metrics.json", help="the posterior's metrics.json")
     p.add_argument("--out", help="also write the table as JSON")
+    p = sub.add_parser("posterior-check", help="calibration of a saved posterior on fresh families (another id range "
+                                               "of the same configuration, never seen in training)")
+    p.add_argument("--posterior", required=True, help="the posterior model (.pt)")
+    p.add_argument("--dataset", required=True, help="dataset.h5 of the fresh families")
+    p.add_argument("--out", required=True, help="output calibration metrics (.json)")
+    p.add_argument("--figure", help="rank histograms and coverage curves (.png)")
+    p.add_argument("--training-dataset", help="the dataset the posterior was trained on (only for models saved "
+                                              "without the ids they were fitted on)")
+    p.add_argument("--seed", type=int, help="seed of the posterior draws (default: the model's)")
+    p.add_argument("--draws", type=int, default=1000)
+    p.add_argument("--threads", type=int, default=1)
     p = sub.add_parser("posterior-tune", help="choose the posterior architecture on the validation split only")
     p.add_argument("--config", required=True, help="resolved learning.json (seed, split, posterior section)")
     p.add_argument("--dataset", required=True)
@@ -97,6 +109,22 @@ def run(args) -> int:
         data = load_dataset(args.dataset)
         train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
                         Path(args.figures) / "posterior_calibration.png", log=_log)
+        return 0
+    if args.step == "posterior-check":
+        from .data import load_dataset
+        from .posterior import PosteriorEstimator
+        from .posterior_check import check_lines, fresh_calibration, write_check
+
+        torch.set_num_threads(max(1, args.threads))
+        est = PosteriorEstimator.load(args.posterior)
+        training = load_dataset(args.training_dataset) if args.training_dataset else None
+        seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
+        levels = (est.metadata.get("settings") or {}).get("levels", (0.5, 0.68, 0.9))
+        metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
+                                    training_data=training)
+        write_check(metrics, args.out, args.figure)
+        for line in check_lines(metrics):
+            print(line)
         return 0
     if args.step == "compare":
         from .compare import compare_estimators, comparison_markdown

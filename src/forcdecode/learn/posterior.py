@@ -736,7 +736,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "ood_alpha": est.metadata["ood"]["alpha"],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
     metrics["wall_s"]["total"] = train_s + calibration_s
-    est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings,
+    fitted_ids = np.sort(np.asarray(data.sample_id[np.union1d(train, val)], dtype=np.int64)).tolist()
+    est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings, sample_ids_fitted=fitted_ids,
              summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
              per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal)
     io.write_json(metrics_path, metrics)
