@@ -118,3 +118,24 @@ def test_the_null_films_are_the_structure_tests_disorder_floor(film):
     assert with_floor["structure"]["chi2_ratio"] < noise_only["structure"]["chi2_ratio"]
     assert noise_only["verdict"] == "unexplained structured residual"
     assert with_floor["verdict"] == "none", with_floor["verdict_text"]
+
+
+def test_the_error_after_is_also_scored_with_hamiltonian_and_effect_refitted_together(film):
+    """A background on a film whose K_u is 10 % off: once the background is chosen, Hamiltonian and
+    background are refitted together on the training curves and scored on the held-out ones; that
+    model is at least as good there as the background on the Hamiltonian refitted without it."""
+    measured = film.sample(K_u=1.1 * PREDICTION["K_u"]) + 0.1 * film.fields[None, :]
+    result = analyse_with_refit(film.cfg, PREDICTION, measured, film.fields, names=("K_u",), n_profiles=2, budget=14,
+                                physics=False, noise_sigma=NOISE, seed=1, thermal=False)
+    assert result["chosen"] == "background", result["verdict_text"]
+    joint = result["hamiltonian"]["refit_with_effect"]
+    assert result["heldout_rms_after_joint"] == joint["heldout_rms"]
+    assert joint["heldout_rms"] < 0.2 * result["heldout_rms_before"]
+    assert joint["heldout_rms"] <= 1.05 * result["heldout_rms_after"]
+    assert joint["params"]["K_u"] == pytest.approx(1.1 * PREDICTION["K_u"], rel=0.05)
+    # where nothing measured-side is chosen there is no joint refit, and "after" is the chosen model's
+    plain = analyse_with_refit(film.cfg, PREDICTION, film.sample(K_u=1.1 * PREDICTION["K_u"]), film.fields,
+                               names=("K_u",), n_profiles=2, budget=14, physics=False, noise_sigma=NOISE, seed=1,
+                               thermal=False)
+    assert plain["hamiltonian"]["refit_with_effect"] is None
+    assert plain["heldout_rms_after_joint"] == plain["heldout_rms_after"]

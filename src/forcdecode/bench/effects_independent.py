@@ -261,7 +261,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                 field_shift=shift, drift=drift,
                                 shift_protocol=(data.reversal_fields_T,
                                                 [c.field_T for c in data.curves]), **analysis)
-    refit = result["hamiltonian"]["refit_without_effect"]
+    refit, joint = result["hamiltonian"]["refit_without_effect"], result["hamiltonian"]["refit_with_effect"]
     return {**row, "kind": case_kind(name), "analysis": analysis, "patches": patches, "profiles": profiles,
             "sample_curves": sample_curves, "file": str(path),
             "format": data.format, "in_domain": note is None, "chosen": result["chosen"], "verdict": result["verdict"],
@@ -270,8 +270,12 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "heldout_rms_after": result["heldout_rms_after"],
             "heldout_ratio": result["heldout_rms_after"] / result["heldout_rms_before"]
             if result["heldout_rms_before"] else None,
+            "heldout_rms_after_joint": result["heldout_rms_after_joint"],
+            "heldout_ratio_joint": result["heldout_rms_after_joint"] / result["heldout_rms_before"]
+            if result["heldout_rms_before"] else None,
             "heldout_rms_prediction": result["refit"]["heldout_rms_prediction"],
             "refit_relative_error": {k: refit[k] / truth[k] - 1 for k in REFIT},
+            "refit_with_effect_relative_error": {k: joint["params"][k] / truth[k] - 1 for k in REFIT} if joint else None,
             "prediction_relative_error": {k: prediction[k] / truth[k] - 1 for k in REFIT},
             "field_shift": {k: result["field_shift"].get(k) for k in ("offset_T", "se_T", "z", "chi2", "consistent",
                                                                       "significant", "raw_offset_T", "analytic_se_T",
@@ -368,6 +372,9 @@ def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
     controls = [r for r in cases if r["kind"] == "control"]
     outside = [r for r in cases if r["kind"] == "outside"]
     chosen_ratios = [r["heldout_ratio"] for r in cases if r["chosen"] != "none" and r["heldout_ratio"] is not None]
+    # Hamiltonian and effect refitted together (rows before 2026-11-26 lack it)
+    joint_ratios = [r["heldout_ratio_joint"] for r in cases
+                    if r["chosen"] != "none" and r.get("heldout_ratio_joint") is not None]
 
     def fraction(rows, test):
         return float(np.mean([test(r) for r in rows])) if rows else None
@@ -378,6 +385,7 @@ def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
             "false_attribution_outside_library": fraction(outside, lambda r: not r["correct"]),
             "median_heldout_reduction": float(1 - np.median(chosen_ratios)) if chosen_ratios else None,
             "median_heldout_ratio_where_chosen": float(np.median(chosen_ratios)) if chosen_ratios else None,
+            "median_heldout_ratio_joint_where_chosen": float(np.median(joint_ratios)) if joint_ratios else None,
             "wall_s": wall_s}
 
 
@@ -385,7 +393,8 @@ def summary_lines(result: dict) -> list[str]:
     lines = [f"residual analysis on independent (magnum.np) samples, {result['n_cases']} cases: in-library correct "
              f"{_pct(result['correct_fraction'])}, false attributions on controls {_pct(result['false_attribution_controls'])}, "
              f"forced attributions outside the library {_pct(result['false_attribution_outside_library'])}, median "
-             f"held-out RMS after/before where an effect is chosen {_num(result['median_heldout_ratio_where_chosen'])}",
+             f"held-out RMS after/before where an effect is chosen {_num(result['median_heldout_ratio_where_chosen'])}"
+             f" (Hamiltonian refitted with the effect: {_num(result.get('median_heldout_ratio_joint_where_chosen'))})",
              "", "case".ljust(34) + "H  seed  verdict".ljust(45) + "held-out before → after   K_u, A_ex, D refit error"]
     for r in result["cases"]:
         refit = ", ".join(f"{v:+.1%}" for v in r["refit_relative_error"].values())

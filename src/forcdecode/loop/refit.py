@@ -159,7 +159,9 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
     with ``hamiltonian`` {"prediction", "refit_without_effect", "refit_with_effect" (None unless a
-    measured-side effect is chosen)}, ``refit`` (objective at the prediction and refitted, held-out
+    measured-side effect is chosen; its ``heldout_rms`` is the held-out error of Hamiltonian and effect
+    fitted together, also ``heldout_rms_after_joint``: the chosen candidate's own ``heldout_rms_after``
+    where no joint refit is made)}, ``refit`` (objective at the prediction and refitted, held-out
     RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}.
 
     ``null_realisations`` R > 0: the refitted Hamiltonian is also simulated on R other disorder
@@ -242,11 +244,16 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     if result["kind"] == "measured":
         joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
                                   n_profiles=n_profiles, budget=budget, effect=EFFECTS[result["chosen"]], fields=fields)
+        # the model with the effect, Hamiltonian and effect fitted together on the training curves, scored
+        # on the held-out curves: the error "after" when the Hamiltonian is free (the "before" is the
+        # Hamiltonian refitted without the effect, ``heldout_rms_before``)
         with_effect = {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
-                       "objective": joint["objective"]}
+                       "objective": joint["objective"],
+                       "heldout_rms": float(np.sqrt(_training_mse(measured, joint["model"], held)))}
     prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
     held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
     result.update(
+        heldout_rms_after_joint=with_effect["heldout_rms"] if with_effect else result["heldout_rms_after"],
         hamiltonian={"prediction": dict(params), "refit_without_effect": refit["params"],
                      "refit_with_effect": with_effect},
         refit={"names": list(names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
