@@ -233,3 +233,25 @@ def test_the_loop_reports_the_iterations(tmp_path, monkeypatch):
     text = (tmp_path / "loop" / "report.md").read_text()
     assert "Fixed point of (Hamiltonian, measured-side effect)" in text
     assert ("converged after" if fixed["converged"] else "NOT converged after") in text
+
+
+def test_a_joint_refit_that_misses_the_held_out_curves_is_not_used(monkeypatch):
+    """The joint refit (Hamiltonian and offset together) lands on an offset that misplaces the held-out
+    curves: the iteration reads the effect on the Hamiltonian refitted without it instead."""
+    import forcdecode.loop.refit as refit
+
+    def analyse(cfg, params, measured, fields, **options):
+        without = {**params, "K_u": 4.2e5}
+        joint = {"params": {**params, "K_u": 3.4e5}, "effect_parameters": {"offset_T": 0.043}, "objective": 0.0,
+                 "heldout_rms": 0.086, "generalises": False}
+        return {"chosen": "field_offset", "kind": "measured", "verdict": "field_offset",
+                "parameters": {"offset_T": 0.01},
+                "hamiltonian": {"prediction": params, "refit_without_effect": without, "refit_with_effect": joint}}
+
+    monkeypatch.setattr(refit, "analyse_with_refit", analyse)
+    measured = np.triu(np.ones((N, N)))
+    measured[np.tril_indices(N, -1)] = np.nan
+    result = predict_correct_iterate(CFG, biased_predictor(), measured, FIELDS, max_iterations=2)
+    first = result["iterations"][0]
+    assert first["effect_parameters"] == {"offset_T": 0.01}
+    assert first["refitted"]["K_u"] == 4.2e5

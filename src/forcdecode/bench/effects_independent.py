@@ -364,6 +364,8 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
 
 
 def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
+    from ..loop.refit import joint_generalises
+
     confusion = {}
     for r in cases:
         confusion.setdefault(r["case"], {}).setdefault(r["verdict"], 0)
@@ -372,9 +374,12 @@ def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
     controls = [r for r in cases if r["kind"] == "control"]
     outside = [r for r in cases if r["kind"] == "outside"]
     chosen_ratios = [r["heldout_ratio"] for r in cases if r["chosen"] != "none" and r["heldout_ratio"] is not None]
-    # Hamiltonian and effect refitted together (rows before 2026-11-26 lack it)
-    joint_ratios = [r["heldout_ratio_joint"] for r in cases
-                    if r["chosen"] != "none" and r.get("heldout_ratio_joint") is not None]
+    # Hamiltonian and effect refitted together (rows before 2026-11-26 lack it), and the model the loop
+    # uses: the joint refit where it generalises to the held-out curves (``loop.refit.joint_generalises``)
+    joint_rows = [r for r in cases if r["chosen"] != "none" and r.get("heldout_ratio_joint") is not None]
+    joint_ratios = [r["heldout_ratio_joint"] for r in joint_rows]
+    used_ratios = [r["heldout_ratio_joint"] if joint_generalises(r["heldout_rms_after_joint"], r["heldout_rms_after"])
+                   else r["heldout_ratio"] for r in joint_rows]
 
     def fraction(rows, test):
         return float(np.mean([test(r) for r in rows])) if rows else None
@@ -386,6 +391,7 @@ def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
             "median_heldout_reduction": float(1 - np.median(chosen_ratios)) if chosen_ratios else None,
             "median_heldout_ratio_where_chosen": float(np.median(chosen_ratios)) if chosen_ratios else None,
             "median_heldout_ratio_joint_where_chosen": float(np.median(joint_ratios)) if joint_ratios else None,
+            "median_heldout_ratio_used_where_chosen": float(np.median(used_ratios)) if used_ratios else None,
             "wall_s": wall_s}
 
 
@@ -394,7 +400,8 @@ def summary_lines(result: dict) -> list[str]:
              f"{_pct(result['correct_fraction'])}, false attributions on controls {_pct(result['false_attribution_controls'])}, "
              f"forced attributions outside the library {_pct(result['false_attribution_outside_library'])}, median "
              f"held-out RMS after/before where an effect is chosen {_num(result['median_heldout_ratio_where_chosen'])}"
-             f" (Hamiltonian refitted with the effect: {_num(result.get('median_heldout_ratio_joint_where_chosen'))})",
+             f" (Hamiltonian refitted with the effect: {_num(result.get('median_heldout_ratio_joint_where_chosen'))}; "
+             f"the joint refit where it generalises: {_num(result.get('median_heldout_ratio_used_where_chosen'))})",
              "", "case".ljust(34) + "H  seed  verdict".ljust(45) + "held-out before → after   K_u, A_ex, D refit error"]
     for r in result["cases"]:
         refit = ", ".join(f"{v:+.1%}" for v in r["refit_relative_error"].values())

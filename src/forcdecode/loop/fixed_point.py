@@ -118,6 +118,8 @@ def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u
         last_params = params
         chosen, kind = result["chosen"], result["kind"]
         with_effect = result["hamiltonian"].get("refit_with_effect")
+        if with_effect is not None and not with_effect.get("generalises", True):
+            with_effect = None  # the joint refit misses the held-out curves: read the effect on the refit without it
         effect_parameters = {}
         if kind == "measured":
             effect_parameters = dict((with_effect or {}).get("effect_parameters") or result["parameters"])

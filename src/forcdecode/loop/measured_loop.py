@@ -506,6 +506,13 @@ def _markdown(path, report, analysis) -> str:
             lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
                          f"{with_effect.get(name, float('nan')):.4g} |")
         lines.append("")
+        joint = hamiltonian.get("refit_with_effect") or {}
+        if "heldout_rms" in joint:
+            lines += [f"Hamiltonian and effect refitted together: held-out RMS {joint['heldout_rms']:.4f} (the effect on "
+                      f"the Hamiltonian refitted without it: {analysis['heldout_rms_after']:.4f})"
+                      + ("." if joint.get("generalises", True) else
+                         " — the joint refit does not generalise to the held-out curves, so its Hamiltonian and effect "
+                         "size are not used; the effect is read on the Hamiltonian refitted without it."), ""]
     fixed = report.get("fixed_point")
     if fixed:
         steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"

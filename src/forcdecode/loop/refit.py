@@ -123,6 +123,24 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
             "family": family, "model": model, "effect_parameters": theta}
 
 
+JOINT_TOLERANCE = 0.05
+"""How much larger (relative) the held-out RMS of Hamiltonian and effect refitted together may be than
+that of the effect on the Hamiltonian refitted without it before the joint refit is not used."""
+
+
+def joint_generalises(joint_heldout_rms: float, fixed_heldout_rms: float, tolerance: float = JOINT_TOLERANCE) -> bool:
+    """Whether the joint refit (Hamiltonian and effect fitted together on the training curves) predicts
+    the held-out curves about as well as the effect on the Hamiltonian refitted without it.
+
+    It need not: the grid's field offset moves curves by whole rows in H_r, so the joint search can buy a
+    lower training error on the one curve reversed at the switching edge (where m jumps between
+    neighbouring rows) with an offset that misplaces every other curve (measured on the validation
+    24 mT offset film: offset 43 mT and K_u −15 %, held-out RMS 0.086 against 0.018). Such a joint
+    refit is reported but not used (``fixed_point`` keeps the effect read on the Hamiltonian refitted
+    without it)."""
+    return bool(np.isfinite(joint_heldout_rms) and joint_heldout_rms <= (1 + tolerance) * fixed_heldout_rms)
+
+
 SHIFT_NULL_REALISATIONS = 10
 """Films without a shift whose shift-test offsets calibrate the test (``analyse_with_refit``)."""
 
@@ -247,9 +265,10 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
         # the model with the effect, Hamiltonian and effect fitted together on the training curves, scored
         # on the held-out curves: the error "after" when the Hamiltonian is free (the "before" is the
         # Hamiltonian refitted without the effect, ``heldout_rms_before``)
+        joint_rms = float(np.sqrt(_training_mse(measured, joint["model"], held)))
         with_effect = {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
-                       "objective": joint["objective"],
-                       "heldout_rms": float(np.sqrt(_training_mse(measured, joint["model"], held)))}
+                       "objective": joint["objective"], "heldout_rms": joint_rms,
+                       "generalises": joint_generalises(joint_rms, result["heldout_rms_after"])}
     prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
     held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
     result.update(
@@ -264,4 +283,4 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["REFITTABLE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit", "refit_hamiltonian", "simulated_shift_offsets"]
+__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "joint_generalises", "analyse_with_refit", "refit_hamiltonian", "simulated_shift_offsets"]
