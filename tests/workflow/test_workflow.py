@@ -131,6 +131,18 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     fitted = json.loads((out / "fit" / f"dataset_sample{sample}" / "fit.json").read_text())
     assert set(fitted["refined_by_budget"]) == {"2", "4"} and len(fitted["betas"]) == 2
     assert fitted["truth"]["Ms"] > 0  # a dataset sample: its truth travels with the state
+    # the posterior on a fresh draw: 16 more samples of the same configuration (ids 40-55), then its check
+    draw = snakemake(tmp_path, "--config", "first_sample_id=40", "n_samples=16", "results_dir=results/fresh/next",
+                     "--", "results/fresh/next/dataset.h5", timeout=600)
+    assert draw.returncode == 0, draw.stdout[-3000:] + draw.stderr[-3000:]
+    check = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
+                      "results/posterior/fresh/next.json", timeout=600)
+    assert check.returncode == 0, check.stdout[-3000:] + check.stderr[-3000:]
+    assert "train_posterior" not in check.stdout + check.stderr  # the posterior of the fit run is reused
+    fresh = json.loads((out / "posterior" / "fresh" / "next.json").read_text())
+    with h5py.File(out / "fresh" / "next" / "dataset.h5", "r") as h5:
+        assert fresh["n_fresh"] == h5["images"].shape[0] and fresh["sample_id_range"][0] >= 40
+    assert (out / "posterior" / "fresh" / "next.png").stat().st_size > 5_000
     # a finished run has nothing left to do
     again = snakemake(tmp_path, "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr

@@ -65,6 +65,7 @@ wildcard_constraints:
     chunk=r"\d{4}",
     part=r"\d{3}",
     parameter="|".join(re.escape(p) for p in LEARN_PARAMETERS),
+    draw=r"[A-Za-z0-9_-]+",
 
 
 # The refinement of one family (workflow/rules/fit.smk, an option): where its rounds live

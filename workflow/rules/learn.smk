@@ -165,6 +165,36 @@ rule train_posterior:
         "--model {output.model} --metrics {output.metrics} --figures {params.figures} --threads {threads} 2> {log}"
 
 
+rule posterior_check:
+    """The posterior scored on a fresh draw of the same configuration (another id range, built first
+    with `--config first_sample_id=F n_samples=N results_dir=results/fresh/NAME`): SBC, coverage, TARP,
+    PIT, OOD false alarms. Not in `all`: `snakemake results/posterior/fresh/NAME.json`."""
+    input:
+        model=rules.train_posterior.output.model,
+        dataset=rules.merge.output.h5,
+        fresh=f"{RESULTS}/fresh/{{draw}}/dataset.h5",
+    output:
+        metrics=f"{RESULTS}/posterior/fresh/{{draw}}.json",
+        figure=report(
+            f"{RESULTS}/posterior/fresh/{{draw}}.png",
+            caption="../report/posterior_fresh.rst",
+            category="2. Learning",
+            labels={"name": "Posterior on a fresh draw ({draw})", "kind": "figure"},
+        ),
+    log:
+        f"{RESULTS}/logs/posterior_check/{{draw}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/posterior_check/{{draw}}.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["posterior"]["threads"]
+    params:
+        cli=FORCDECODE_1T,
+    shell:
+        "{params.cli} learn posterior-check --posterior {input.model} --dataset {input.fresh} "
+        "--training-dataset {input.dataset} --out {output.metrics} --figure {output.figure} --threads {threads} 2> {log}"
+
+
 rule tune_posterior:
     """The posterior architecture chosen on validation only: every candidate of
     forcdecode.learn.posterior_tune fitted on train and scored by its validation likelihood. Not in
