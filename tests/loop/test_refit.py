@@ -145,6 +145,6 @@ def test_a_joint_refit_worse_on_held_out_curves_is_not_used():
     from forcdecode.loop.refit import JOINT_TOLERANCE, joint_generalises
 
     assert joint_generalises(0.0027, 0.0034) and joint_generalises(0.0034 * (1 + JOINT_TOLERANCE), 0.0034)
-    # the validation 24 mT offset film: offset 43 mT, K_u −15 %, held-out 0.086 against 0.018
+    # the validation 24 mT offset film: offset 43 mT, K_u 8 % low, held-out 0.086 against 0.018
     assert not joint_generalises(0.0858, 0.0178)
     assert not joint_generalises(float("nan"), 0.0178)

@@ -135,7 +135,7 @@ def joint_generalises(joint_heldout_rms: float, fixed_heldout_rms: float, tolera
     It need not: the grid's field offset moves curves by whole rows in H_r, so the joint search can buy a
     lower training error on the one curve reversed at the switching edge (where m jumps between
     neighbouring rows) with an offset that misplaces every other curve (measured on the validation
-    24 mT offset film: offset 43 mT and K_u −15 %, held-out RMS 0.086 against 0.018). Such a joint
+    24 mT offset film: offset 43 mT and K_u 8 % below the truth, held-out RMS 0.086 against 0.018). Such a joint
     refit is reported but not used (``fixed_point`` keeps the effect read on the Hamiltonian refitted
     without it)."""
     return bool(np.isfinite(joint_heldout_rms) and joint_heldout_rms <= (1 + tolerance) * fixed_heldout_rms)
