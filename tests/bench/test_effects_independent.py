@@ -35,6 +35,21 @@ def test_summary_rates():
     assert s["correct_fraction"] == 0.5 and s["false_attribution_controls"] == 0.5
     assert s["false_attribution_outside_library"] == 0.0
     assert s["median_heldout_ratio_where_chosen"] == pytest.approx(np.median([0.4, 0.9]))
+    assert s["median_heldout_ratio_joint_where_chosen"] is None  # rows from before the joint refit was scored
+
+
+def test_summary_of_the_joint_refit_uses_it_only_where_it_generalises():
+    def row(case, after, joint):
+        return {"case": case, "kind": case_kind(case), "verdict": case, "chosen": case, "correct": True,
+                "heldout_rms_before": 0.1, "heldout_rms_after": after, "heldout_ratio": after / 0.1,
+                "heldout_rms_after_joint": joint, "heldout_ratio_joint": joint / 0.1}
+
+    # a joint refit a little better (used), one 3 % worse (within 5 %: used), one twice as bad (not used)
+    cases = [row("background", 0.04, 0.03), row("scale", 0.02, 0.0206), row("field_offset", 0.05, 0.10)]
+    s = summarize(cases)
+    assert s["median_heldout_ratio_where_chosen"] == pytest.approx(0.4)
+    assert s["median_heldout_ratio_joint_where_chosen"] == pytest.approx(0.3)
+    assert s["median_heldout_ratio_used_where_chosen"] == pytest.approx(np.median([0.3, 0.206, 0.5]))
 
 
 @pytest.mark.slow
