@@ -316,6 +316,8 @@ def test_a_fresh_draw_must_be_fresh_and_of_the_same_physics(stage):
         fresh_calibration(older, _fresh(n=30), seed=SEED, draws=20)
     with pytest.raises(DatasetError, match="used to fit"):       # an older model: every training id excluded
         fresh_calibration(older, test_only, seed=SEED, draws=20, training_data=data)
+    with pytest.raises(ConfigError, match="at least 2 draws"):
+        fresh_calibration(est, test_only, seed=SEED, draws=1)
 
 
 def test_the_fresh_check_command(stage, tmp_path, capsys):

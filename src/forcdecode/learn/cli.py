@@ -119,7 +119,7 @@ def run(args) -> int:
         est = PosteriorEstimator.load(args.posterior)
         training = load_dataset(args.training_dataset) if args.training_dataset else None
         seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
-        levels = (est.metadata.get("settings") or {}).get("levels", (0.5, 0.68, 0.9))
+        levels = (est.metadata.get("settings") or {}).get("levels")  # None: the posterior section's default
         metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
                                     training_data=training)
         write_check(metrics, args.out, args.figure)

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import defaults
 from ..core import io
-from ..core.errors import DatasetError
+from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
 from .calibration import calibration_figure, calibration_metrics
 from .scoring import binomial_band
@@ -39,10 +40,12 @@ def fitted_sample_ids(est, training_data=None) -> np.ndarray:
     return np.asarray(training_data.sample_id, dtype=np.int64)
 
 
-def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=(0.5, 0.68, 0.9), training_data=None,
-                      config_hash: str | None = None) -> dict:
-    """Calibration metrics of posterior ``est`` on every family of ``data`` (a ``LearningData``)."""
-    expected_hash = config_hash or est.metadata.get("config_hash")
+def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, training_data=None) -> dict:
+    """Calibration metrics of posterior ``est`` on every family of ``data`` (a ``LearningData``) at the
+    credibility ``levels`` (default: the posterior section's)."""
+    if int(draws) < 2:
+        raise ConfigError(f"the posterior check needs at least 2 draws per family (got {draws})")
+    expected_hash = est.metadata.get("config_hash")
     if expected_hash and data.config_hash != expected_hash:
         raise DatasetError(f"the families were simulated with another configuration (config hash {data.config_hash}, "
                            f"the posterior's {expected_hash}): a fresh draw must repeat the training physics")
@@ -57,11 +60,11 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=(0.5, 0
         raise DatasetError(f"the dataset has no column for {', '.join(missing)}")
     u = np.stack([data.target(name) for name in names], axis=1)
     samples = est.sample(data.images, data.ms_norm, int(draws), seed=stream_seed(seed, "posterior", "fresh_draws"))
-    levels = [float(a) for a in levels]
+    levels = [float(a) for a in (defaults("posterior")["levels"] if levels is None else levels)]
     metrics = calibration_metrics(samples, u, names, stream_rng(seed, "posterior", "fresh_calibration"), levels)
-    pit = (samples < u[:, None, :]).mean(axis=1)
-    metrics["pit_histogram"] = {name: np.histogram(pit[:, j], bins=PIT_BINS, range=(0.0, 1.0))[0].tolist()
-                                for j, name in enumerate(names)}
+    # PIT = SBC rank / draws (the ranks calibration_metrics already counted)
+    metrics["pit_histogram"] = {name: np.histogram(np.asarray(metrics["ranks"][name]) / int(draws), bins=PIT_BINS,
+                                                   range=(0.0, 1.0))[0].tolist() for name in names}
     metrics["coverage_binomial_band"] = {f"{int(round(a * 100))}": binomial_band(len(u), a) for a in levels}
     from .ood import ood_check
 

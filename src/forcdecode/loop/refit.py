@@ -283,4 +283,5 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "joint_generalises", "analyse_with_refit", "refit_hamiltonian", "simulated_shift_offsets"]
+__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "joint_generalises", "analyse_with_refit",
+           "refit_hamiltonian", "simulated_shift_offsets"]
