@@ -19,16 +19,26 @@ values ``truth`` (n_obs, n_params), in the same (normalized) units.
   widened interval covers with probability ≥ α whatever the flow's calibration (≤ α + 1/(n+1) when
   the scores are continuous). The posterior's own draws are untouched; only the reported intervals
   change.
+- **Quantile recalibration** (Kuleshov, Fenner & Ermon, ICML 2018): where held-out PITs p = F(θ) are
+  not uniform, R(t) = P(p ≤ t) is estimated on held-out samples and the recalibrated marginal
+  F'(θ) = R(F(θ)) is calibrated by construction, since P(R(p) ≤ t) = t. Here R is the CDF of a
+  Beta(a, b) fitted to the PITs by maximum likelihood (two numbers per parameter: a shift of mass
+  between the tails and a narrowing or widening, stable on ~130 samples where an empirical CDF is
+  not). Draws are mapped coordinate by coordinate, θ → F⁻¹(R⁻¹(F(θ))), with F the per-observation
+  marginal of a reference set of draws: monotone in each coordinate, so the dependence between
+  parameters (the copula) is kept.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from ..core.errors import DatasetError
 
 DEFAULT_LEVELS = (0.5, 0.68, 0.9)
+RECALIBRATION_MIN_SAMPLES = 20
+"""Fewest held-out samples a Beta recalibration is fitted on (below it the map is mostly noise)."""
 
 
 def _check(samples, truth) -> tuple[np.ndarray, np.ndarray]:
@@ -124,6 +134,57 @@ def conformal_coverage(samples, truth, widening_by_level: dict) -> dict:
     return out
 
 
+def probability_integral_transform(samples, truth) -> np.ndarray:
+    """PIT of the truth under each marginal, (rank + ½)/(n_draws + 1) ∈ (0, 1), per sample and parameter."""
+    samples, truth = _check(samples, truth)
+    return (sbc_ranks(samples, truth) + 0.5) / (samples.shape[1] + 1)
+
+
+def fit_recalibration(pit, names) -> dict:
+    """Per-parameter Beta(a, b) of the held-out PITs (maximum likelihood, ``scipy.stats.beta.fit`` on
+    [0, 1]): name → [a, b]; a = b = 1 is the identity (a calibrated marginal)."""
+    pit = np.asarray(pit, dtype=float)
+    if pit.ndim != 2 or pit.shape[1] != len(names):
+        raise DatasetError(f"recalibration needs PITs (n_obs, {len(names)}), got shape {pit.shape}")
+    if pit.shape[0] < RECALIBRATION_MIN_SAMPLES:
+        raise DatasetError(f"recalibration needs at least {RECALIBRATION_MIN_SAMPLES} held-out samples, "
+                           f"got {pit.shape[0]}")
+    if not (np.all(pit > 0.0) and np.all(pit < 1.0)):
+        raise DatasetError("PITs must lie strictly inside (0, 1)")
+    out = {}
+    for j, name in enumerate(names):
+        a, b, _, _ = stats.beta.fit(pit[:, j], floc=0.0, fscale=1.0)
+        out[name] = [float(a), float(b)]
+    return out
+
+
+def recalibrate_draws(samples, beta_by_name: dict, names, reference=None) -> np.ndarray:
+    """Draws (n_obs, n_draws, n_params) mapped θ → F⁻¹(R⁻¹(F(θ))) per coordinate, R the Beta CDF of
+    ``beta_by_name`` (parameters absent from it are left alone), F the marginal of ``reference``
+    draws of the same observations (default: ``samples`` themselves; pass ~1000 reference draws when
+    ``samples`` holds few). Values stay inside the reference draws' range."""
+    samples = np.asarray(samples, dtype=float)
+    reference = samples if reference is None else np.asarray(reference, dtype=float)
+    if samples.ndim != 3 or reference.ndim != 3 or reference.shape[0] != samples.shape[0] \
+            or reference.shape[2] != samples.shape[2] or samples.shape[2] != len(names):
+        raise DatasetError(f"recalibration needs draws (n_obs, n_draws, {len(names)}) and reference draws of the "
+                           f"same observations; got {samples.shape} and {reference.shape}")
+    m = reference.shape[1]
+    if m < 2:
+        raise DatasetError("recalibration needs at least two reference draws per observation")
+    levels = (np.arange(m) + 0.5) / m
+    ordered = np.sort(reference, axis=1)
+    out = samples.copy()
+    for j, name in enumerate(names):
+        if name not in beta_by_name:
+            continue
+        a, b = beta_by_name[name]
+        for i in range(samples.shape[0]):
+            level = np.interp(samples[i, :, j], ordered[i, :, j], levels)
+            out[i, :, j] = np.interp(special.betaincinv(a, b, level), levels, ordered[i, :, j])
+    return out
+
+
 def calibration_metrics(samples, truth, names, rng: np.random.Generator, levels=DEFAULT_LEVELS,
                         point_truth=None) -> dict:
     """Per parameter: ``mae_mean``, ``mae_median`` (against ``point_truth``, default ``truth``),
@@ -208,5 +269,6 @@ def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
     plt.close(fig)
 
 
-__all__ = ["DEFAULT_LEVELS", "sbc_ranks", "sbc_ks_pvalues", "central_intervals", "marginal_coverage",
+__all__ = ["DEFAULT_LEVELS", "RECALIBRATION_MIN_SAMPLES", "sbc_ranks", "probability_integral_transform",
+           "fit_recalibration", "recalibrate_draws", "sbc_ks_pvalues", "central_intervals", "marginal_coverage",
            "tarp_coverage", "calibration_metrics", "calibration_figure"]

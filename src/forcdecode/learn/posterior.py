@@ -56,6 +56,8 @@ from .splits import SPLITS, assign_splits
 
 FORMAT = "forcdecode-posterior/1"
 SQUEEZE = 1e-3
+RECALIBRATION_REFERENCE_DRAWS = 1000
+"""Draws behind each observation's marginal CDFs when a recalibrated sample of fewer is asked."""
 """u is squeezed to [ε, 1 − ε] before the logit."""
 EMBEDDINGS = ("cnn", "mlp")
 
@@ -268,11 +270,37 @@ class PosteriorEstimator:
             raise OutOfDomainError("the observation or M_s is not finite")
         return tensor, torch.tensor(ms, dtype=torch.float32)
 
+    @property
+    def recalibration(self) -> dict | None:
+        """Beta quantile recalibration per parameter (``learn.calibration``), fitted on held-out
+        splits by ``train_posterior``; None for a model saved without it."""
+        return (self.metadata.get("recalibration") or {}).get("beta")
+
+    def sample(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64, recalibrated: bool = True) -> np.ndarray:
+        """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``.
+
+        ``recalibrated`` (default): the flow's draws mapped by the model's quantile recalibration when
+        it has one (each marginal's PIT made uniform on held-out families; the dependence between
+        parameters kept). The marginal CDFs come from the draws themselves, or from
+        ``RECALIBRATION_REFERENCE_DRAWS`` extra draws when fewer are asked. ``recalibrated=False``:
+        the flow itself, whose density ``log_prob`` gives (what an importance-sampling proposal needs)."""
+        draws = self._sample_flow(x, ms_norm, n_draws, seed, chunk)
+        beta = self.recalibration if recalibrated else None
+        if not beta:
+            return draws
+        from .calibration import recalibrate_draws
+
+        reference = None
+        if n_draws < RECALIBRATION_REFERENCE_DRAWS:
+            reference = self._sample_flow(x, ms_norm, RECALIBRATION_REFERENCE_DRAWS,
+                                          stream_seed(int(seed), "posterior", "recalibration_reference"), chunk)
+        return recalibrate_draws(draws, beta, self.names, reference)
+
     @_float32
-    def sample(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64) -> np.ndarray:
-        """Draws of u ∈ [0, 1], shape (n_obs, n_draws, n_params); the same for the same ``seed``. An
-        ensemble of K members is sampled stratified: draw d comes from member d mod K (every prefix of
-        the draws is a balanced mixture); member 0 uses ``seed`` itself, so K = 1 is the single flow."""
+    def _sample_flow(self, x, ms_norm, n_draws: int, seed: int, chunk: int = 64) -> np.ndarray:
+        """The flow's draws (see ``sample``). An ensemble of K members is sampled stratified: draw d
+        comes from member d mod K (every prefix of the draws is a balanced mixture); member 0 uses
+        ``seed`` itself, so K = 1 is the single flow."""
         x, ms = self._inputs(x, ms_norm)
         if n_draws < 1:
             raise ConfigError(f"n_draws must be positive, got {n_draws}")
@@ -305,7 +333,8 @@ class PosteriorEstimator:
 
     @_float32
     def log_prob(self, u, x, ms_norm) -> np.ndarray:
-        """log density of u ∈ [0, 1] per observation (one u per observation), change of variables included."""
+        """log density of the flow (not recalibrated: ``sample(recalibrated=False)`` draws from it) at
+        u ∈ [0, 1], one u per observation, change of variables included."""
         x, ms = self._inputs(x, ms_norm)
         u = np.atleast_2d(np.asarray(u, dtype=float))
         ms_np = ms.double().numpy()
@@ -656,11 +685,27 @@ def _regression_summary(history: dict) -> dict | None:
             "validation_mse": float(history["regression_val_mse"][best])}
 
 
+def fit_held_out_recalibration(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int) -> dict:
+    """Quantile recalibration of ``est`` (``learn.calibration``) fitted on the PITs of the validation and
+    calibration splits, the held-out families the flow's weights never saw (validation only chose the
+    epoch; on it alone the flow looks narrower than it is, so both splits are pooled)."""
+    from .calibration import fit_recalibration, probability_integral_transform
+
+    held_out = np.union1d(splits["validation"], splits["calibration"])
+    raw = est.sample(data.images[held_out], data.ms_norm[held_out], draws,
+                     seed=stream_seed(seed, "posterior", "recalibration_draws"), recalibrated=False)
+    pit = probability_integral_transform(raw, u[held_out])
+    return {"method": "Beta quantile recalibration (Kuleshov et al. 2018), fitted by maximum likelihood",
+            "fitted_on": "validation + calibration splits", "n": int(len(held_out)),
+            "beta": fit_recalibration(pit, est.names)}
+
+
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
                     figure_path, log=print) -> dict:
     """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
     the test split; write the model, metrics.json and the calibration figure (all atomically)."""
-    from .calibration import calibration_figure, calibration_metrics, conformal_coverage, conformal_widening
+    from .calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics,
+                              conformal_coverage, conformal_widening, recalibrate_draws)
 
     settings = posterior_settings(settings)
     learning = {**defaults("learning"), **(learning or {})}
@@ -691,8 +736,23 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     test_ood = ood_check(est, data.images[test], data.ms_norm[test])
     started = time.perf_counter()
     draws = int(settings["draws"])
-    samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"))
     levels = [float(a) for a in settings["levels"]]
+    recalibration, flow_only = None, None
+    n_held_out = len(np.union1d(splits["validation"], splits["calibration"]))
+    if settings["recalibrate"] and learning["protocol"] == "holdout" and n_held_out < RECALIBRATION_MIN_SAMPLES:
+        log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
+            f"{RECALIBRATION_MIN_SAMPLES}")
+    elif settings["recalibrate"] and learning["protocol"] == "holdout":
+        est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(est, data, u, splits, draws, seed)
+        log(f"posterior recalibrated on {recalibration['n']} held-out families (Beta a, b per parameter: "
+            + ", ".join(f"{n} {a:.2f} {b:.2f}" for n, (a, b) in recalibration["beta"].items()) + ")")
+    samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"),
+                         recalibrated=False)
+    if recalibration is not None:
+        # the flow alone on the same test draws, reported beside the recalibrated posterior
+        flow_only = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
+        flow_only = {"per_parameter": flow_only["per_parameter"], "joint": flow_only["joint"]["tarp"]}
+        samples = recalibrate_draws(samples, recalibration["beta"], names)
     calibration = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
     # the calibration split is held out from the posterior too (only Alice's conformal step uses it):
     # test + calibration doubles the samples behind the SBC and coverage figures (reported apart), and
@@ -731,15 +791,18 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "test_and_calibration_splits": pooled,
                "split_diagnostics": diagnostics,
                "conformal": conformal,
+               "recalibration": recalibration, "flow_without_recalibration": flow_only,
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
                "ood_alpha": est.metadata["ood"]["alpha"],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
     metrics["wall_s"]["total"] = train_s + calibration_s
-    fitted_ids = np.sort(np.asarray(data.sample_id[np.union1d(train, val)], dtype=np.int64)).tolist()
+    fitted = np.union1d(train, val) if recalibration is None else np.union1d(np.union1d(train, val), splits["calibration"])
+    fitted_ids = np.sort(np.asarray(data.sample_id[fitted], dtype=np.int64)).tolist()
     est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings, sample_ids_fitted=fitted_ids,
              summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
-             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal)
+             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal,
+             recalibration=recalibration)
     io.write_json(metrics_path, metrics)
     calibration_figure(metrics, figure_path)
     for name, row in metrics["per_parameter"].items():
@@ -755,5 +818,5 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
 
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "summarize", "posterior_prediction", "split_diagnostics",
+           "PosteriorEstimator", "fit_posterior", "fit_held_out_recalibration", "summarize", "posterior_prediction", "split_diagnostics",
            "train_posterior"]

@@ -6,12 +6,14 @@ figure. A second id range of the same configuration (``snakemake --config first_
 n_samples=N results_dir=DIR``) is an independent draw from the same prior, screening and simulator:
 ``fresh_calibration`` scores the posterior on it exactly as ``train_posterior`` scores the test split
 (SBC ranks with a KS p-value, central-interval coverage at the configured levels, TARP, MAE of mean and
-median, widths) and adds the PIT histogram, the binomial band of each coverage and the OOD check's
-false-alarm rate (every fresh family is in distribution, so each flag is a false alarm).
+median, widths; a recalibrated model also on its flow's own draws) and adds the PIT histogram, the
+binomial band of each coverage and the OOD check's false-alarm rate (every fresh family is in
+distribution, so each flag is a false alarm).
 
 Refused (``DatasetError``): families of another physics configuration (config hash), and families the
-posterior was fitted on (sample ids of its train or validation split, saved with the model since
-2026-11-26; for an older model pass the training dataset).
+posterior was fitted on (sample ids of its train and validation splits, and of the calibration split
+when it was recalibrated on it; saved with the model since 2026-11-26; for an older model pass the
+training dataset).
 """
 
 from __future__ import annotations
@@ -22,15 +24,16 @@ from ..config import defaults
 from ..core import io
 from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
-from .calibration import calibration_figure, calibration_metrics
+from .calibration import calibration_figure, calibration_metrics, recalibrate_draws
 from .scoring import binomial_band
 
 PIT_BINS = 10
 
 
 def fitted_sample_ids(est, training_data=None) -> np.ndarray:
-    """Sample ids the posterior was fitted on (train + validation), saved with the model; for a model
-    saved without them, every id of ``training_data`` (the dataset it was trained on: stricter)."""
+    """Sample ids the posterior was fitted on (train + validation, + calibration if recalibrated), saved
+    with the model; for a model saved without them, every id of ``training_data`` (the dataset it was
+    trained on: stricter)."""
     saved = est.metadata.get("sample_ids_fitted")
     if saved is not None:
         return np.asarray(saved, dtype=np.int64)
@@ -59,9 +62,17 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     if missing:
         raise DatasetError(f"the dataset has no column for {', '.join(missing)}")
     u = np.stack([data.target(name) for name in names], axis=1)
-    samples = est.sample(data.images, data.ms_norm, int(draws), seed=stream_seed(seed, "posterior", "fresh_draws"))
+    samples = est.sample(data.images, data.ms_norm, int(draws), seed=stream_seed(seed, "posterior", "fresh_draws"),
+                         recalibrated=False)
     levels = [float(a) for a in (defaults("posterior")["levels"] if levels is None else levels)]
+    flow_only = None
+    if est.recalibration:
+        # the flow alone on the same draws, beside the recalibrated posterior the model answers with
+        flow_only = calibration_metrics(samples, u, names, stream_rng(seed, "posterior", "fresh_calibration"), levels)
+        flow_only = {"per_parameter": flow_only["per_parameter"], "joint": flow_only["joint"]["tarp"]}
+        samples = recalibrate_draws(samples, est.recalibration, names)
     metrics = calibration_metrics(samples, u, names, stream_rng(seed, "posterior", "fresh_calibration"), levels)
+    metrics["flow_without_recalibration"] = flow_only
     # PIT = SBC rank / draws (the ranks calibration_metrics already counted)
     metrics["pit_histogram"] = {name: np.histogram(np.asarray(metrics["ranks"][name]) / int(draws), bins=PIT_BINS,
                                                    range=(0.0, 1.0))[0].tolist() for name in names}
@@ -94,6 +105,11 @@ def check_lines(metrics: dict) -> list[str]:
                      f"{row.get('width_90', np.nan):6.3f}")
     tarp = metrics["joint"]["tarp"]
     lines.append("joint TARP coverage " + " / ".join(f"{v:.3f}" for v in tarp.values()))
+    flow = metrics.get("flow_without_recalibration")
+    if flow:
+        lines.append("the flow before its recalibration: SBC p " + ", ".join(
+            f"{name} {row['sbc_ks_p']:.3f}" for name, row in flow["per_parameter"].items()) + "; cov90 " + ", ".join(
+            f"{name} {row.get('coverage_90', np.nan):.3f}" for name, row in flow["per_parameter"].items()))
     if metrics.get("ood_false_alarm_fraction") is not None:
         lines.append(f"OOD check: {metrics['ood_false_alarm_fraction']:.3f} of in-distribution families flagged "
                      f"(alpha {metrics.get('ood_alpha')})")

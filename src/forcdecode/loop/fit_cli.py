@@ -96,7 +96,12 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
 
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
-    draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key))[0]
+    # the proposal q₀ is the flow itself: its draws and its density (log_prob) must be the same law
+    draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key),
+                       recalibrated=False)[0]
+    # the amortized answer reported beside the refinement: the posterior as `predict` gives it
+    reported = draws if est.recalibration is None else est.sample(
+        np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key))[0]
     median = np.median(draws, axis=0)
     # the disorder floor: the amortized median on four realisations (0 is the one every candidate uses)
     params = draws_as_hamiltonians(median[None], names, Ms, est.bounds)[0]
@@ -108,7 +113,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
                      "prior": prior,
                      "n_effective": nu, "simulations_for_sigma2": n_real,
-                     "amortized": summarize_particles(draws, np.ones(len(draws)), names),
+                     "amortized": summarize_particles(reported, np.ones(len(reported)), names),
                      "image_uint8": np.asarray(image, dtype=np.uint8).tolist()}
     return state
 
