@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from forcdecode.loop.physics_effects import analyse_residual, null_gains
-from forcdecode.loop.signatures import field_shift, shifts_field
+from forcdecode.loop.signatures import field_shift, saturated_points, saturation_residual, shifts_field
 
 SPACING = 2.0 / 24
 
@@ -277,3 +277,78 @@ def test_the_shift_tests_null_reads_the_major_loop_alone_as_the_whole_protocol()
     whole = field_shift(*major_branches(list(zip(reversal, curves, m)), 1.0), 0.002)["offset_T"]
     assert abs(reduced[1] - whole) < 1e-3
     assert abs(reduced[0] - reduced[1]) > 1e-6  # two realisations, two films
+
+
+# ------------------------------------------------------------------ a reversible residual in saturation
+def langevin(x):
+    return 1.0 / np.tanh(x) - 1.0 / x
+
+
+def test_saturated_points_keep_a_margin_from_the_switching():
+    fields, fam = family(0.3)
+    sign = saturated_points(fam, depth=3)
+    assert np.all(fam[sign == 1] >= 0.995) and np.all(fam[sign == -1] <= -0.995)
+    assert np.all(np.isnan(fam[np.tril_indices(fam.shape[0], -1)]) <= (sign[np.tril_indices(fam.shape[0], -1)] == 0))
+    top = fam.shape[0] - 1
+    row = 0  # the lowest reversal field: negative saturation first, then the ascending switching
+    first_pos = int(np.argmax(fam[row] >= 0.995))
+    assert sign[row, first_pos: first_pos + 3].tolist() == [0, 0, 0] and sign[row, first_pos + 3] == 1
+    assert sign[row, top] == 1
+    last_neg = int(np.flatnonzero(fam[row] <= -0.995)[-1])
+    assert sign[row, last_neg - 2: last_neg + 1].tolist() == [0, 0, 0] and sign[row, last_neg - 3] == -1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_langevin_term_left_by_a_scale_is_reversible_and_noise_is_not(seed):
+    """Twenty realisations of another film: measured = film + 0.04 L(μ0H/0.12 T) + noise. The best
+    scale leaves a field-only residual in saturation (p < 1e-3); noise alone, a scale the model
+    carries, and a normalization error inside the tolerance do not."""
+    fields, base = family(0.3)
+    rng = np.random.default_rng(seed)
+    film = realisation(100 + seed)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    noise = 0.002 * rng.normal(size=base.shape)
+    measured = film + 0.04 * langevin(H / 0.12) + noise
+    ok = np.isfinite(measured)
+    scale = float((measured[ok] * base[ok]).sum() / (base[ok] ** 2).sum())
+    left = saturation_residual(measured, scale * base, base, fields, moment_tolerance=0.02)
+    assert left["reversible"] and left["p"] < 1e-3 and left["dof"] >= 5, left
+    plain = saturation_residual(1.03 * film + noise, 1.03 * base, base, fields, moment_tolerance=0.02)
+    assert not plain["reversible"], plain
+    normalization = saturation_residual(1.015 * film + noise, base, base, fields, moment_tolerance=0.02)
+    assert not normalization["reversible"] and abs(normalization["normalization"] - 0.015) < 0.003
+    # without the tolerance the same 1.5 % is a residual
+    assert saturation_residual(1.015 * film + noise, base, base, fields)["reversible"]
+    # a linear background is reversible under the bare model, and gone under the background model
+    assert saturation_residual(film + 0.03 * H + noise, base, base, fields, moment_tolerance=0.02)["reversible"]
+    assert not saturation_residual(film + 0.03 * H + noise, base + 0.03 * H, base, fields,
+                                   moment_tolerance=0.02)["reversible"]
+
+
+def test_the_gate_refuses_static_candidates_that_leave_a_paramagnet_and_says_so():
+    """analyse_residual on a film with a Langevin term (outside the library): scale and background
+    cover part of it on held-out curves, but each leaves a reversible residual in saturation; none is
+    named and the verdict is an unexplained structured residual in saturation. Without the gate a
+    candidate is forced. A true background passes the gate and is named."""
+    fields, base = family(0.3)
+    rng = np.random.default_rng(7)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    film = realisation(21)
+    noise = 0.002 * rng.normal(size=base.shape)
+    measured = film + 0.05 * langevin(H / 0.08) + noise
+    # the drift candidates answer to the drift evidence (no drift here), the shift ones to the shift's
+    static = ("scale", "background", "background+field_offset", "field_offset+scale")
+    gated = analyse_residual(measured, base, fields, thermal=False, n_boot=500, measured_candidates=static)
+    forced = analyse_residual(measured, base, fields, thermal=False, n_boot=500, measured_candidates=static,
+                              saturation_gate=False)
+    assert forced["chosen"] != "none"
+    assert gated["chosen"] == "none" and gated["verdict"] == "unexplained structured residual"
+    assert "saturated" in gated["verdict_text"]
+    for name in ("scale", "background"):
+        assert gated["candidates"][name]["saturation_evidence"]["reversible"], name
+    assert gated["saturation"]["reversible"]
+    with_background = film + 0.05 * H + noise
+    background = analyse_residual(with_background, base, fields, thermal=False, n_boot=500, measured_candidates=static,
+                                  field_shift=grid_shift(fields, with_background))
+    assert background["chosen"] == "background"
+    assert not background["candidates"]["background"]["saturation_evidence"]["reversible"]

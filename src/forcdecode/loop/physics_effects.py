@@ -17,7 +17,10 @@ Physics-side candidates (m normalized to the film's saturation moment, fields μ
 
 After the selection the residual of the chosen model is tested for structure (``loop.structure``):
 when nothing earns its place but the residual is structured, the verdict is "unexplained structured
-residual", with where it lives, instead of a forced candidate.
+residual", with where it lives, instead of a forced candidate. Before it, a static measured-side
+candidate (scale, background, field offset) must leave noise where the film is saturated
+(``signatures.saturation_residual``, its own terms refitted there); one that leaves a field-only
+residual is refused, and when that residual was all there was to explain, the verdict names it.
 
 ``analyse_residual`` puts these and the measured-side candidates (``effects.py``: singles and
 combinations) through one held-out selection rule (``effects.choose_candidate``).
@@ -34,7 +37,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.streams import stream_rng
-from .signatures import drift_agreement, shift_agreement, shifts_field
+from .signatures import (drift_agreement, saturation_residual, saturation_terms, shift_agreement, shifts_field,
+                         static_candidate)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
                       measurement_clock)
 
@@ -292,7 +296,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      n_profiles: int = 1, null_gain: dict | None = None,
                      null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None,
                      physics_reference_family=None, hamiltonian_families=None,
-                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True) -> dict:
+                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
+                     saturation_gate: bool = True) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -484,6 +489,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             if records[name]["within_moment_tolerance"]:
                 offered.pop(name, None)  # the normalization's own error, not an instrument effect
                 continue
+        if saturation_gate and records[name]["kind"] == "measured" and static_candidate(name):
+            # a time-independent map of (H, m) must leave noise where the film is saturated: a reversible
+            # residual there (a paramagnet, a non-linear background) is not what it models
+            check = saturation_residual(measured, models[name], base_family, fields, moment_tolerance=moment_tolerance,
+                                        free=saturation_terms(name))
+            records[name]["saturation_evidence"] = check
+            if check["reversible"]:
+                offered.pop(name, None)
+                continue
         shift_checked = field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None
         if shift_checked:
             check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"],
@@ -536,7 +550,17 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     from .structure import describe, residual_structure
 
     structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
-    if chosen == "none" and structure["structured"]:
+    saturation = (saturation_residual(measured, models["none"], base_family, fields, moment_tolerance=moment_tolerance)
+                  if saturation_gate else None)
+    rejected_in_saturation = sorted(k for k, v in records.items() if v.get("saturation_evidence", {}).get("reversible"))
+    if chosen == "none" and saturation is not None and saturation.get("reversible") and rejected_in_saturation:
+        verdict = "unexplained structured residual"
+        verdict_text = (f"unexplained structured residual: a reversible residual where the film is saturated "
+                        f"(column means up to {saturation['max_abs_mean']:.3g} at {min(saturation['fields_T']):.2f}…"
+                        f"{max(saturation['fields_T']):.2f} T, χ² {saturation['chi2']:.0f} on {saturation['dof']} dof) that "
+                        f"{', '.join(rejected_in_saturation)} do not remove: a field-only term outside the library "
+                        "(e.g. a paramagnet, a non-linear background)")
+    elif chosen == "none" and structure["structured"]:
         verdict, verdict_text = "unexplained structured residual", describe(structure)
     elif chosen == "none":
         verdict, verdict_text = "none", "no candidate earns its place and the residual is not structured beyond the noise"
@@ -545,6 +569,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
                                              if structure["structured"] else "")
     return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure, "field_shift": field_shift,
+        "saturation": saturation,
         "hamiltonian_neighbourhood": hamiltonian,
         "drift": drift,
         "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],

@@ -1,5 +1,6 @@
 """Model-free evidence for instrument effects: a field shift (the inversion symmetry of the major
-loop, ``field_shift``) and a drift (the end moments in saturation, ``drift_evidence``).
+loop, ``field_shift``), a drift (the end moments in saturation, ``drift_evidence``) and a field-only
+term no static candidate describes (the saturated film, ``saturation_residual``).
 
 A film without a bias field has a Hamiltonian symmetric under (m, B) → (−m, −B) (Zeeman, exchange,
 uniaxial anisotropy, DMI, demagnetization and the frozen disorder all are), so its ascending major
@@ -18,6 +19,16 @@ coercivity wider by half its delay, which a refit of the Hamiltonian absorbs; on
 bench a lag of 1.5 points (21 mT points) read +15.3 ± 2.3 mT and its held-out curves favoured a
 field offset more than those of the true 31 mT offset did. A second measurement at another sweep
 rate tells them apart (an offset does not depend on the rate); the report says so.
+
+A reversible residual in saturation (``saturation_residual``). Where the film is saturated (the
+re-simulation at |m| ≥ 0.995, ``SATURATION_DEPTH`` grid steps past its switching) every curve carries
+the same moment whatever the disorder, the exchange or the code: what differs there between
+measurement and model is the instrument. A time-independent measured-side candidate (scale,
+background, field offset) describes it with its own terms (a gain, χ·μ0H, nothing); a field-only term
+outside that form (a Langevin paramagnet, a non-linear background) leaves column means that differ
+from zero beyond the scatter between curves. Such a candidate is refused (``analyse_residual``,
+``saturation_gate``); if it was the residual's only explanation, the verdict is an unexplained
+structured residual in saturation.
 
 A field-shift candidate may explain a residual only where the test finds a shift and the
 candidate's size agrees with it (``shift_agreement``); it is then spared the realisation floor
@@ -345,6 +356,136 @@ def drift_agreement(evidence: dict, name: str) -> bool | None:
     return True
 
 
+SATURATION_LEVEL = 0.995
+"""|m| of the re-simulated film at and beyond which a grid point counts as saturated."""
+
+SATURATION_DEPTH = 3
+"""Grid steps a point must lie inside the re-simulation's saturation (the points between it and the
+switching saturated too): beyond the closure field every curve of the sample is the same saturated
+film only if the sample closes where the model does, so a margin covers a Hamiltonian a little off."""
+
+P_SATURATION = 1e-3
+"""A candidate leaves a reversible residual in saturation when the column means' χ² has p below this."""
+
+STATIC_CANDIDATES = ("scale", "background", "field_offset")
+"""Measured-side components that are one map of (H, m) for every curve, whatever the time: after them,
+the residual of the saturated film must be noise (``saturation_residual``)."""
+
+
+def saturated_points(base_family, level: float = SATURATION_LEVEL, depth: int = SATURATION_DEPTH) -> np.ndarray:
+    """Sign of saturation per grid point of the re-simulated ``base_family`` (n × n, rows H_r, fields
+    ascending along a row, NaN below the diagonal): +1 where m ≥ level at the point and at the
+    ``depth`` points before it on its curve, −1 where m ≤ −level at the point and the ``depth`` points
+    after it (the negative end, before the curve switches), 0 elsewhere. The saturated film's moment
+    does not depend on its disorder or exchange: there the re-simulation is exact up to its M_s."""
+    m = np.asarray(base_family, float)
+    pos = np.nan_to_num(m, nan=0.0) >= level
+    neg = np.nan_to_num(m, nan=0.0) <= -level
+    deep_pos, deep_neg = pos.copy(), neg.copy()
+    n_cols = m.shape[1]
+    for k in range(1, depth + 1):
+        deep_pos[:, k:] &= pos[:, :-k]
+        deep_pos[:, :k] = False
+        deep_neg[:, :n_cols - k] &= neg[:, k:]
+        deep_neg[:, n_cols - k:] = False
+    return deep_pos.astype(int) - deep_neg.astype(int)
+
+
+def saturation_residual(measured, model, base_family, fields, p_threshold: float = P_SATURATION,
+                        moment_tolerance: float = 0.0, free: tuple = ()) -> dict:
+    """Does ``model`` leave a reversible residual where the film is saturated?
+
+    In saturation every curve at the field H carries the same film moment (±1), so a residual
+    r = measured − model that is a function of H alone (a paramagnetic or Langevin term, a
+    non-linear background) shows as column means that differ from zero by more than the scatter
+    between the curves at that field. Per saturated column j (and sign) with n_j ≥ 2 curves: the mean
+    r̄_j; the scatter s is pooled over the columns from the deviations of r from its column means
+    (it holds the noise and anything that differs between curves, e.g. a drift left over);
+    χ² = Σ n_j r̄_j²/s² on as many degrees of freedom as columns. Returns a JSON-ready dict:
+    ``reversible`` (p < ``p_threshold``), ``chi2``, ``dof``, ``p``, ``n_points``, ``scatter``,
+    ``fields_T`` and ``column_means`` of the saturated columns, ``max_abs_mean``, ``normalization``.
+
+    The normalization's own errors are not a residual: a constant (the offset M_0 of a family
+    normalized by its saturated ends) is always fitted on the saturated points, and with
+    ``moment_tolerance`` a gain δ·model clipped to ± the tolerance (a degree of freedom fewer each). ``free``: terms of the candidate's own form refitted on the saturated points, "scale" (δ
+    unclipped) and "background" (a term χ·μ0H): the test asks whether the candidate's *form* can
+    describe the saturated residual, not its values fitted on the whole family (those also carry the
+    difference between the model's film and the sample's in the hysteretic region)."""
+    from scipy.stats import chi2 as chi2_distribution
+
+    model = np.asarray(model, float)
+    r = np.asarray(measured, float) - model
+    sign = saturated_points(base_family)
+    fields = np.asarray(fields, float)
+    inside = (sign != 0) & np.isfinite(r) & np.isfinite(model)
+    H = np.broadcast_to(fields[None, :], r.shape)
+    delta, chi, offset, n_fitted = 0.0, 0.0, 0.0, 0
+    if inside.sum() > 3:
+        scale_free, background_free = "scale" in free, "background" in free
+        with_scale = scale_free or moment_tolerance > 0
+        # the constant: a measured family normalized by its own saturated ends carries the offset M_0
+        # of that normalization, even in m (the odd terms below are the candidate's)
+        columns = [np.ones(int(inside.sum()))] + ([model[inside]] if with_scale else []) + (
+            [H[inside]] if background_free else [])
+        coefficients = np.linalg.lstsq(np.stack(columns, axis=1), r[inside], rcond=None)[0]
+        n_fitted = len(columns)
+        offset = float(coefficients[0])
+        if with_scale:
+            delta = float(coefficients[1])
+            if not scale_free and abs(delta) > moment_tolerance:
+                delta = float(np.clip(delta, -moment_tolerance, moment_tolerance))
+                rest = r[inside] - delta * model[inside]
+                tail = [np.ones(int(inside.sum()))] + ([H[inside]] if background_free else [])
+                refit = np.linalg.lstsq(np.stack(tail, axis=1), rest, rcond=None)[0]
+                offset, coefficients = float(refit[0]), np.concatenate([[refit[0], delta], refit[1:]])
+        if background_free:
+            chi = float(coefficients[-1])
+        r = r - offset - delta * model - chi * H
+    means, counts, where, deviations = [], [], [], []
+    for s_ in (1, -1):
+        for j in range(r.shape[1]):
+            values = r[(sign[:, j] == s_) & np.isfinite(r[:, j]), j]
+            if values.size < 2:
+                continue
+            means.append(float(values.mean()))
+            counts.append(int(values.size))
+            where.append(float(fields[j]))
+            deviations.append(values - values.mean())
+    if len(means) < 3:
+        return {"reversible": False, "reason": "fewer than three saturated fields with two curves each",
+                "n_points": int(sum(counts)), "dof": len(means)}
+    deviations = np.concatenate(deviations)
+    n_points = int(sum(counts))
+    scatter = float(np.sqrt((deviations**2).sum() / max(n_points - len(means), 1)))
+    if not scatter > 0:
+        return {"reversible": False, "reason": "no scatter between the saturated curves", "n_points": n_points,
+                "dof": len(means)}
+    means_a, counts_a = np.asarray(means), np.asarray(counts)
+    statistic = float((counts_a * means_a**2).sum() / scatter**2)
+    dof = len(means) - n_fitted
+    if dof < 1:
+        return {"reversible": False, "reason": "no saturated field left after the candidate's own terms",
+                "n_points": n_points, "dof": dof}
+    p = float(chi2_distribution.sf(statistic, dof))
+    return {"reversible": bool(p < p_threshold), "chi2": statistic, "dof": dof, "p": p, "n_points": n_points,
+            "scatter": scatter, "fields_T": where, "column_means": means, "max_abs_mean": float(np.abs(means_a).max()),
+            "normalization": delta, "normalization_offset": offset, "background_per_T": chi, "free": list(free),
+            "rule": f"column means of the saturated residual, chi-square p < {p_threshold:g}"}
+
+
+def static_candidate(name: str) -> bool:
+    """Is candidate ``name`` made only of time-independent measured-side maps (``STATIC_CANDIDATES``)?"""
+    return all(part in STATIC_CANDIDATES for part in name.split("+"))
+
+
+def saturation_terms(name: str) -> tuple:
+    """The terms of static candidate ``name`` that act on a saturated film: its scale (carried by
+    "scale" and "background") and its background; a field offset moves nothing there."""
+    parts = name.split("+")
+    return tuple(t for t, present in (("scale", "scale" in parts or "background" in parts),
+                                      ("background", "background" in parts)) if present)
+
+
 SHIFT_CANDIDATES = ("field_offset", "bias_field")
 """Candidate components that shift the loop along the field: they need the shift's evidence."""
 
@@ -354,7 +495,8 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "SHIFT_CANDIDATES", "Z_SHIFT", "calibrated_shift",
+__all__ = ["DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "P_SATURATION", "SATURATION_DEPTH",
+           "SATURATION_LEVEL", "SHIFT_CANDIDATES", "STATIC_CANDIDATES", "Z_SHIFT", "calibrated_shift",
            "candidate_shift", "major_loop_protocol",
            "drift_agreement", "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "major_branches",
-           "shift_agreement", "shifts_field"]
+           "saturated_points", "saturation_residual", "saturation_terms", "shift_agreement", "shifts_field", "static_candidate"]
