@@ -352,3 +352,13 @@ def test_the_gate_refuses_static_candidates_that_leave_a_paramagnet_and_says_so(
                                   field_shift=grid_shift(fields, with_background))
     assert background["chosen"] == "background"
     assert not background["candidates"]["background"]["saturation_evidence"]["reversible"]
+
+
+def test_static_candidates_and_the_terms_they_refit_in_saturation():
+    from forcdecode.loop.signatures import saturation_terms, static_candidate
+
+    assert static_candidate("scale") and static_candidate("background+field_offset")
+    assert not static_candidate("background+additive_drift") and not static_candidate("K_2")
+    assert saturation_terms("field_offset") == ()
+    assert saturation_terms("scale") == ("scale",) and saturation_terms("field_offset+scale") == ("scale",)
+    assert saturation_terms("background+field_offset") == ("scale", "background")
