@@ -289,7 +289,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
 _EVIDENCE = ("heldout_rms", "heldout_mse_per_curve", "accepted", "kind", "n_parameters", "parameters", "uncertainties",
              "relative_gain", "gain_mse_mean", "null_gain",
              "beats_null", "within_moment_tolerance", "beats_normalization", "beats_hamiltonian", "shift_evidence",
-             "drift_evidence", "at_grid_edge")
+             "drift_evidence", "saturation_evidence", "at_grid_edge")
 """What each candidate's row keeps: the selection's evidence, so a decision can be re-read from the file."""
 
 _STRUCTURE = ("structured", "chi2_ratio", "chi2_p", "runs_z", "lag1_z", "n_points", "where")
