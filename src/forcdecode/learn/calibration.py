@@ -224,6 +224,18 @@ def calibration_metrics(samples, truth, names, rng: np.random.Generator, levels=
     }
 
 
+def recalibrated_calibration(samples, truth, names, beta_by_name, rng_of, levels=DEFAULT_LEVELS) -> tuple:
+    """(``calibration_metrics`` of the draws recalibrated by ``beta_by_name``, the flow's own figures
+    beside them or None, the draws scored). ``beta_by_name`` None: the draws as they are. ``rng_of()``
+    returns a fresh generator of one stream, so both scorings draw the same random numbers."""
+    if not beta_by_name:
+        return calibration_metrics(samples, truth, names, rng_of(), levels), None, samples
+    flow = calibration_metrics(samples, truth, names, rng_of(), levels)
+    samples = recalibrate_draws(samples, beta_by_name, names)
+    return (calibration_metrics(samples, truth, names, rng_of(), levels),
+            {"per_parameter": flow["per_parameter"], "joint": flow["joint"]["tarp"]}, samples)
+
+
 def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
     """Rank histograms per parameter (with the 90 % band of a uniform histogram) and the coverage
     curves (marginal central intervals per parameter, joint TARP) against the diagonal."""
@@ -271,4 +283,4 @@ def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
 
 __all__ = ["DEFAULT_LEVELS", "RECALIBRATION_MIN_SAMPLES", "sbc_ranks", "probability_integral_transform",
            "fit_recalibration", "recalibrate_draws", "sbc_ks_pvalues", "central_intervals", "marginal_coverage",
-           "tarp_coverage", "calibration_metrics", "calibration_figure"]
+           "tarp_coverage", "calibration_metrics", "recalibrated_calibration", "calibration_figure"]

@@ -56,9 +56,9 @@ from .splits import SPLITS, assign_splits
 
 FORMAT = "forcdecode-posterior/1"
 SQUEEZE = 1e-3
+"""u is squeezed to [ε, 1 − ε] before the logit."""
 RECALIBRATION_REFERENCE_DRAWS = 1000
 """Draws behind each observation's marginal CDFs when a recalibrated sample of fewer is asked."""
-"""u is squeezed to [ε, 1 − ε] before the logit."""
 EMBEDDINGS = ("cnn", "mlp")
 
 BOUNDED_SUPPORT = (f"flow in logit space: u squeezed to [{SQUEEZE:g}, {1 - SQUEEZE:g}], z = logit(u) standardized "
@@ -705,7 +705,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
     the test split; write the model, metrics.json and the calibration figure (all atomically)."""
     from .calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics,
-                              conformal_coverage, conformal_widening, recalibrate_draws)
+                              conformal_coverage, conformal_widening, recalibrated_calibration)
 
     settings = posterior_settings(settings)
     learning = {**defaults("learning"), **(learning or {})}
@@ -737,23 +737,22 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     started = time.perf_counter()
     draws = int(settings["draws"])
     levels = [float(a) for a in settings["levels"]]
-    recalibration, flow_only = None, None
-    n_held_out = len(np.union1d(splits["validation"], splits["calibration"]))
-    if settings["recalibrate"] and learning["protocol"] == "holdout" and n_held_out < RECALIBRATION_MIN_SAMPLES:
-        log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
-            f"{RECALIBRATION_MIN_SAMPLES}")
-    elif settings["recalibrate"] and learning["protocol"] == "holdout":
-        est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(est, data, u, splits, draws, seed)
-        log(f"posterior recalibrated on {recalibration['n']} held-out families (Beta a, b per parameter: "
-            + ", ".join(f"{n} {a:.2f} {b:.2f}" for n, (a, b) in recalibration["beta"].items()) + ")")
+    recalibration = None
+    if settings["recalibrate"] and learning["protocol"] == "holdout":
+        n_held_out = len(np.union1d(splits["validation"], splits["calibration"]))
+        if n_held_out < RECALIBRATION_MIN_SAMPLES:
+            log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
+                f"{RECALIBRATION_MIN_SAMPLES}")
+        else:
+            est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(est, data, u, splits, draws, seed)
+            log(f"posterior recalibrated on {recalibration['n']} held-out families (Beta a, b per parameter: "
+                + ", ".join(f"{n} {a:.2f} {b:.2f}" for n, (a, b) in recalibration["beta"].items()) + ")")
     samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"),
                          recalibrated=False)
-    if recalibration is not None:
-        # the flow alone on the same test draws, reported beside the recalibrated posterior
-        flow_only = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
-        flow_only = {"per_parameter": flow_only["per_parameter"], "joint": flow_only["joint"]["tarp"]}
-        samples = recalibrate_draws(samples, recalibration["beta"], names)
-    calibration = calibration_metrics(samples, u[test], names, stream_rng(seed, "posterior", "calibration"), levels)
+    # scored recalibrated, the flow alone on the same test draws reported beside it
+    calibration, flow_only, samples = recalibrated_calibration(
+        samples, u[test], names, (recalibration or {}).get("beta"),
+        lambda: stream_rng(seed, "posterior", "calibration"), levels)
     # the calibration split is held out from the posterior too (only Alice's conformal step uses it):
     # test + calibration doubles the samples behind the SBC and coverage figures (reported apart), and
     # the calibration split alone conformalizes the reported intervals (measured on test)
@@ -818,5 +817,5 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
 
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "fit_held_out_recalibration", "summarize", "posterior_prediction", "split_diagnostics",
-           "train_posterior"]
+           "PosteriorEstimator", "fit_posterior", "fit_held_out_recalibration", "summarize", "posterior_prediction",
+           "split_diagnostics", "train_posterior"]

@@ -24,7 +24,7 @@ from ..config import defaults
 from ..core import io
 from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
-from .calibration import calibration_figure, calibration_metrics, recalibrate_draws
+from .calibration import calibration_figure, recalibrated_calibration
 from .scoring import binomial_band
 
 PIT_BINS = 10
@@ -65,13 +65,9 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     samples = est.sample(data.images, data.ms_norm, int(draws), seed=stream_seed(seed, "posterior", "fresh_draws"),
                          recalibrated=False)
     levels = [float(a) for a in (defaults("posterior")["levels"] if levels is None else levels)]
-    flow_only = None
-    if est.recalibration:
-        # the flow alone on the same draws, beside the recalibrated posterior the model answers with
-        flow_only = calibration_metrics(samples, u, names, stream_rng(seed, "posterior", "fresh_calibration"), levels)
-        flow_only = {"per_parameter": flow_only["per_parameter"], "joint": flow_only["joint"]["tarp"]}
-        samples = recalibrate_draws(samples, est.recalibration, names)
-    metrics = calibration_metrics(samples, u, names, stream_rng(seed, "posterior", "fresh_calibration"), levels)
+    # the posterior the model answers with, and the flow alone on the same draws beside it
+    metrics, flow_only, _ = recalibrated_calibration(samples, u, names, est.recalibration,
+                                                     lambda: stream_rng(seed, "posterior", "fresh_calibration"), levels)
     metrics["flow_without_recalibration"] = flow_only
     # PIT = SBC rank / draws (the ranks calibration_metrics already counted)
     metrics["pit_histogram"] = {name: np.histogram(np.asarray(metrics["ranks"][name]) / int(draws), bins=PIT_BINS,

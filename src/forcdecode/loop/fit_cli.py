@@ -90,6 +90,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
     from ..core.parameters import normalize
     from ..core.streams import stream_rng, stream_seed
+    from ..learn.calibration import recalibrate_draws
     from .fit import Refinement, difference_variance, summarize_particles
     from .posterior_predictive import draws_as_hamiltonians
     from .simulated import run_tasks
@@ -99,9 +100,9 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     # the proposal q₀ is the flow itself: its draws and its density (log_prob) must be the same law
     draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key),
                        recalibrated=False)[0]
-    # the amortized answer reported beside the refinement: the posterior as `predict` gives it
-    reported = draws if est.recalibration is None else est.sample(
-        np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key))[0]
+    # the amortized answer reported beside the refinement: the posterior as `predict` gives it (the same
+    # flow draws, recalibrated)
+    reported = draws if est.recalibration is None else recalibrate_draws(draws[None], est.recalibration, names)[0]
     median = np.median(draws, axis=0)
     # the disorder floor: the amortized median on four realisations (0 is the one every candidate uses)
     params = draws_as_hamiltonians(median[None], names, Ms, est.bounds)[0]

@@ -407,7 +407,8 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
 
     The normalization's own errors are not a residual: a constant (the offset M_0 of a family
     normalized by its saturated ends) is always fitted on the saturated points, and with
-    ``moment_tolerance`` a gain δ·model clipped to ± the tolerance (a degree of freedom fewer each). ``free``: terms of the candidate's own form refitted on the saturated points, "scale" (δ
+    ``moment_tolerance`` a gain δ·model clipped to ± the tolerance (a degree of freedom fewer each).
+    ``free``: terms of the candidate's own form refitted on the saturated points, "scale" (δ
     unclipped) and "background" (a term χ·μ0H): the test asks whether the candidate's *form* can
     describe the saturated residual, not its values fitted on the whole family (those also carry the
     difference between the model's film and the sample's in the hysteretic region)."""
@@ -423,23 +424,23 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
     if inside.sum() > 3:
         scale_free, background_free = "scale" in free, "background" in free
         with_scale = scale_free or moment_tolerance > 0
+
+        def least_squares(columns, target):
+            return np.linalg.lstsq(np.stack(columns, axis=1), target, rcond=None)[0]
+
         # the constant: a measured family normalized by its own saturated ends carries the offset M_0
-        # of that normalization, even in m (the odd terms below are the candidate's)
-        columns = [np.ones(int(inside.sum()))] + ([model[inside]] if with_scale else []) + (
-            [H[inside]] if background_free else [])
-        coefficients = np.linalg.lstsq(np.stack(columns, axis=1), r[inside], rcond=None)[0]
-        n_fitted = len(columns)
-        offset = float(coefficients[0])
+        # of that normalization, even in m (the odd terms are the candidate's)
+        ones, target = np.ones(int(inside.sum())), r[inside]
+        odd = [H[inside]] if background_free else []
         if with_scale:
-            delta = float(coefficients[1])
-            if not scale_free and abs(delta) > moment_tolerance:
+            delta = float(least_squares([ones, model[inside], *odd], target)[1])
+            if not scale_free:
                 delta = float(np.clip(delta, -moment_tolerance, moment_tolerance))
-                rest = r[inside] - delta * model[inside]
-                tail = [np.ones(int(inside.sum()))] + ([H[inside]] if background_free else [])
-                refit = np.linalg.lstsq(np.stack(tail, axis=1), rest, rcond=None)[0]
-                offset, coefficients = float(refit[0]), np.concatenate([[refit[0], delta], refit[1:]])
-        if background_free:
-            chi = float(coefficients[-1])
+        # the other terms at that gain (the joint least-squares solution where the gain is not clipped)
+        coefficients = least_squares([ones, *odd], target - delta * model[inside])
+        offset = float(coefficients[0])
+        chi = float(coefficients[1]) if background_free else 0.0
+        n_fitted = 1 + int(with_scale) + int(background_free)
         r = r - offset - delta * model - chi * H
     means, counts, where, deviations = [], [], [], []
     for s_ in (1, -1):
