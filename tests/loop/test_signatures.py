@@ -281,7 +281,10 @@ def test_the_shift_tests_null_reads_the_major_loop_alone_as_the_whole_protocol()
 
 # ------------------------------------------------------------------ a reversible residual in saturation
 def langevin(x):
-    return 1.0 / np.tanh(x) - 1.0 / x
+    x = np.asarray(x, float)
+    small = np.abs(x) < 1e-6
+    safe = np.where(small, 1.0, x)
+    return np.where(small, x / 3, 1.0 / np.tanh(safe) - 1.0 / safe)
 
 
 def test_saturated_points_keep_a_margin_from_the_switching():
@@ -362,3 +365,95 @@ def test_static_candidates_and_the_terms_they_refit_in_saturation():
     assert saturation_terms("field_offset") == ()
     assert saturation_terms("scale") == ("scale",) and saturation_terms("field_offset+scale") == ("scale",)
     assert saturation_terms("background+field_offset") == ("scale", "background")
+
+
+# ------------------------------------------------------------------ the same test on the measured points
+def saturated_film(H):
+    """A perpendicular film's reversible branch past its closure: the grains' tilted axes leave
+    1 − m ∝ 1/(μ0H + B_K)² (B_K = 0.11 T), odd in H."""
+    return np.sign(H) * (1 - 0.0012 / (np.abs(H) + 0.11) ** 2)
+
+
+def major_loop(closure=0.25, step=0.01):
+    """Branches of a square loop that closes at ±``closure`` on a lattice of ``step``."""
+    fields = np.round(np.arange(-1.0, 1.0 + step / 2, step), 12)
+    reversible = saturated_film(fields)
+    descending = np.where(fields > -closure, np.abs(reversible), reversible)
+    ascending = np.where(fields < closure, -np.abs(reversible), reversible)
+    return fields, descending, ascending
+
+
+def measured_protocol_points(extra, n_curves=40, step=0.02, noise=0.002, seed=0, offset=0.0):
+    """Flat (reversal field, field, m) of a FORC file: 40 curves over ±1 T, points every 20 mT from
+    each reversal field, the film saturated past ±0.25 T (the film feels μ0H − offset), plus a
+    field-only ``extra(H)`` and white noise."""
+    rng = np.random.default_rng(seed)
+    reversal, field = [], []
+    for h_r in np.linspace(-1.0, 1.0, n_curves):
+        h = np.round(np.arange(h_r, 1.0 + 1e-9, step), 12)
+        reversal.append(np.full(h.size, h_r))
+        field.append(h)
+    reversal, field = np.concatenate(reversal), np.concatenate(field)
+    felt = field - offset
+    film = np.where((felt > 0.25) | ((felt < -0.25) & (reversal < -0.25)), saturated_film(felt), np.tanh(felt / 0.1))
+    return reversal, field, film + extra(field) + noise * rng.normal(size=field.size)
+
+
+def test_loop_closure_is_where_the_branches_meet_for_good():
+    from forcdecode.loop.signatures import loop_closure
+
+    fields, descending, ascending = major_loop(0.25)
+    assert loop_closure(fields, descending, ascending) == pytest.approx((-0.25, 0.25))
+    # a loop still open at the window's edge has no closure there
+    assert loop_closure(fields, np.ones_like(fields), -np.ones_like(fields)) == (-np.inf, np.inf)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_measured_points_test_tells_a_paramagnet_from_a_background(seed):
+    """On the measured points past the closure (+0.1 T), the test sees every field where a
+    paramagnet curves: a 0.05 L(μ0H/0.08 T) term is refused by the scale's and the background's form
+    (p < 1e-3); a linear background is described by the background's form and refused by the scale's;
+    noise, a 3 % gain and a field offset (with the candidate's own offset) are not flagged."""
+    from forcdecode.loop.signatures import saturated_measured_points, saturation_residual_points
+
+    branches = major_loop(0.25)
+
+    def test(extra, free=(), offset=0.0, offset_T=0.0, gain=1.0):
+        r, h, m = measured_protocol_points(extra, seed=seed, offset=offset)
+        points = saturated_measured_points((r, h, gain * m), *branches)
+        assert np.all(np.abs(points.field_T) >= 0.35 - 1e-9)
+        return saturation_residual_points(points, offset_T=offset_T, moment_tolerance=0.02, free=free)
+
+    paramagnet = lambda h: 0.05 * langevin(h / 0.08)  # noqa: E731
+    for free in (("scale",), ("scale", "background")):
+        result = test(paramagnet, free)
+        assert result["reversible"] and result["p"] < 1e-3, (free, result)
+    background = lambda h: 0.05 * h  # noqa: E731
+    assert test(background, ("scale",))["reversible"]
+    assert not test(background, ("scale", "background"))["reversible"]
+    nothing = lambda h: 0.0 * h  # noqa: E731
+    assert not test(nothing)["reversible"]
+    assert not test(nothing, ("scale",), gain=1.03)["reversible"]
+    shifted = test(nothing, offset=0.03, offset_T=0.03)
+    assert not shifted["reversible"] and shifted["dof"] >= 20, shifted
+
+
+def test_the_gate_reads_the_measured_points_when_given():
+    """analyse_residual(saturation_points=...): the static candidates' saturation evidence comes from
+    the measured points (its record says so), and a paramagnet there refuses them although the grid's
+    deep-saturated columns alone would not."""
+    from forcdecode.loop.signatures import saturated_measured_points
+
+    fields, base = family(0.3)
+    rng = np.random.default_rng(3)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    measured = realisation(5) + 0.05 * langevin(H / 0.08) + 0.002 * rng.normal(size=base.shape)
+    points = saturated_measured_points(measured_protocol_points(lambda h: 0.05 * langevin(h / 0.08), seed=3),
+                                       *major_loop(0.25))
+    static = ("scale", "background")
+    result = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=static,
+                              saturation_points=points)
+    for name in static:
+        evidence = result["candidates"][name]["saturation_evidence"]
+        assert evidence["points"] == "measured" and evidence["reversible"], (name, evidence)
+    assert result["chosen"] == "none" and result["saturation"]["points"] == "measured"

@@ -224,7 +224,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     from ..forc.raster import measured_image
     from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit
-    from ..loop.signatures import drift_evidence_of, field_shift_of
+    from ..loop.signatures import drift_evidence_of, field_shift_of, measured_point_arrays
     from ..measured import read_forc
     from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
 
@@ -258,7 +258,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     result = analyse_with_refit(CONFIG, prediction, family, fields, names=REFIT, budget=budget, physics=True,
                                 relative_bounds=REFIT_BOUNDS, n_profiles=profiles, noise_sigma=noise,
                                 null_realisations=NULL_REALISATIONS if null_realisations is None else null_realisations,
-                                field_shift=shift, drift=drift,
+                                field_shift=shift, drift=drift, measured_points=measured_point_arrays(data, moment),
                                 shift_protocol=(data.reversal_fields_T,
                                                 [c.field_T for c in data.curves]), **analysis)
     refit, joint = result["hamiltonian"]["refit_without_effect"], result["hamiltonian"]["refit_with_effect"]
@@ -280,7 +280,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
             "field_shift": {k: result["field_shift"].get(k) for k in ("offset_T", "se_T", "z", "chi2", "consistent",
                                                                       "significant", "raw_offset_T", "analytic_se_T",
                                                                       "null_offsets_T")},
-            "drift": drift,
+            "drift": drift, "saturation": result.get("saturation"),
             "structure_after": {k: result["structure"].get(k) for k in _STRUCTURE},
             "sample_s": sample_s, "case_s": time.perf_counter() - start,
             "candidates": {k: {key: v.get(key) for key in _EVIDENCE} for k, v in result["candidates"].items()}}

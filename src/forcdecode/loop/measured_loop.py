@@ -357,6 +357,13 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         report["field_shift"], report["drift_evidence"] = shift, drift
     final_params = params
+    # the measured points themselves for the saturation test (the re-simulated major loop tells where the
+    # film is saturated; the measured protocol is re-simulated quasi-statically only)
+    points = None
+    if protocol_name(cfg) == "quasistatic" and moment_saturation > 0:
+        from .signatures import measured_point_arrays
+
+        points = measured_point_arrays(data, moment_saturation, domain.moment_offset_Am2)
     if refit and fixed_point:
         from .fixed_point import predict_correct_iterate
 
@@ -364,6 +371,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                            noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
                                            physics=physics, log=log, null_realisations=null_realisations,
                                            field_shift=shift, drift=drift, moment_tolerance=moment_tolerance,
+                                           measured_points=points,
                                            progress=counter("Hamiltonian refit", "re-simulations"))
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
@@ -374,7 +382,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                       null_realisations=null_realisations,
                                       n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
                                       noise_sigma=noise, field_shift=shift, drift=drift,
-                                      moment_tolerance=moment_tolerance,
+                                      moment_tolerance=moment_tolerance, measured_points=points,
                                       shift_protocol=((data.reversal_fields_T,
                                                        [c.field_T for c in data.curves])
                                                       if shift is not None and protocol_name(cfg) == "quasistatic"
@@ -389,9 +397,16 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     else:
         candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
                       if physics else {})
+        saturated = None
+        if points is not None:
+            from .resimulate import major_loop_branches
+            from .signatures import saturated_measured_points
+
+            window = float(np.nanmax(np.abs(points[1])))
+            saturated = saturated_measured_points(points, *major_loop_branches(cfg, params, window, key="major_loop"))
         analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
                                     floor_variance=spread, n_profiles=profiles, field_shift=shift, drift=drift,
-                                    moment_tolerance=moment_tolerance, **candidates)
+                                    moment_tolerance=moment_tolerance, saturation_points=saturated, **candidates)
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
                   per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],

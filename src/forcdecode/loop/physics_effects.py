@@ -37,7 +37,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.streams import stream_rng
-from .signatures import (drift_agreement, saturation_residual, saturation_terms, shift_agreement, shifts_field,
+from .signatures import (drift_agreement, saturation_residual, saturation_residual_points, saturation_terms,
+                         shift_agreement, shifts_field,
                          static_candidate)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
                       measurement_clock)
@@ -253,7 +254,8 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
         rng = stream_rng(seed, "null_noise", "null_gains")
         pseudo = [p + float(noise_sigma) * rng.normal(size=p.shape) for p in pseudo]
     # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here
-    analysis = {**analysis, "hamiltonian_families": None, "moment_tolerance": 0.0}
+    analysis = {**analysis, "hamiltonian_families": None, "moment_tolerance": 0.0, "saturation_gate": False,
+                "saturation_points": None}
     gains: dict = {}
     for family in pseudo:
         result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
@@ -297,7 +299,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None,
                      physics_reference_family=None, hamiltonian_families=None,
                      moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
-                     saturation_gate: bool = True) -> dict:
+                     saturation_gate: bool = True, saturation_points=None) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -389,6 +391,11 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     moved along its interpolated neighbourhood (the rule of ``effects.choose_candidate``; records:
     ``beats_hamiltonian``; the neighbourhood's fitted K_u change and held-out RMS: result key
     ``hamiltonian_neighbourhood``).
+
+    ``saturation_points`` (``signatures.SaturatedPoints``): the measured points past the model's loop
+    closure with the re-simulated saturated film there; the saturation gate and the verdict's
+    saturation test then run on them (``signatures.saturation_residual_points``) instead of on the
+    deep-saturated grid points.
     """
     measured = np.asarray(measured, dtype=float)
     base_family = np.asarray(base_family, dtype=float)
@@ -492,8 +499,13 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         if saturation_gate and records[name]["kind"] == "measured" and static_candidate(name):
             # a time-independent map of (H, m) must leave noise where the film is saturated: a reversible
             # residual there (a paramagnet, a non-linear background) is not what it models
-            check = saturation_residual(measured, models[name], base_family, fields, moment_tolerance=moment_tolerance,
-                                        free=saturation_terms(name))
+            if saturation_points is not None:
+                check = saturation_residual_points(saturation_points,
+                                                   offset_T=records[name]["parameters"].get("offset_T", 0.0),
+                                                   moment_tolerance=moment_tolerance, free=saturation_terms(name))
+            else:
+                check = saturation_residual(measured, models[name], base_family, fields,
+                                            moment_tolerance=moment_tolerance, free=saturation_terms(name))
             records[name]["saturation_evidence"] = check
             if check["reversible"]:
                 offered.pop(name, None)
@@ -550,8 +562,11 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     from .structure import describe, residual_structure
 
     structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
-    saturation = (saturation_residual(measured, models["none"], base_family, fields, moment_tolerance=moment_tolerance)
-                  if saturation_gate else None)
+    saturation = None
+    if saturation_gate:
+        saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
+                      if saturation_points is not None else
+                      saturation_residual(measured, models["none"], base_family, fields, moment_tolerance=moment_tolerance))
     rejected_in_saturation = sorted(k for k, v in records.items() if v.get("saturation_evidence", {}).get("reversible"))
     if chosen == "none" and saturation is not None and saturation.get("reversible") and rejected_in_saturation:
         verdict = "unexplained structured residual"

@@ -172,7 +172,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                        null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
                        drift: dict | None = None, cross_fit: bool = False, shift_protocol=None,
                        shift_realisations: int = SHIFT_NULL_REALISATIONS, shift_max_step_T: float = 0.002,
-                       progress=None, **analysis) -> dict:
+                       measured_points=None, progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
@@ -217,7 +217,13 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     Not the default: on the validation cases of the independent bench (``bench.effects_independent
     .VALIDATION_CASES``) it named 2 of 7 in-library effects against 3 without (a background became an
     "unexplained structured residual"), and earlier the fixed-point test's background came back as background + field
-    offset while the refit could not yet reach K_u (tests/loop/test_fixed_point.py)."""
+    offset while the refit could not yet reach K_u (tests/loop/test_fixed_point.py).
+
+    ``measured_points`` (reversal field, field, m per measured point: ``signatures.measured_point_arrays``):
+    the refitted Hamiltonian's major loop is re-simulated on a 10 mT lattice over the points' window
+    (``resimulate.major_loop_branches``, stream key "refit_major_loop") and the saturation test of
+    ``analyse_residual`` runs on the measured points past its closure
+    (``signatures.saturated_measured_points``) instead of on the grid. Cost: one major loop."""
     from .effects import EFFECTS, heldout_folds
     from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
     from .resimulate import resimulate
@@ -256,6 +262,13 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                      seed=options["seed"] + r))
         if "floor_variance" not in options:
             options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
+    if measured_points is not None:
+        from .resimulate import major_loop_branches
+        from .signatures import saturated_measured_points
+
+        window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
+        branches = major_loop_branches(cfg, refit["params"], window, n_profiles=1, key="refit_major_loop")
+        options["saturation_points"] = saturated_measured_points(measured_points, *branches)
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
                               drift=drift, **options)
     with_effect = None

@@ -60,6 +60,8 @@ branches times the lattice mismatch, the asymmetry is not a pure field shift and
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 Z_SHIFT = 3.0
@@ -393,7 +395,7 @@ def saturated_points(base_family, level: float = SATURATION_LEVEL, depth: int = 
 
 def saturation_residual(measured, model, base_family, fields, p_threshold: float = P_SATURATION,
                         moment_tolerance: float = 0.0, free: tuple = ()) -> dict:
-    """Does ``model`` leave a reversible residual where the film is saturated?
+    """Does ``model`` leave a reversible residual where the film is saturated (on the grid)?
 
     In saturation every curve at the field H carries the same film moment (±1), so a residual
     r = measured − model that is a function of H alone (a paramagnetic or Langevin term, a
@@ -411,17 +413,28 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
     ``free``: terms of the candidate's own form refitted on the saturated points, "scale" (δ
     unclipped) and "background" (a term χ·μ0H): the test asks whether the candidate's *form* can
     describe the saturated residual, not its values fitted on the whole family (those also carry the
-    difference between the model's film and the sample's in the hysteretic region)."""
-    from scipy.stats import chi2 as chi2_distribution
-
+    difference between the model's film and the sample's in the hysteretic region).
+    ``saturation_residual_points`` is the same test on the measured points themselves."""
     model = np.asarray(model, float)
     r = np.asarray(measured, float) - model
     sign = saturated_points(base_family)
     fields = np.asarray(fields, float)
     inside = (sign != 0) & np.isfinite(r) & np.isfinite(model)
     H = np.broadcast_to(fields[None, :], r.shape)
+    column = np.broadcast_to(np.arange(r.shape[1])[None, :], r.shape)
+    return _column_test(r[inside], model[inside], H[inside], sign[inside], column[inside], fields, p_threshold,
+                        moment_tolerance, free)
+
+
+def _column_test(r, model, H, sign, column, column_fields, p_threshold, moment_tolerance, free) -> dict:
+    """The statistic of ``saturation_residual`` on saturated points given flat: residual ``r``, model,
+    field ``H``, saturation ``sign`` (±1) and ``column`` (index into ``column_fields``, T)."""
+    from scipy.stats import chi2 as chi2_distribution
+
+    r, model, H = np.asarray(r, float), np.asarray(model, float), np.asarray(H, float)
+    sign, column = np.asarray(sign, int), np.asarray(column, int)
     delta, chi, offset, n_fitted = 0.0, 0.0, 0.0, 0
-    if inside.sum() > 3:
+    if r.size > 3:
         scale_free, background_free = "scale" in free, "background" in free
         with_scale = scale_free or moment_tolerance > 0
 
@@ -430,27 +443,27 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
 
         # the constant: a measured family normalized by its own saturated ends carries the offset M_0
         # of that normalization, even in m (the odd terms are the candidate's)
-        ones, target = np.ones(int(inside.sum())), r[inside]
-        odd = [H[inside]] if background_free else []
+        ones = np.ones(r.size)
+        odd = [H] if background_free else []
         if with_scale:
-            delta = float(least_squares([ones, model[inside], *odd], target)[1])
+            delta = float(least_squares([ones, model, *odd], r)[1])
             if not scale_free:
                 delta = float(np.clip(delta, -moment_tolerance, moment_tolerance))
         # the other terms at that gain (the joint least-squares solution where the gain is not clipped)
-        coefficients = least_squares([ones, *odd], target - delta * model[inside])
+        coefficients = least_squares([ones, *odd], r - delta * model)
         offset = float(coefficients[0])
         chi = float(coefficients[1]) if background_free else 0.0
         n_fitted = 1 + int(with_scale) + int(background_free)
         r = r - offset - delta * model - chi * H
     means, counts, where, deviations = [], [], [], []
     for s_ in (1, -1):
-        for j in range(r.shape[1]):
-            values = r[(sign[:, j] == s_) & np.isfinite(r[:, j]), j]
+        for j in np.unique(column[sign == s_]):
+            values = r[(sign == s_) & (column == j)]
             if values.size < 2:
                 continue
             means.append(float(values.mean()))
             counts.append(int(values.size))
-            where.append(float(fields[j]))
+            where.append(float(column_fields[j]))
             deviations.append(values - values.mean())
     if len(means) < 3:
         return {"reversible": False, "reason": "fewer than three saturated fields with two curves each",
@@ -472,6 +485,102 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
             "scatter": scatter, "fields_T": where, "column_means": means, "max_abs_mean": float(np.abs(means_a).max()),
             "normalization": delta, "normalization_offset": offset, "background_per_T": chi, "free": list(free),
             "rule": f"column means of the saturated residual, chi-square p < {p_threshold:g}"}
+
+
+CLOSURE_TOLERANCE = 2e-3
+"""The major loop is closed at a field where its two branches differ by less than this (m units) there
+and at every field beyond it."""
+
+SATURATION_MARGIN_T = 0.1
+"""Measured points enter the saturation test this far (T) beyond the model's loop closure: the
+sample is another film, and its own closure may lie a little further out."""
+
+
+@dataclass(frozen=True)
+class SaturatedPoints:
+    """Measured points where the re-simulated film is saturated (past its major loop's closure by
+    ``SATURATION_MARGIN_T``), with the model's reversible branch there.
+
+    ``field_T``, ``m`` (normalized moment), ``sign`` (+1 positive, −1 negative saturation), ``column``
+    (index of the field bin, ``column_fields_T``) per point; ``branch_fields_T``, ``branch_m``: the
+    re-simulated saturated film (the ascending major branch above zero field, the descending one
+    below); ``closure_T``: the model's loop closure (negative, positive)."""
+
+    field_T: np.ndarray
+    m: np.ndarray
+    sign: np.ndarray
+    column: np.ndarray
+    column_fields_T: np.ndarray
+    branch_fields_T: np.ndarray
+    branch_m: np.ndarray
+    closure_T: tuple
+
+    def model(self, offset_T: float = 0.0) -> np.ndarray:
+        """The re-simulated film at the points' fields, the field offset ``offset_T`` applied (the
+        film feels μ0H − δ)."""
+        return np.interp(self.field_T - offset_T, self.branch_fields_T, self.branch_m)
+
+
+def loop_closure(fields_T, descending, ascending, tolerance: float = CLOSURE_TOLERANCE) -> tuple[float, float]:
+    """(negative, positive) closure fields of a major loop given on ascending ``fields_T``: the
+    innermost fields beyond which the branches differ by less than ``tolerance`` everywhere. A loop
+    open at the window's edge gives ∓inf there."""
+    fields = np.asarray(fields_T, float)
+    open_ = np.abs(np.asarray(descending, float) - np.asarray(ascending, float)) >= tolerance
+    if not open_.any():
+        return float(fields[fields <= 0].max(initial=0.0)), float(fields[fields >= 0].min(initial=0.0))
+    first, last = int(np.argmax(open_)), int(open_.size - 1 - np.argmax(open_[::-1]))
+    negative = float(fields[first - 1]) if first > 0 else -np.inf
+    positive = float(fields[last + 1]) if last + 1 < fields.size else np.inf
+    return negative, positive
+
+
+def measured_point_arrays(data, moment: float, moment_offset: float = 0.0):
+    """Every measured point of a read FORC file (``forcdecode.measured``) as flat arrays: (reversal
+    field per point, field, m = (M − M_0)/M_sat)."""
+    reversal = np.concatenate([np.full(len(c.field_T), float(c.reversal_field_T)) for c in data.curves])
+    field = np.concatenate([np.asarray(c.field_T, float) for c in data.curves])
+    m = (np.concatenate([np.asarray(c.moment_Am2, float) for c in data.curves]) - moment_offset) / moment
+    return reversal, field, m
+
+
+def saturated_measured_points(points, branch_fields_T, descending, ascending,
+                              margin_T: float = SATURATION_MARGIN_T, bin_T: float | None = None) -> SaturatedPoints:
+    """The measured ``points`` ((reversal field, field, m) per point, ``measured_point_arrays``) that
+    lie ``margin_T`` beyond the closure of the model's major loop (``branch_fields_T``,
+    ``descending``, ``ascending``: ``resimulate.major_loop_branches``): fields above the positive
+    closure (any curve: each has re-saturated there), or below the negative closure on curves reversed
+    below it (still saturated). Points are binned in field by ``bin_T`` (default: the median step
+    between a curve's points) so that a column holds the curves measured near one field."""
+    reversal, field, m = (np.asarray(a, float) for a in points)
+    fields = np.asarray(branch_fields_T, float)
+    negative, positive = loop_closure(fields, descending, ascending)
+    ok = np.isfinite(field) & np.isfinite(m)
+    top, bottom = field >= positive + margin_T, (field <= negative - margin_T) & (reversal <= negative - margin_T)
+    keep = ok & (top | bottom) & (field <= fields.max()) & (field >= fields.min())
+    if bin_T is None:
+        steps = np.abs(np.diff(field))
+        steps = steps[(steps > 1e-9) & (np.diff(reversal) == 0)]
+        bin_T = float(np.median(steps)) if steps.size else 1e-3
+    index = np.round(field[keep] / bin_T).astype(int)
+    unique, column = np.unique(index, return_inverse=True)
+    branch = np.where(fields >= 0, ascending, descending)
+    return SaturatedPoints(field_T=field[keep], m=m[keep], sign=np.where(top[keep], 1, -1), column=column,
+                           column_fields_T=unique * bin_T, branch_fields_T=fields, branch_m=np.asarray(branch, float),
+                           closure_T=(negative, positive))
+
+
+def saturation_residual_points(points: SaturatedPoints, offset_T: float = 0.0, p_threshold: float = P_SATURATION,
+                               moment_tolerance: float = 0.0, free: tuple = ()) -> dict:
+    """``saturation_residual`` on the measured points themselves (``SaturatedPoints``): the residual of
+    each point against the re-simulated saturated film at its own field (with a candidate's field
+    offset ``offset_T``), columns the field bins. The grid's test sees a few deep-saturated grid
+    fields; this one every measured field past the loop's closure, where a paramagnet's curvature is
+    largest. Adds ``closure_T`` and ``margin_T`` to the result."""
+    model = points.model(offset_T)
+    out = _column_test(points.m - model, model, points.field_T, points.sign, points.column, points.column_fields_T,
+                       p_threshold, moment_tolerance, free)
+    return {**out, "closure_T": list(points.closure_T), "points": "measured"}
 
 
 def static_candidate(name: str) -> bool:
@@ -496,7 +605,8 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "P_SATURATION", "SATURATION_DEPTH",
+__all__ = ["CLOSURE_TOLERANCE", "SATURATION_MARGIN_T", "SaturatedPoints", "loop_closure", "measured_point_arrays",
+           "saturated_measured_points", "saturation_residual_points", "DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "P_SATURATION", "SATURATION_DEPTH",
            "SATURATION_LEVEL", "SHIFT_CANDIDATES", "STATIC_CANDIDATES", "Z_SHIFT", "calibrated_shift",
            "candidate_shift", "major_loop_protocol",
            "drift_agreement", "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "major_branches",
