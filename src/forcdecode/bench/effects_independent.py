@@ -281,6 +281,7 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
                                                                       "significant", "raw_offset_T", "analytic_se_T",
                                                                       "null_offsets_T")},
             "drift": drift, "saturation": result.get("saturation"),
+            "hamiltonian_neighbourhood": result.get("hamiltonian_neighbourhood"),
             "structure_after": {k: result["structure"].get(k) for k in _STRUCTURE},
             "sample_s": sample_s, "case_s": time.perf_counter() - start,
             "candidates": {k: {key: v.get(key) for key in _EVIDENCE} for k, v in result["candidates"].items()}}
