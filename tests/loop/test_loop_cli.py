@@ -40,6 +40,11 @@ def test_loop_names_an_undeclared_background(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["effect"] == "background"
     assert report["heldout_rms_after"] < 0.5 * report["heldout_rms_before"]
+    # the background was judged on the measured points past the re-simulated loop's closure: its own
+    # form describes them (a scale alone would leave the slope)
+    evidence = report["analysis"]["candidates"]["background"]["saturation_evidence"]
+    assert evidence["points"] == "measured" and not evidence["reversible"], evidence
+    assert report["analysis"]["candidates"]["scale"]["saturation_evidence"]["reversible"]
     assert (out / "residual.png").stat().st_size > 10_000 and (out / "families.png").exists()
     # the report page: diagrams side by side, the residual map, the effect and its size, before/after
     page = (out / "report.html").read_text()
@@ -116,6 +121,11 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     assert points["rms_over_noise"] == pytest.approx(1.0, abs=0.25)
     assert points["rms_Am2"] == pytest.approx(noise * moment, rel=0.25)
     assert "% measured" in (out / "report.md").read_text()
+    # the saturation test reads the measured points past the re-simulated loop's closure: the same film
+    # with noise leaves nothing reversible there
+    saturation = report["analysis"]["saturation"]
+    assert saturation["points"] == "measured" and saturation["closure_T"][1] < 0.8, saturation
+    assert not saturation["reversible"], saturation
 
 
 @pytest.mark.parametrize("option,value,message", [("--moment-tolerance", "-0.01", "moment tolerance"),

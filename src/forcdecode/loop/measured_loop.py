@@ -397,13 +397,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     else:
         candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
                       if physics else {})
-        saturated = None
-        if points is not None:
-            from .resimulate import major_loop_branches
-            from .signatures import saturated_measured_points
+        from .refit import measured_saturation
 
-            window = float(np.nanmax(np.abs(points[1])))
-            saturated = saturated_measured_points(points, *major_loop_branches(cfg, params, window, key="major_loop"))
+        saturated = measured_saturation(cfg, params, points) if points is not None else None
         analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
                                     floor_variance=spread, n_profiles=profiles, field_shift=shift, drift=drift,
                                     moment_tolerance=moment_tolerance, saturation_points=saturated, **candidates)

@@ -166,6 +166,17 @@ def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fi
     return offsets
 
 
+def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "major_loop"):
+    """The measured points (reversal field, field, m per point: ``signatures.measured_point_arrays``)
+    past the closure of ``params``' major loop, re-simulated on a 10 mT lattice over the points' window
+    (``resimulate.major_loop_branches``, disorder stream ``key``): ``signatures.SaturatedPoints``."""
+    from .resimulate import major_loop_branches
+    from .signatures import saturated_measured_points
+
+    window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
+    return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key))
+
+
 def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
@@ -263,12 +274,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
         if "floor_variance" not in options:
             options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
     if measured_points is not None:
-        from .resimulate import major_loop_branches
-        from .signatures import saturated_measured_points
-
-        window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
-        branches = major_loop_branches(cfg, refit["params"], window, n_profiles=1, key="refit_major_loop")
-        options["saturation_points"] = saturated_measured_points(measured_points, *branches)
+        options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points, key="refit_major_loop")
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
                               drift=drift, **options)
     with_effect = None
@@ -296,5 +302,6 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "joint_generalises", "analyse_with_refit",
+__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit", "joint_generalises",
+           "measured_saturation",
            "refit_hamiltonian", "simulated_shift_offsets"]
