@@ -196,6 +196,28 @@ def test_drift_candidates_need_the_drift_evidence():
     assert result["candidates"]["additive_drift"]["drift_evidence"] is False
 
 
+def test_a_shift_combined_with_a_drift_needs_both_evidences():
+    """A shifted film whose saturated ends show no drift: field_offset + additive_drift agrees with the
+    loop's shift but not with the drift evidence, and is refused (before, the shift's evidence alone
+    let it through: a detector lag on the independent bench was named field_offset+additive_drift);
+    with an additive drift in the evidence it is offered again."""
+    fields, base = family(0.3)
+    measured = realisation(11, shift=0.03)
+    evidence = grid_shift(fields, measured)
+    still = {"significant": False, "mirror_sum": None, "additive": False}
+    result = analyse_residual(measured, base, fields, thermal=False, field_shift=evidence, drift=still,
+                              measured_candidates=("field_offset", "field_offset+additive_drift"))
+    combined = result["candidates"]["field_offset+additive_drift"]
+    assert combined["shift_evidence"]["agrees"] and combined["drift_evidence"] is False and not combined["accepted"]
+    assert result["candidates"]["field_offset"].get("drift_evidence") is None
+    assert result["candidates"]["field_offset+additive_drift"]["gain_mse"] is None  # never offered
+    drifting = {"significant": True, "mirror_sum": 0.01, "additive": True}
+    again = analyse_residual(measured, base, fields, thermal=False, field_shift=evidence, drift=drifting,
+                             measured_candidates=("field_offset", "field_offset+additive_drift"))
+    assert again["candidates"]["field_offset+additive_drift"]["drift_evidence"] is True
+    assert again["candidates"]["field_offset+additive_drift"]["gain_mse"] is not None  # offered
+
+
 def test_evidence_suffices_spares_only_candidates_the_model_free_tests_support(monkeypatch):
     """With ``evidence_suffices`` (the default) the candidates whose drift (or shift) the model-free
     evidence supports, and only those, reach the selection as evidenced (judged by the held-out error
@@ -457,3 +479,33 @@ def test_the_gate_reads_the_measured_points_when_given():
         evidence = result["candidates"][name]["saturation_evidence"]
         assert evidence["points"] == "measured" and evidence["reversible"], (name, evidence)
     assert result["chosen"] == "none" and result["saturation"]["points"] == "measured"
+
+
+def test_a_bias_field_is_held_to_the_saturation_test_as_an_offset_is():
+    """A bias field moves the saturated film as an offset does (the same observable): the saturation
+    test judges it with its implied offset −B_bias, and refuses it where the saturated points carry a
+    residual no shift makes (here a paramagnet); the other physics candidates change the film and are
+    not judged there."""
+    from forcdecode.loop.signatures import saturated_measured_points, saturation_gated
+
+    assert saturation_gated("bias_field", "physics") and saturation_gated("background+field_offset", "measured")
+    assert not saturation_gated("K_2", "physics") and not saturation_gated("field_tilt", "physics")
+    assert not saturation_gated("background+additive_drift", "measured")
+    fields, base = family(0.3)
+    bias = {b: family(0.3, shift=-b)[1] for b in (-0.04, -0.02, 0.02, 0.04)}
+    rng = np.random.default_rng(2)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    measured = realisation(11, shift=0.03) + 0.05 * langevin(H / 0.08) + 0.002 * rng.normal(size=base.shape)
+    points = saturated_measured_points(
+        measured_protocol_points(lambda h: 0.05 * langevin(h / 0.08), seed=2, offset=0.03), *major_loop(0.25))
+    result = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=("field_offset",),
+                              physics_families={"bias_field": bias}, saturation_points=points)
+    evidence = result["candidates"]["bias_field"]["saturation_evidence"]
+    assert evidence["points"] == "measured" and evidence["reversible"], evidence
+    assert not result["candidates"]["bias_field"]["accepted"]
+    # without the paramagnet the same shift passes the test (its own offset, no residual left)
+    clean = saturated_measured_points(measured_protocol_points(lambda h: 0.0 * h, seed=2, offset=0.03), *major_loop(0.25))
+    result = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=("field_offset",),
+                              physics_families={"bias_field": bias}, saturation_points=clean)
+    bias_fit = result["candidates"]["bias_field"]
+    assert not bias_fit["saturation_evidence"]["reversible"], (bias_fit["parameters"], bias_fit["saturation_evidence"])

@@ -37,9 +37,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.streams import stream_rng
-from .signatures import (drift_agreement, saturation_residual, saturation_residual_points, saturation_terms,
-                         shift_agreement, shifts_field,
-                         static_candidate)
+from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
+                         saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
                       measurement_clock)
 
@@ -496,12 +495,13 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             if records[name]["within_moment_tolerance"]:
                 offered.pop(name, None)  # the normalization's own error, not an instrument effect
                 continue
-        if saturation_gate and records[name]["kind"] == "measured" and static_candidate(name):
+        if saturation_gate and saturation_gated(name, records[name]["kind"]):
             # a time-independent map of (H, m) must leave noise where the film is saturated: a reversible
-            # residual there (a paramagnet, a non-linear background) is not what it models
+            # residual there (a paramagnet, a non-linear background) is not what it models; a bias field
+            # moves the saturated film as an offset does
             if saturation_points is not None:
-                check = saturation_residual_points(saturation_points,
-                                                   offset_T=records[name]["parameters"].get("offset_T", 0.0),
+                shift = candidate_shift(records[name]["parameters"])
+                check = saturation_residual_points(saturation_points, offset_T=shift[0] if shift else 0.0,
                                                    moment_tolerance=moment_tolerance, free=saturation_terms(name))
             else:
                 check = saturation_residual(measured, models[name], base_family, fields,
@@ -515,9 +515,14 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
             check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"],
                                     resolution_T=float(abs(fields[1] - fields[0])) / np.sqrt(12.0))
             records[name]["shift_evidence"] = check
-            if not (field_shift["significant"] and check["agrees"]):
-                # the loop's own symmetry shows no shift, or not this one: a fitted shift would cover
-                # the difference between the model's film and the sample, not an effect
+            # a shift combined with a drift needs the drift's evidence too: each component its own
+            drift_ok = drift_agreement(drift, name) if drift is not None else None
+            if drift_ok is not None:
+                records[name]["drift_evidence"] = drift_ok
+            if not (field_shift["significant"] and check["agrees"]) or drift_ok is False:
+                # the loop's own symmetry shows no shift, or not this one (or the saturated ends show no
+                # such drift): a fitted shift would cover the difference between the model's film and
+                # the sample, not an effect
                 offered.pop(name)
             elif evidence_suffices:
                 evidenced.add(name)
@@ -573,8 +578,9 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
         verdict_text = (f"unexplained structured residual: a reversible residual where the film is saturated "
                         f"(column means up to {saturation['max_abs_mean']:.3g} at {min(saturation['fields_T']):.2f}…"
                         f"{max(saturation['fields_T']):.2f} T, χ² {saturation['chi2']:.0f} on {saturation['dof']} dof) that "
-                        f"{', '.join(rejected_in_saturation)} do not remove: a field-only term outside the library "
-                        "(e.g. a paramagnet, a non-linear background)")
+                        f"{', '.join(rejected_in_saturation)} do not remove: something outside the library "
+                        "(a field-only term such as a paramagnet or a non-linear background, or a signal that "
+                        "lags the field)")
     elif chosen == "none" and structure["structured"]:
         verdict, verdict_text = "unexplained structured residual", describe(structure)
     elif chosen == "none":

@@ -604,6 +604,18 @@ def static_candidate(name: str) -> bool:
     return all(part in STATIC_CANDIDATES for part in name.split("+"))
 
 
+SHIFT_IN_SATURATION = ("bias_field",)
+"""Physics candidates that act on a saturated film as a field offset does: a bias field B_b felt by the
+film moves its reversible branch to m(μ0H + B_b), the offset −B_b (``candidate_shift``). They are the
+same observable as an offset (``SAME_OBSERVABLE``), so the saturation test holds them to the same rule."""
+
+
+def saturation_gated(name: str, kind: str) -> bool:
+    """Does the saturation test judge candidate ``name`` of ``kind`` ("measured" or "physics")? The static
+    measured-side candidates and the physics candidates that only shift the film (``SHIFT_IN_SATURATION``)."""
+    return (kind == "measured" and static_candidate(name)) or (kind == "physics" and name in SHIFT_IN_SATURATION)
+
+
 def saturation_terms(name: str) -> tuple:
     """The terms of static candidate ``name`` that act on a saturated film: its scale (carried by
     "scale" and "background") and its background; a field offset moves nothing there."""
@@ -626,4 +638,4 @@ __all__ = ["CLOSURE_TOLERANCE", "SATURATION_MARGIN_T", "SaturatedPoints", "loop_
            "SATURATION_LEVEL", "SHIFT_CANDIDATES", "STATIC_CANDIDATES", "Z_SHIFT", "calibrated_shift",
            "candidate_shift", "major_loop_protocol",
            "drift_agreement", "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "major_branches",
-           "saturated_points", "saturation_residual", "saturation_terms", "shift_agreement", "shifts_field", "static_candidate"]
+           "saturated_points", "saturation_gated", "saturation_residual", "saturation_terms", "SHIFT_IN_SATURATION", "shift_agreement", "shifts_field", "static_candidate"]
