@@ -504,7 +504,8 @@ def test_a_bias_field_is_held_to_the_saturation_test_as_an_offset_is():
     assert evidence["points"] == "measured" and evidence["reversible"], evidence
     assert not result["candidates"]["bias_field"]["accepted"]
     # without the paramagnet the same shift passes the test (its own offset, no residual left)
-    clean = saturated_measured_points(measured_protocol_points(lambda h: 0.0 * h, seed=2, offset=0.03), *major_loop(0.25))
+    clean = saturated_measured_points(measured_protocol_points(lambda h: 0.0 * h, seed=2, offset=0.03),
+                                      *major_loop(0.25))
     result = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=("field_offset",),
                               physics_families={"bias_field": bias}, saturation_points=clean)
     bias_fit = result["candidates"]["bias_field"]

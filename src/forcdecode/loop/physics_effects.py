@@ -571,7 +571,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     if saturation_gate:
         saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
                       if saturation_points is not None else
-                      saturation_residual(measured, models["none"], base_family, fields, moment_tolerance=moment_tolerance))
+                      saturation_residual(measured, models["none"], base_family, fields,
+                                          moment_tolerance=moment_tolerance))
     rejected_in_saturation = sorted(k for k, v in records.items() if v.get("saturation_evidence", {}).get("reversible"))
     if chosen == "none" and saturation is not None and saturation.get("reversible") and rejected_in_saturation:
         verdict = "unexplained structured residual"

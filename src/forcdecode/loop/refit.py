@@ -274,7 +274,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
         if "floor_variance" not in options:
             options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
     if measured_points is not None:
-        options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points, key="refit_major_loop")
+        options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points,
+                                                           key="refit_major_loop")
     result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
                               drift=drift, **options)
     with_effect = None

@@ -633,9 +633,10 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["CLOSURE_TOLERANCE", "SATURATION_MARGIN_T", "SaturatedPoints", "loop_closure", "measured_point_arrays",
-           "saturated_measured_points", "saturation_residual_points", "DRIFT_COMPONENTS", "LEVELS", "MIRROR_FRACTION", "N_END", "P_SATURATION", "SATURATION_DEPTH",
-           "SATURATION_LEVEL", "SHIFT_CANDIDATES", "STATIC_CANDIDATES", "Z_SHIFT", "calibrated_shift",
-           "candidate_shift", "major_loop_protocol",
-           "drift_agreement", "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "major_branches",
-           "saturated_points", "saturation_gated", "saturation_residual", "saturation_terms", "SHIFT_IN_SATURATION", "shift_agreement", "shifts_field", "static_candidate"]
+__all__ = ["calibrated_shift", "candidate_shift", "CLOSURE_TOLERANCE", "drift_agreement", "DRIFT_COMPONENTS",
+           "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "LEVELS", "loop_closure",
+           "major_branches", "major_loop_protocol", "measured_point_arrays", "MIRROR_FRACTION", "N_END",
+           "P_SATURATION", "saturated_measured_points", "saturated_points", "SaturatedPoints", "SATURATION_DEPTH",
+           "saturation_gated", "SATURATION_LEVEL", "SATURATION_MARGIN_T", "saturation_residual",
+           "saturation_residual_points", "saturation_terms", "shift_agreement", "SHIFT_CANDIDATES",
+           "SHIFT_IN_SATURATION", "shifts_field", "static_candidate", "STATIC_CANDIDATES", "Z_SHIFT"]
