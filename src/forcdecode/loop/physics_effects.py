@@ -18,9 +18,11 @@ Physics-side candidates (m normalized to the film's saturation moment, fields μ
 After the selection the residual of the chosen model is tested for structure (``loop.structure``):
 when nothing earns its place but the residual is structured, the verdict is "unexplained structured
 residual", with where it lives, instead of a forced candidate. Before it, a static measured-side
-candidate (scale, background, field offset) must leave noise where the film is saturated
-(``signatures.saturation_residual``, its own terms refitted there); one that leaves a field-only
-residual is refused, and when that residual was all there was to explain, the verdict names it.
+candidate (scale, background, field offset) and a bias field (an offset to a saturated film) must
+leave noise where the film is saturated (``signatures.saturation_residual`` on the grid, or
+``saturation_residual_points`` on the measured points; its own terms refitted there); one that
+leaves a residual there is refused, and when that residual was all there was to explain, the verdict
+names it.
 
 ``analyse_residual`` puts these and the measured-side candidates (``effects.py``: singles and
 combinations) through one held-out selection rule (``effects.choose_candidate``).

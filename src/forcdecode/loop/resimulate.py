@@ -138,25 +138,20 @@ def major_loop_branches(cfg: dict, params: dict, top_T: float, step_T: float = 0
     """The major hysteresis loop of ``params``: the descending branch from saturation at +``top_T`` and
     the ascending branch from −``top_T``, both at the fields of one lattice of ``step_T`` (T) over
     ±``top_T`` (the measured protocol with every lattice field a reversal point and the lowest curve
-    swept back up), ⟨m⟩·ĥ averaged over ``n_profiles`` disorder profiles (streams of ``resimulate``
-    under ``key``). Returns (fields ascending, descending m, ascending m). Past the loop's closure the
+    swept back up: ``resimulate_measured``), ⟨m⟩·ĥ averaged over ``n_profiles`` disorder profiles
+    (streams of ``resimulate`` under ``key``). Returns (fields ascending, descending m, ascending m). Past the loop's closure the
     two branches coincide: the reversible, saturated film."""
     if not (top_T > 0 and step_T > 0):
         raise ValueError(f"top_T and step_T must be > 0 (got {top_T!r}, {step_T!r})")
-    if n_profiles < 1:
-        raise ValueError("n_profiles must be >= 1")
     count = int(np.ceil(top_T / step_T))
     fields = np.round(np.linspace(-count * step_T, count * step_T, 2 * count + 1), 12)
     reversal = fields[::-1].copy()
-    curves = [np.array([h]) for h in reversal[:-1]] + [fields]
-    descending, ascending = np.zeros(fields.size), np.zeros(fields.size)
-    for p in range(n_profiles):
-        family = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, p), reversal, curves)
-        order = np.argsort(np.asarray(family.descending_fields_T, float))
-        descending += np.interp(fields, np.asarray(family.descending_fields_T, float)[order],
-                                np.asarray(family.descending, float)[order])
-        ascending += np.asarray(family.curves[-1], float)
-    return fields, descending / n_profiles, ascending / n_profiles
+    # every curve but the last is its reversal point alone (a point of the descending branch); the last,
+    # reversed at −top_T, is swept back up
+    curves = resimulate_measured(cfg, params, reversal, [np.array([h]) for h in reversal[:-1]] + [fields],
+                                 n_profiles=n_profiles, key=key)
+    descending = np.array([float(c[0]) for c in curves])[::-1]
+    return fields, descending, np.asarray(curves[-1], float)
 
 
 def observation_error(reference: np.ndarray, candidate: np.ndarray) -> dict:

@@ -592,7 +592,7 @@ def saturation_residual_points(points: SaturatedPoints, offset_T: float = 0.0, p
     each point against the re-simulated saturated film at its own field (with a candidate's field
     offset ``offset_T``), columns the field bins. The grid's test sees a few deep-saturated grid
     fields; this one every measured field past the loop's closure, where a paramagnet's curvature is
-    largest. Adds ``closure_T`` and ``margin_T`` to the result."""
+    largest. Adds the model's ``closure_T`` and ``points`` = "measured" to the result."""
     model = points.model(offset_T)
     out = _column_test(points.m - model, model, points.field_T, points.sign, points.column, points.column_fields_T,
                        p_threshold, moment_tolerance, free)
