@@ -357,3 +357,64 @@ def test_the_fresh_check_command(stage, tmp_path, capsys):
     assert metrics["n_fresh"] == 60 and set(metrics["per_parameter"]) == {"K_u", "D"}
     assert (tmp_path / "fresh.png").exists() and "fresh families" in capsys.readouterr().out
     assert main([*args[:4], "--dataset", str(tmp_path / "missing.h5"), *args[6:]]) != 0
+
+
+class WideBarPosterior(ExactBarPosterior):
+    """The exact posterior with its K_u draws spread twice as wide about each family's centre (clipped
+    to [0, 1]): PITs bunched in the middle, a Beta map with a, b > 1 corrects it."""
+
+    def sample(self, images, ms_norm, n_draws, seed, recalibrated=True):
+        draws = super().sample(images, ms_norm, n_draws, seed, recalibrated)
+        centre = draws[:, :, :1].mean(axis=1, keepdims=True)
+        draws[:, :, :1] = np.clip(centre + 4.0 * (draws[:, :, :1] - centre), 0, 1)
+        return draws
+
+
+def test_a_recalibration_fitted_on_a_fresh_draw_sharpens_only_what_is_miscalibrated():
+    """On 400 fresh families the 4× too wide K_u gets a Beta map with a, b > 1 whose likelihood ratio
+    against the identity is overwhelming; the exact D gets a map near (1, 1) the test does not support.
+    The record keeps the map it replaces, and the families it was fitted on join the fitted ids."""
+    from forcdecode.learn.posterior_check import apply_recalibration, fresh_recalibration, recalibration_lines
+
+    est = WideBarPosterior()
+    est.metadata["recalibration"] = {"beta": {"K_u": [1.1, 1.0], "D": [1.0, 1.0]}}
+    fresh = _fresh(n=400)
+    record = fresh_recalibration(est, fresh, seed=SEED, draws=300)
+    (a, b), (a_d, b_d) = record["beta"]["K_u"], record["beta"]["D"]
+    assert a > 1.5 and b > 1.5 and record["likelihood_ratio_p"]["K_u"] < 1e-6, record
+    assert abs(a_d - 1) < 0.2 and abs(b_d - 1) < 0.2 and record["likelihood_ratio_p"]["D"] > 0.01, record
+    assert record["n"] == 400 and record["sample_id_range"] == [100_000, 100_399]
+    assert record["previous"] == {"beta": {"K_u": [1.1, 1.0], "D": [1.0, 1.0]}}
+    assert any("1.100, 1.000" in line for line in recalibration_lines(record))
+    metadata = apply_recalibration(est, record, fresh.sample_id)
+    assert metadata["recalibration"] is record and set(metadata["sample_ids_fitted"]) == {3, *range(100_000, 100_400)}
+    with pytest.raises(DatasetError, match="used to fit the posterior"):
+        fresh_recalibration(ExactBarPosterior(), _fresh(n=30, first_id=3), seed=SEED, draws=20)
+
+
+def test_the_recalibrate_command_saves_a_model_that_refuses_its_own_draw(stage, tmp_path, capsys):
+    """``learn posterior-recalibrate``: the new model answers with the fresh draw's map, is scored on the
+    training run's test split when asked, and a later check refuses the families it was fitted on but
+    takes another fresh draw."""
+    data, _, out = stage
+    write_dataset_h5(tmp_path / "cal.h5", _fresh(n=200))
+    write_dataset_h5(tmp_path / "other.h5", _fresh(n=60, seed=6, first_id=200_000))
+    write_dataset_h5(tmp_path / "training.h5", data)
+    (tmp_path / "learning.json").write_text(json.dumps({"seed": SEED, "learning": LEARNING}))
+    model = tmp_path / "recal" / "model.pt"
+    args = ["learn", "posterior-recalibrate", "--posterior", str(out / "model.pt"), "--dataset", str(tmp_path / "cal.h5"),
+            "--out", str(model), "--report", str(tmp_path / "recal" / "report.json"), "--draws", "100",
+            "--training-dataset", str(tmp_path / "training.h5"), "--config", str(tmp_path / "learning.json")]
+    assert main(args) == 0
+    report = json.loads((tmp_path / "recal" / "report.json").read_text())
+    assert report["recalibration"]["n"] == 200 and set(report["recalibration"]["beta"]) == {"K_u", "D"}
+    splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
+    assert report["test_split"]["n_fresh"] == len(splits["test"])
+    assert "recalibrated on 200 families" in capsys.readouterr().out
+    est = PosteriorEstimator.load(model)
+    assert est.recalibration == report["recalibration"]["beta"]
+    check = ["learn", "posterior-check", "--posterior", str(model), "--out", str(tmp_path / "check.json"), "--draws", "30"]
+    assert main([*check, "--dataset", str(tmp_path / "cal.h5")]) != 0
+    assert main([*check, "--dataset", str(tmp_path / "other.h5")]) == 0
+    # --config scores the training run's test split, which needs that run's dataset
+    assert main([*args[:-4], "--config", str(tmp_path / "learning.json")]) != 0

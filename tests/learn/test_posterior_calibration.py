@@ -206,3 +206,17 @@ def test_recalibration_refuses_bad_inputs():
         fit_recalibration(np.clip(pit, 0.0, 0.9) * (np.arange(len(pit)) > 0)[:, None], ("a", "b"))
     with pytest.raises(DatasetError, match="reference draws"):
         recalibrate_draws(draws, {"a": [1.0, 1.0]}, ("a", "b"), reference=draws[:5])
+
+
+def test_the_likelihood_ratio_supports_a_map_only_where_the_pits_are_miscalibrated():
+    """A Beta map fitted to the PITs of a 1.7× too wide posterior beats the identity overwhelmingly;
+    one fitted to the exact posterior's PITs does not (p > 0.01 on 200 and on 600 observations)."""
+    from forcdecode.learn.calibration import recalibration_likelihood_ratio
+
+    for scale_factor, supported in ((1.7, True), (1.0, False)):
+        draws, truth = bounded_gaussian(scale_factor, 0.0, seed=11)
+        for n in (200, 600):
+            pit = probability_integral_transform(draws[:n], truth[:n])
+            beta = fit_recalibration(pit, ("a", "b"))
+            p = recalibration_likelihood_ratio(pit, beta, ("a", "b"))
+            assert all((v < 1e-6) if supported else (v > 0.01) for v in p.values()), (scale_factor, n, p, beta)

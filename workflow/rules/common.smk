@@ -66,6 +66,7 @@ wildcard_constraints:
     part=r"\d{3}",
     parameter="|".join(re.escape(p) for p in LEARN_PARAMETERS),
     draw=r"[A-Za-z0-9_-]+",
+    cal=r"[A-Za-z0-9_-]+",
 
 
 # The refinement of one family (workflow/rules/fit.smk, an option): where its rounds live

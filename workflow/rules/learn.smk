@@ -195,6 +195,62 @@ rule posterior_check:
         "--training-dataset {input.dataset} --out {output.metrics} --figure {output.figure} --threads {threads} 2> {log}"
 
 
+rule recalibrate_posterior:
+    """The posterior's quantile recalibration refitted on a fresh draw (`results/fresh/CAL`, built as for
+    `posterior_check`), which holds more families than the validation + calibration splits; the model
+    with the new map, and the map's report with the test split scored. Not in `all`:
+    `snakemake results/posterior/recalibrated/CAL/model.pt`."""
+    input:
+        model=rules.train_posterior.output.model,
+        config=rules.resolve_learning.output,
+        dataset=rules.merge.output.h5,
+        fresh=f"{RESULTS}/fresh/{{cal}}/dataset.h5",
+    output:
+        model=f"{RESULTS}/posterior/recalibrated/{{cal}}/model.pt",
+        report=f"{RESULTS}/posterior/recalibrated/{{cal}}/recalibration.json",
+    log:
+        f"{RESULTS}/logs/recalibrate_posterior/{{cal}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/recalibrate_posterior/{{cal}}.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["posterior"]["threads"]
+    params:
+        cli=FORCDECODE_1T,
+    shell:
+        "{params.cli} learn posterior-recalibrate --posterior {input.model} --dataset {input.fresh} "
+        "--training-dataset {input.dataset} --config {input.config} --out {output.model} --report {output.report} "
+        "--threads {threads} > {log} 2>&1"
+
+
+rule posterior_check_recalibrated:
+    """The posterior recalibrated on fresh draw CAL scored on another fresh draw DRAW. Not in `all`:
+    `snakemake results/posterior/recalibrated/CAL/fresh/DRAW.json`."""
+    input:
+        model=rules.recalibrate_posterior.output.model,
+        fresh=f"{RESULTS}/fresh/{{draw}}/dataset.h5",
+    output:
+        metrics=f"{RESULTS}/posterior/recalibrated/{{cal}}/fresh/{{draw}}.json",
+        figure=report(
+            f"{RESULTS}/posterior/recalibrated/{{cal}}/fresh/{{draw}}.png",
+            caption="../report/posterior_fresh.rst",
+            category="2. Learning",
+            labels={"name": "Posterior recalibrated on {cal}, on a fresh draw ({draw})", "kind": "figure"},
+        ),
+    log:
+        f"{RESULTS}/logs/posterior_check/{{cal}}_{{draw}}.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/posterior_check/{{cal}}_{{draw}}.tsv"
+    conda:
+        CONDA_ENV
+    threads: config["posterior"]["threads"]
+    params:
+        cli=FORCDECODE_1T,
+    shell:
+        "{params.cli} learn posterior-check --posterior {input.model} --dataset {input.fresh} "
+        "--out {output.metrics} --figure {output.figure} --threads {threads} 2> {log}"
+
+
 rule tune_posterior:
     """The posterior architecture chosen on validation only: every candidate of
     forcdecode.learn.posterior_tune fitted on train and scored by its validation likelihood. Not in

@@ -6,6 +6,8 @@
                     --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
     learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
     learn posterior-check --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out J.json
+    learn posterior-recalibrate --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out M.pt
+                    --report J.json [--training-dataset dataset.h5 --config learning.json]
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
     predict INPUT --Ms-kA-m 800 --estimator posterior --posterior results/posterior/model.pt [--json]
         INPUT: a FORC file (any format `forcdecode read` knows), a 64×64 image (.npy, uint8 or m in [−1, 1]),
@@ -60,6 +62,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--figure", help="rank histograms and coverage curves (.png)")
     p.add_argument("--training-dataset", help="the dataset the posterior was trained on (only for models saved "
                                               "without the ids they were fitted on)")
+    p.add_argument("--seed", type=int, help="seed of the posterior draws (default: the model's)")
+    p.add_argument("--draws", type=int, default=1000)
+    p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("posterior-recalibrate", help="refit the posterior's quantile recalibration on a fresh draw "
+                                                     "(another id range of the same configuration) and save the model")
+    p.add_argument("--posterior", required=True, help="the posterior model (.pt)")
+    p.add_argument("--dataset", required=True, help="dataset.h5 of the fresh families the map is fitted on")
+    p.add_argument("--out", required=True, help="output posterior model (.pt), the input's flow with the new map")
+    p.add_argument("--report", required=True, help="output JSON: the map, its likelihood-ratio p-values, and with "
+                                                   "--config the recalibrated model scored on the test split")
+    p.add_argument("--training-dataset", help="the dataset the posterior was trained on (its test split is scored "
+                                              "with --config; needed for models saved without their fitted ids)")
+    p.add_argument("--config", help="resolved learning.json of the training run (seed, split): score the test split")
     p.add_argument("--seed", type=int, help="seed of the posterior draws (default: the model's)")
     p.add_argument("--draws", type=int, default=1000)
     p.add_argument("--threads", type=int, default=1)
@@ -125,6 +140,41 @@ def run(args) -> int:
         write_check(metrics, args.out, args.figure)
         for line in check_lines(metrics):
             print(line)
+        return 0
+    if args.step == "posterior-recalibrate":
+        from ..config import defaults
+        from .data import load_dataset
+        from .posterior import PosteriorEstimator
+        from .posterior_check import (apply_recalibration, check_lines, fresh_calibration, fresh_recalibration,
+                                      recalibration_lines)
+        from .splits import assign_splits
+
+        torch.set_num_threads(max(1, args.threads))
+        est = PosteriorEstimator.load(args.posterior)
+        training = load_dataset(args.training_dataset) if args.training_dataset else None
+        seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
+        fresh = load_dataset(args.dataset)
+        record = fresh_recalibration(est, fresh, seed=seed, draws=args.draws, training_data=training)
+        est.metadata = apply_recalibration(est, record, fresh.sample_id, training)
+        report = {"recalibration": record, "test_split": None}
+        if args.config:
+            if training is None:
+                raise ConfigError("--config scores the training run's test split: pass --training-dataset too")
+            cfg = read_config(args.config)
+            learning = {**defaults("learning"), **(cfg.get("learning") or {})}
+            test = assign_splits(training.sample_id, cfg["seed"], learning["split"], learning["protocol"])["test"]
+            levels = (est.metadata.get("settings") or {}).get("levels")
+            report["test_split"] = fresh_calibration(est, training.take(test), seed=seed, draws=args.draws,
+                                                     levels=levels)
+            report["test_split"]["reported_on"] = "the training run's test split, recalibrated on the fresh draw"
+        est.save(args.out, **est.metadata)
+        write_json(args.report, json.loads(json.dumps(report, default=float)))
+        for line in recalibration_lines(record):
+            print(line)
+        if report["test_split"] is not None:
+            print("on the training run's test split:")
+            for line in check_lines(report["test_split"])[1:]:
+                print(line)
         return 0
     if args.step == "compare":
         from .compare import compare_estimators, comparison_markdown

@@ -36,6 +36,13 @@ class LearningData:
     def __len__(self) -> int:
         return int(self.images.shape[0])
 
+    def take(self, index) -> "LearningData":
+        """The families at ``index`` (positions), same bounds and configuration."""
+        index = np.asarray(index, dtype=np.int64)
+        return LearningData(images=self.images[index], ms_norm=self.ms_norm[index],
+                            values={k: v[index] for k, v in self.values.items()}, sample_id=self.sample_id[index],
+                            bounds=self.bounds, config_hash=self.config_hash, fields_T=self.fields_T)
+
     def target(self, name: str) -> np.ndarray:
         """Normalized target u ∈ [0, 1] of one parameter."""
         return np.clip(normalize(name, self.values[name], self.bounds), 0.0, 1.0)
