@@ -143,6 +143,21 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     with h5py.File(out / "fresh" / "next" / "dataset.h5", "r") as h5:
         assert fresh["n_fresh"] == h5["images"].shape[0] and fresh["sample_id_range"][0] >= 40
     assert (out / "posterior" / "fresh" / "next.png").stat().st_size > 5_000
+    # the recalibration refitted on a second fresh draw (ids 56-135; about a third pass the screening, and the
+    # map needs 20), then that model checked on the first
+    cal = snakemake(tmp_path, "--config", "first_sample_id=56", "n_samples=80", "results_dir=results/fresh/cal",
+                    "--", "results/fresh/cal/dataset.h5", timeout=600)
+    assert cal.returncode == 0, cal.stdout[-3000:] + cal.stderr[-3000:]
+    recal = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
+                      "results/posterior/recalibrated/cal/fresh/next.json", timeout=600)
+    assert recal.returncode == 0, recal.stdout[-3000:] + recal.stderr[-3000:]
+    assert "train_posterior" not in recal.stdout + recal.stderr
+    record = json.loads((out / "posterior" / "recalibrated" / "cal" / "recalibration.json").read_text())
+    with h5py.File(out / "fresh" / "cal" / "dataset.h5", "r") as h5:
+        assert record["recalibration"]["n"] == h5["images"].shape[0]
+    assert record["test_split"]["n_fresh"] > 0 and set(record["recalibration"]["beta"]) == set(fresh["per_parameter"])
+    rechecked = json.loads((out / "posterior" / "recalibrated" / "cal" / "fresh" / "next.json").read_text())
+    assert rechecked["n_fresh"] == fresh["n_fresh"]
     # a finished run has nothing left to do
     again = snakemake(tmp_path, "-n")
     assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
