@@ -238,9 +238,9 @@ rule posterior_check_recalibrated:
             labels={"name": "Posterior recalibrated on {cal}, on a fresh draw ({draw})", "kind": "figure"},
         ),
     log:
-        f"{RESULTS}/logs/posterior_check/{{cal}}_{{draw}}.log",
+        f"{RESULTS}/logs/posterior_check_recalibrated/{{cal}}/{{draw}}.log",
     benchmark:
-        f"{RESULTS}/benchmarks/posterior_check/{{cal}}_{{draw}}.tsv"
+        f"{RESULTS}/benchmarks/posterior_check_recalibrated/{{cal}}/{{draw}}.tsv"
     conda:
         CONDA_ENV
     threads: config["posterior"]["threads"]

@@ -295,5 +295,6 @@ def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
 
 
 __all__ = ["DEFAULT_LEVELS", "RECALIBRATION_MIN_SAMPLES", "sbc_ranks", "probability_integral_transform",
-           "fit_recalibration", "recalibration_likelihood_ratio", "recalibrate_draws", "sbc_ks_pvalues", "central_intervals", "marginal_coverage",
-           "tarp_coverage", "calibration_metrics", "recalibrated_calibration", "calibration_figure"]
+           "fit_recalibration", "recalibration_likelihood_ratio", "recalibrate_draws", "sbc_ks_pvalues",
+           "central_intervals", "marginal_coverage", "tarp_coverage", "calibration_metrics", "recalibrated_calibration",
+           "calibration_figure"]
