@@ -23,6 +23,23 @@ def snakemake(workdir, *args, timeout=600):
                           cwd=workdir, capture_output=True, text=True, timeout=timeout, env=env)
 
 
+def fresh_draw(workdir, name, first_id, n):
+    """A fresh draw of the tiny configuration: ``n`` samples from id ``first_id`` on, its dataset under
+    results/fresh/NAME (another id range, as a user builds one for the posterior's checks)."""
+    run = snakemake(workdir, "--config", f"first_sample_id={first_id}", f"n_samples={n}",
+                    f"results_dir=results/fresh/{name}", "--", f"results/fresh/{name}/dataset.h5", timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+
+
+def with_fit_posterior(workdir, fit_config, target):
+    """``target`` built with the configuration of the fit run (its tiny posterior), which is reused, not
+    trained again."""
+    run = snakemake(workdir, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--", target,
+                    timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    assert "train_posterior" not in run.stdout + run.stderr
+
+
 # rules that compute (everything but the two config writers and `all`): each leaves a benchmark
 BENCHMARKED = {"draw", "screen", "select", "simulate_family", "merge", "figure1", "train_parameter", "evaluate",
                "closed_loop", "report_tables"}
@@ -132,26 +149,16 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert set(fitted["refined_by_budget"]) == {"2", "4"} and len(fitted["betas"]) == 2
     assert fitted["truth"]["Ms"] > 0  # a dataset sample: its truth travels with the state
     # the posterior on a fresh draw: 16 more samples of the same configuration (ids 40-55), then its check
-    draw = snakemake(tmp_path, "--config", "first_sample_id=40", "n_samples=16", "results_dir=results/fresh/next",
-                     "--", "results/fresh/next/dataset.h5", timeout=600)
-    assert draw.returncode == 0, draw.stdout[-3000:] + draw.stderr[-3000:]
-    check = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
-                      "results/posterior/fresh/next.json", timeout=600)
-    assert check.returncode == 0, check.stdout[-3000:] + check.stderr[-3000:]
-    assert "train_posterior" not in check.stdout + check.stderr  # the posterior of the fit run is reused
+    fresh_draw(tmp_path, "next", first_id=40, n=16)
+    with_fit_posterior(tmp_path, fit_config, "results/posterior/fresh/next.json")
     fresh = json.loads((out / "posterior" / "fresh" / "next.json").read_text())
     with h5py.File(out / "fresh" / "next" / "dataset.h5", "r") as h5:
         assert fresh["n_fresh"] == h5["images"].shape[0] and fresh["sample_id_range"][0] >= 40
     assert (out / "posterior" / "fresh" / "next.png").stat().st_size > 5_000
     # the recalibration refitted on a second fresh draw (ids 56-135; about a third pass the screening, and the
     # map needs 20), then that model checked on the first
-    cal = snakemake(tmp_path, "--config", "first_sample_id=56", "n_samples=80", "results_dir=results/fresh/cal",
-                    "--", "results/fresh/cal/dataset.h5", timeout=600)
-    assert cal.returncode == 0, cal.stdout[-3000:] + cal.stderr[-3000:]
-    recal = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
-                      "results/posterior/recalibrated/cal/fresh/next.json", timeout=600)
-    assert recal.returncode == 0, recal.stdout[-3000:] + recal.stderr[-3000:]
-    assert "train_posterior" not in recal.stdout + recal.stderr
+    fresh_draw(tmp_path, "cal", first_id=56, n=80)
+    with_fit_posterior(tmp_path, fit_config, "results/posterior/recalibrated/cal/fresh/next.json")
     record = json.loads((out / "posterior" / "recalibrated" / "cal" / "recalibration.json").read_text())
     with h5py.File(out / "fresh" / "cal" / "dataset.h5", "r") as h5:
         assert record["recalibration"]["n"] == h5["images"].shape[0]
