@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..loop.fit_cli import PRIORS
+    from ..loop.fit_cli import METHODS, PRIORS
 
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--case", help="fit: refine the families of this `bench ood` case instead of the dataset's "
                      "(OOD_DIR/CASE.npz with curves, e.g. magnumnp: another code's films of the held-out "
                      "Hamiltonians; the truth is the case's Hamiltonian)")
+    fit.add_argument("--method", choices=METHODS, default="pmc",
+                     help="fit: pmc (tempered population Monte Carlo, common random numbers) or adjusted (the "
+                          "amortized draws simulated on their own realisations, regression-adjusted)")
     fit.add_argument("--prior", choices=PRIORS, default="draw",
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
@@ -321,7 +324,7 @@ def _bench_fit(args, say) -> int:
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..loop.fit_cli import fit_one
+    from ..loop.fit_cli import fit_adjusted, fit_one
 
     budgets = sorted(set(args.budgets))
     if args.first_family < 0 or args.families < 1:
@@ -346,6 +349,9 @@ def _bench_fit(args, say) -> int:
             if result is not None and result.get("prior", "uniform") != args.prior:
                 raise ConfigError(f"{path} was refined with the {result.get('prior', 'uniform')} prior, not "
                                   f"--prior {args.prior}: use another --fit-dir")
+            if result is not None and result.get("method", "pmc") != args.method:
+                raise ConfigError(f"{path} was refined by the {result.get('method', 'pmc')} method, not "
+                                  f"--method {args.method}: use another --fit-dir")
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
                 say(f"family {n}/{len(chosen)} (sample {sid}{', case ' + args.case if args.case else ''}): "
                     f"budget {budgets[-1]}")
@@ -354,10 +360,16 @@ def _bench_fit(args, say) -> int:
                                             {p: data.values[p][k] for p in data.values})
                 else:
                     image, family, truth = observations[n - 1]
-                result = fit_one(cfg, est, image, family, float(data.values["Ms"][k]),
-                                 budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
-                                 seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
-                                 state_path=f"{args.fit_dir}/state_{sid}.npz", prior=args.prior)
+                if args.method == "adjusted":
+                    result = fit_adjusted(cfg, est, image, family, float(data.values["Ms"][k]),
+                                          budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
+                                          seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
+                                          state_path=f"{args.fit_dir}/adjusted_{sid}.npz", prior=args.prior)
+                else:
+                    result = fit_one(cfg, est, image, family, float(data.values["Ms"][k]),
+                                     budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
+                                     seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
+                                     state_path=f"{args.fit_dir}/state_{sid}.npz", prior=args.prior)
                 result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0, 1))
                                               for p in result["names"]}
                 if args.case:
@@ -366,7 +378,7 @@ def _bench_fit(args, say) -> int:
             rows.append(result)
     from .fit import fit_summary, summary_lines
 
-    out = {"split": args.split, "prior": args.prior, "case": args.case, "sample_ids": [int(data.sample_id[k]) for k in chosen],
+    out = {"split": args.split, "method": args.method, "prior": args.prior, "case": args.case, "sample_ids": [int(data.sample_id[k]) for k in chosen],
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
     for line in summary_lines(out):
         say(line)

@@ -345,6 +345,44 @@ class Refinement:
         return state
 
 
+def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float = 1e-3):
+    """Local-linear regression adjustment (Beaumont, Zhang & Balding 2002, Genetics 162:2025) of
+    particles ``u`` (k, d) in [0, 1] whose simulated families have summaries ``summaries`` (k, q), at
+    the observed summary ``observed_summary`` (q,). In logit space z_i = α + B (s_i − s_o) + ε_i is fitted
+    by weighted least squares, weights ∝ exp(``log_weights``) × an Epanechnikov kernel on the
+    Mahalanobis distance of s_i to s_o (bandwidth: the largest distance, so every particle counts);
+    the adjusted particles z_i* = z_i − B (s_i − s_o) are a sample of p(u | s = s_o) where the
+    regression holds. ``ridge`` regularizes B on standardized summaries (a summary that varies little
+    adds no noise). Returns (u adjusted (k, d), normalized weights (k,), B (q, d) per standardized
+    summary)."""
+    u = np.atleast_2d(np.asarray(u, float))
+    s = np.atleast_2d(np.asarray(summaries, float))
+    if len(s) != len(u) or len(log_weights) != len(u):
+        raise ValueError(f"{len(u)} particles, {len(s)} summaries and {len(log_weights)} weights: they must match")
+    ok = np.all(np.isfinite(s), axis=1) & np.isfinite(np.asarray(log_weights, float))
+    if ok.sum() < s.shape[1] + 2:
+        raise ValueError(f"{int(ok.sum())} usable particles cannot fit a regression on {s.shape[1]} summaries")
+    w = np.zeros(len(u))
+    w[ok] = _normalized(np.asarray(log_weights, float)[ok])
+    delta = s - np.asarray(observed_summary, float)
+    scale = np.sqrt(np.average((s[ok] - np.average(s[ok], axis=0, weights=w[ok])) ** 2, axis=0, weights=w[ok]))
+    scale = np.where(scale > 0, scale, 1.0)
+    x = np.where(ok[:, None], delta / scale, 0.0)
+    cov = np.cov(x[ok].T, aweights=w[ok] + 1e-300).reshape(x.shape[1], x.shape[1])
+    dist2 = np.einsum("ij,jk,ik->i", x, np.linalg.pinv(cov), x)
+    h2 = dist2[ok].max() * (1 + 1e-9) if dist2[ok].max() > 0 else 1.0
+    kernel = np.where(ok, np.clip(1.0 - dist2 / h2, 0.0, None), 0.0)
+    w = w * kernel
+    w /= w.sum()
+    z = _logit(u)
+    design = np.column_stack([np.ones(len(u)), x])
+    gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0] + [1.0] * x.shape[1])
+    coef = np.linalg.solve(gram, design.T @ (z * w[:, None]))
+    z_adj = z - x @ coef[1:]
+    u_adj = np.clip((1 / (1 + np.exp(-z_adj)) - SQUEEZE) / (1 - 2 * SQUEEZE), 0.0, 1.0)
+    return u_adj, w, coef[1:]
+
+
 def observation_rms(state) -> dict:
     """The posterior-predictive check the particles give for free: each candidate's observation RMS
     against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the
@@ -422,4 +460,4 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     return simulate
 
 
-__all__ = ["Refinement", "refine", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]
+__all__ = ["Refinement", "refine", "regression_adjust", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]
