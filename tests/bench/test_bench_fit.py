@@ -31,6 +31,27 @@ def test_a_refinement_that_halves_every_error_is_scored_as_better():
     assert out["observation_rms_over_floor"] == {"amortized": [3.0, 3.0, 3.0], "refined": [1.0, 1.0, 1.0]}
 
 
+def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
+    """Rows with ``variants`` (the adjusted fit's proposal_as_prior): each variant's MAE and coverage,
+    scored like the refinement, and a printed line."""
+    truths = np.linspace(0.3, 0.8, 6)
+    rows = []
+    for t in truths:
+        r = row(t, t + 0.1, t + 0.05, (t - 0.2, t + 0.2))
+        r["variants"] = {"proposal_as_prior": {"50": {**r["refined_by_budget"]["50"], "parameters": {
+            "K_u": {"median": t + 0.02, "interval_90": [t + 0.01, t + 0.03]}}}}}
+        rows.append(r)
+    out = fit_summary(rows, [50], None, np.random.default_rng(1))
+    variant = out["variants"]["proposal_as_prior"]
+    assert variant["mae_refined"]["50"]["K_u"] == pytest.approx(0.02)
+    assert variant["coverage_refined"]["50"]["K_u"] == 0.0 and out["coverage_refined"]["50"]["K_u"] == 1.0
+    assert variant["families_improved"]["50"]["K_u"] == 6
+    assert out["mae_refined"]["50"]["K_u"] == pytest.approx(0.05)
+    assert any(line.startswith("  variant proposal_as_prior, 50: MAE K_u 0.020") for line in summary_lines(out))
+    rows[0].pop("variants")  # a variant not in every row is not scored
+    assert "variants" not in fit_summary(rows, [50], None, np.random.default_rng(1))
+
+
 @pytest.mark.parametrize("flags", [["--first-family", "-1"], ["--families", "0"]])
 def test_a_family_range_that_cannot_exist_is_one_clear_error(flags, capsys):
     from forcdecode.cli import main

@@ -27,7 +27,9 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
     (amortized, refined) and its binomial band; mean ESS and wall time per budget; the 10/50/90 %
-    points over families of the observation RMS over the floor (amortized draws, refined particles)."""
+    points over families of the observation RMS over the floor (amortized draws, refined particles).
+    Rows carrying ``variants`` (other readings of the same simulations) get each variant's MAE, paired
+    interval and coverage under ``variants``."""
     names = rows[0]["names"]
     amortized = lambda r: r["amortized"]  # noqa: E731
     refined = {b: (lambda r, b=b: r["refined_by_budget"][str(b)]) for b in budgets}
@@ -56,6 +58,15 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
         out["ess"][key] = float(np.mean([refined[b](r)["ess"] for r in rows]))
         out["wall_s"][key] = float(np.mean([refined[b](r)["wall_s"] for r in rows]))
         out["reached_full_likelihood"][key] = int(sum(not refined[b](r).get("tempered", False) for r in rows))
+    variant_names = set.intersection(*(set(r.get("variants", {})) for r in rows))
+    if variant_names:  # the same simulations read another way (e.g. the adjusted fit's proposal_as_prior)
+        out["variants"] = {}
+        for name in sorted(variant_names):
+            as_rows = [{**r, "refined_by_budget": r["variants"][name]} for r in rows]
+            scored = fit_summary([{k: v for k, v in r.items() if k != "variants"} for r in as_rows], budgets,
+                                 bounds, rng, n_boot)
+            out["variants"][name] = {k: scored[k] for k in ("mae_refined", "mae_difference_interval_90",
+                                                            "families_improved", "coverage_refined", "ess")}
     checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
     if checks:  # at the final budget of each family's run
         out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],
@@ -86,6 +97,11 @@ def summary_lines(out: dict) -> list[str]:
         a, r = out["observation_rms_over_floor"]["amortized"], out["observation_rms_over_floor"]["refined"]
         lines.append(f"observation RMS / floor (10/50/90 % over families): amortized draws {a[0]:.2f}/{a[1]:.2f}/{a[2]:.2f}, "
                      f"refined {r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}")
+    for name, variant in out.get("variants", {}).items():
+        for b in budgets:
+            lines.append(f"  variant {name}, {b}: MAE " + ", ".join(
+                f"{p} {variant['mae_refined'][str(b)][p]:.3f}" for p in names) + "; 90 % coverage " + ", ".join(
+                f"{p} {variant['coverage_refined'][str(b)][p]:.2f}" for p in names))
     lines.append("mean wall time per family: " + ", ".join(f"{b} simulations {out['wall_s'][str(b)]:.0f} s"
                                                            for b in budgets))
     return lines
