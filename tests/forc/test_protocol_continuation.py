@@ -6,9 +6,12 @@ Shortcuts: ``warm_step`` (first BB step = the previous relaxation's last) and ``
 same film, same protocol and remainder-copy shortcut, without them. Both only change where the
 minimizer starts, so on reversible parts the same minimum is reached to the torque criterion, and
 only avalanche end states may move. Stated bounds (one 8-bit step = 1/127.5): image mean |Δ| ≤ one
-step, curves mean |Δ⟨m_z⟩| ≤ 0.005. Films: the two laptop-draw Hamiltonians of
+step, curves mean |Δ⟨m_z⟩| ≤ 0.005, or 1.25× the film's own sensitivity where that is larger: the same
+plain protocol started from m0 moved by 1e-6 (two draws). Film B is chaotic at that level on an
+AVX-512 machine (fastmath sums in another order): the 1e-6 start moves its image by 1.38 steps, the
+shortcuts by 1.38 (film A: 0.016 and 0.020 steps). Films: the two laptop-draw Hamiltonians of
 ``test_protocol_shortcut`` on 32×32×1 cells, 32 fields. They are NOT always faster, which is why
-the config leaves them off: measured iterations (plain / warm / extrapolate / both) film A 14688 /
+the config leaves them off: measured iterations on an AVX2 machine (plain / warm / extrapolate / both) film A 14688 /
 13930 / 7942 / 14385, film B (K_u = 5e4 J/m³, soft) 9283 / 20326 / 86248 / 18008 (soft modes take
 long BB steps and predicted starts that cross barriers); the 64² benchmark film 147740 / 121045 /
 137773 / 142457.
@@ -40,8 +43,17 @@ def test_continuation_matches_plain_family(name):
           f"curves mean {np.nanmean(curves):.2e}, max {np.nanmax(curves):.2e}")
     assert fast.stats["unconverged"] == plain.stats["unconverged"] == 0
     assert fast.stats.get("predicted", 0) > 0
-    assert image.mean() <= STEP
-    assert np.nanmean(curves) <= 0.005
+    floor_image, floor_curves = 0.0, 0.0
+    for seed in (0, 1):  # the film's own sensitivity: the plain protocol from a start moved by 1e-6
+        nudged = m0 + 1e-6 * np.random.default_rng(seed).standard_normal(m0.shape)
+        nudged /= np.linalg.norm(nudged, axis=0, keepdims=True)
+        other = quasistatic_family(film, nudged, n_fields=32)
+        floor_image = max(floor_image, np.abs(rasterize_grid_family(other.curves_mz).astype(int)
+                                              - rasterize_grid_family(plain.curves_mz).astype(int)).mean() * STEP)
+        floor_curves = max(floor_curves, float(np.nanmean(np.abs(other.curves_mz - plain.curves_mz))))
+    print(f"  the film's own sensitivity: image mean {floor_image / STEP:.3f} steps, curves mean {floor_curves:.2e}")
+    assert image.mean() <= max(STEP, 1.25 * floor_image)
+    assert np.nanmean(curves) <= max(0.005, 1.25 * floor_curves)
 
 
 def _uniform_film(n=32, A_ex=1.5e-11):
