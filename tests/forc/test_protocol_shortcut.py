@@ -94,14 +94,20 @@ def test_shortcut_matches_reference_family(name, merge_curves):
 
 
 def test_merging_saves_relaxations_where_curves_meet():
-    """Film B's FORCs meet each other before they meet the descending branch: merging ends them there."""
+    """Film B's FORCs meet each other before they meet the descending branch: merging ends them there,
+    each merged curve saves at least one relaxation, and the family stays the unmerged one (mean |Δm_z|
+    ≤ 1e-3). Measured relaxations (unmerged → merged): 324 → 261 with 6 curves merged on an AVX-512
+    machine, below 0.7× on an AVX2 one (film B's avalanches depend on the summation order)."""
     film, m0 = make_film("B", 32)
     kwargs = dict(n_fields=32, torque_tol_T=TORQUE_TOL_T, max_iterations=MAX_ITERATIONS)
     alone = quasistatic_family(film, m0, merge_curves=False, **kwargs)
     merged = quasistatic_family(film, m0, merge_curves=True, **kwargs)
     assert alone.stats["curves_merged"] == 0
     assert merged.stats["curves_merged"] >= 5
-    assert merged.stats["relaxations"] < 0.7 * alone.stats["relaxations"]
+    assert merged.stats["relaxations"] <= alone.stats["relaxations"] - merged.stats["curves_merged"]
+    assert merged.stats["relaxations"] < 0.9 * alone.stats["relaxations"]
+    assert np.isnan(merged.curves_mz).sum() == np.isnan(alone.curves_mz).sum()
+    assert np.nanmean(np.abs(merged.curves_mz - alone.curves_mz)) <= 1e-3
     # the memory budget bounds what is compared with: none at all behaves as the descending copy alone
     starved = quasistatic_family(film, m0, merge_curves=True, merge_memory_MB=0.0, **kwargs)
     assert starved.stats["curves_merged"] == 0

@@ -106,8 +106,10 @@ def test_the_recalibration_is_fitted_on_held_out_splits_saved_and_reported_besid
     assert set(metrics["flow_without_recalibration"]["per_parameter"]) == {"K_u", "D"}
     flow = est.sample(data.images[:3], data.ms_norm[:3], 200, seed=4, recalibrated=False)
     mapped = est.sample(data.images[:3], data.ms_norm[:3], 200, seed=4)
-    # the same flow draws, each coordinate mapped monotonically: the rank order is kept
-    np.testing.assert_array_equal(np.argsort(flow, axis=1), np.argsort(mapped, axis=1))
+    # the same flow draws, each coordinate mapped monotonically: the rank order is kept (ordered by the
+    # flow's draws, the mapped ones never decrease beyond float rounding; near-equal draws may tie)
+    in_flow_order = np.take_along_axis(mapped, np.argsort(flow, axis=1, kind="stable"), axis=1)
+    assert np.diff(in_flow_order, axis=1).min() >= -1e-6
     assert not np.array_equal(flow, mapped)
     # a few draws are mapped through reference draws: reproducible, inside [0, 1]
     few = est.sample(data.images[:3], data.ms_norm[:3], 3, seed=8)

@@ -176,10 +176,11 @@ def test_a_ramped_sweep_keeps_the_loop_inversion_symmetric(tmp_path):
     branch is the mirror of its descending one, a(−B_r) = −d(B_r), wherever the instrument samples.
     The reversal fields here are shifted 0.37 of their spacing off zero and the ascending branch is
     sampled at their mirrors plus points in between. With the ramped sweep (nodes k·10 mT, the points
-    snapshots) the mirror holds to the minimizer's tolerance (measured: 0.001 on four films);
-    stepping through the points (``sweep_step_T`` None, 50 mT steps) the two branches visit
-    different fields and, on this film, part by 0.17 where it switches: the reason the bench's
-    samples are ramped."""
+    snapshots) the mirror holds to the minimizer's tolerance (measured: 0.001 on four films).
+    Stepping through the points (``sweep_step_T`` None, 50 mT steps) the two branches visit
+    different fields; on an AVX2 machine they parted by 0.17 where this film switches (the reason the
+    bench's samples are ramped), on an AVX-512 one by 2e-4 at seeds 3, 4 and 5: whether an avalanche
+    lands between the visited fields depends on the summation order, so that is not asserted."""
     from forcdecode.reference.independent import magnumnp_family
 
     params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 2.6e5, "D": 1.5e-3, "sigma_K": 0.3, "sigma_theta_deg": 15.0}
@@ -197,4 +198,3 @@ def test_a_ramped_sweep_keeps_the_loop_inversion_symmetric(tmp_path):
         return np.abs(np.interp(-reversal, lowest, family.curves[0]) + descending).max()
 
     assert gap(0.01) < 0.01
-    assert gap(None) > 0.05
