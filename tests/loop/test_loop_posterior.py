@@ -157,6 +157,21 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
     # refinement starts from the joint posterior: Alice, or a given Hamiltonian, is refused with exit 2
     assert main(["loop", str(path), "--out", str(tmp_path / "x"), "--config", str(cfg), "--Ms-kA-m", "600",
                  "--refine", "6"]) == 2
+    # the adjusted refinement: its medians re-simulated; the pmc particles' predictive check refused with it
+    adjusted = tmp_path / "adjusted"
+    assert main(["loop", str(path), "--out", str(adjusted), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--profiles", "1", "--no-physics",
+                 "--no-measured-protocol", "--force", "--refine", "12", "--refine-round-size", "6",
+                 "--refine-method", "adjusted"]) == 0
+    report = json.loads((adjusted / "report.json").read_text())
+    assert report["refined"]["method"] == "adjusted" and report["refined"]["betas"] is None
+    for name, row in report["refined"]["parameters"].items():
+        expected = round(row["value"]) if name == "N_pin" else row["value"]
+        assert report["parameters"][name] == pytest.approx(expected, rel=1e-9), name
+    assert main(["loop", str(path), "--out", str(tmp_path / "z"), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
+                 "--refine-round-size", "3", "--refine-method", "adjusted", "--predictive-reference",
+                 str(reference)]) == 2
 
 
 def test_fit_one_round_per_job_equals_fit_in_one_process(posterior, measured, tmp_path):

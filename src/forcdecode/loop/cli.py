@@ -24,6 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "film (forcdecode fit) and analyse the residual of the refined medians")
     parser.add_argument("--refine-round-size", type=int, default=25, help="simulations per refinement round (default 25)")
     parser.add_argument("--refine-workers", type=int, default=1, help="processes simulating the refinement")
+    parser.add_argument("--refine-method", choices=["pmc", "adjusted"], default="pmc",
+                        help="with --refine: pmc (tempered population Monte Carlo) or adjusted (the amortized draws "
+                             "simulated on their own realisations, regression-adjusted; forcdecode fit --method)")
     parser.add_argument("--predictive-reference", help="with --refine: the posterior-predictive check's reference "
                         "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`, B <= --refine): "
                         "flags a family no film inside the prior reproduces")
@@ -92,7 +95,8 @@ def run(args) -> int:
                                 measured_max_step_T=args.measured_max_step_mT * 1e-3, estimator=args.estimator,
                                 posterior_path=args.posterior, fixed_point=args.fixed_point,
                                 refine_budget=args.refine, refine_round_size=args.refine_round_size,
-                                refine_workers=args.refine_workers, predictive_reference=args.predictive_reference,
+                                refine_workers=args.refine_workers, refine_method=args.refine_method,
+                                predictive_reference=args.predictive_reference,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")

@@ -83,24 +83,29 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     return best, rows
 
 
-def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None):
+def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
+            method: str = "pmc"):
     """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
-    ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check."""
+    ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check.
+    ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
+    particles' observation RMS)."""
     from ..core.parameters import denormalize
-    from .fit_cli import family_key, fit_one
+    from .fit_cli import family_key, fit_adjusted, fit_one
     from .posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
-    result = fit_one(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                     seed=int(cfg.get("seed", 0)), key=key, log=log)
+    fit = fit_adjusted if method == "adjusted" else fit_one
+    result = fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
+                 seed=int(cfg.get("seed", 0)), key=key, log=log)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
     params = draws_as_hamiltonians(medians, names, Ms, est.bounds)[0]
-    entry = {"budget": int(budget), "ess": final["ess"], "reached_full_likelihood": result["reached_full_likelihood"],
-             "betas": result["betas"], "wall_s": result["wall_s"], "note": final.get("note"), "parameters": {}}
+    entry = {"budget": int(budget), "method": method, "ess": final["ess"],
+             "reached_full_likelihood": result["reached_full_likelihood"], "betas": result.get("betas"),
+             "wall_s": result["wall_s"], "note": final.get("note"), "parameters": {}}
     for n in names:
         row = dict(final["parameters"][n])
         row["value"] = float(denormalize(n, row["median"], est.bounds))
@@ -110,7 +115,8 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         entry["parameters"][n] = row
     log(f"refined by {budget} simulations: ESS {final['ess']:.1f}"
         + ("" if result["reached_full_likelihood"] else " (tempered: not the full posterior)"))
-    entry["observation_rms"] = result["observation_rms"]
+    if "observation_rms" in result:  # pmc: the particles' own posterior-predictive RMS
+        entry["observation_rms"] = result["observation_rms"]
     if predictive_reference is not None:
         from .predictive_check import predictive_check
 
@@ -210,7 +216,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
                        null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
-                       refine_workers: int = 1, predictive_reference=None, moment_tolerance: float = MOMENT_TOLERANCE,
+                       refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
+                       moment_tolerance: float = MOMENT_TOLERANCE,
                        log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
@@ -240,9 +247,10 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
     posterior estimator): refine the amortized posterior of this family by that many simulations of
     the film at the chosen M_s (``loop.fit``, rounds of ``refine_round_size``, ``refine_workers``
-    processes); the refined medians are the Hamiltonian re-simulated, so the residual analysis runs on
-    the refined re-simulation; report key ``refined``. ``predictive_reference`` (a JSON path, with
-    ``refine_budget``): the calibrated posterior-predictive check (``loop.predictive_check``) of the
+    processes; ``refine_method`` "pmc" or "adjusted", ``loop.fit_cli.METHODS``); the refined medians
+    are the Hamiltonian re-simulated, so the residual analysis runs on the refined re-simulation;
+    report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
+    method): the calibrated posterior-predictive check (``loop.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
     ``refined.predictive_check``). ``moment_tolerance``: relative uncertainty of the moment
     normalization inside which a fitted scale is not named an effect
@@ -258,6 +266,13 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
+    from .fit_cli import METHODS
+
+    if refine_method not in METHODS:
+        raise ConfigError(f"refinement method {refine_method!r} is not one of {METHODS}")
+    if predictive_reference is not None and refine_method != "pmc":
+        raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
+                          "RMS: it needs --refine-method pmc")
     reference = None
     if predictive_reference is not None:
         if not refine_budget:
@@ -339,7 +354,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
             resim, spread = best["family"], best["spread"]
         if refine_budget:
             report["refined"], params = _refine(cfg, est, image, family, best["Ms"], path, refine_budget,
-                                                refine_round_size, refine_workers, log, reference)
+                                                refine_round_size, refine_workers, log, reference,
+                                                method=refine_method)
             report["parameters"] = params
             resim = None  # re-simulate the refined Hamiltonian
     if resim is None:
