@@ -369,3 +369,25 @@ def test_regression_adjustment_refuses_mismatched_inputs():
         regression_adjust(np.zeros((5, 1)), np.zeros((4, 1)), np.zeros(1), np.zeros(5))
     with pytest.raises(ValueError, match="usable particles"):
         regression_adjust(np.full((3, 1), 0.5), np.full((3, 2), np.nan), np.zeros(2), np.zeros(3))
+
+
+def test_a_diagonal_regression_keeps_a_noisy_summary_from_moving_another_parameter():
+    """Two parameters: s_1 reads z_1 (gain 1, small noise); s_2 is noise only, drawn from few particles so that
+    a full regression finds a spurious slope of z_1 on it. The diagonal adjustment moves z_1 by s_1 alone:
+    its slope matrix has no off-diagonal term and z_1's answer does not change with s_2's observed value."""
+    from forcdecode.loop.fit import regression_adjust, weighted_quantiles
+
+    rng = np.random.default_rng(5)
+    z = rng.normal(0.0, 1.0, (40, 2))
+    u = 1 / (1 + np.exp(-z))
+    s = np.column_stack([z[:, 0] + 0.1 * rng.standard_normal(40), rng.standard_normal(40)])
+    medians = []
+    for s2_obs in (-2.0, 2.0):
+        u_adj, w, slopes = regression_adjust(u, s, np.array([0.3, s2_obs]), np.zeros(40), diagonal=True)
+        assert slopes[0, 1] == slopes[1, 0] == 0.0 and slopes[0, 0] > 0.5
+        medians.append(weighted_quantiles(u_adj[:, 0], w, [0.5])[0])
+    # the kernel weights change with s2_obs, the slope on s_2 does not exist: z_1's answer moves little
+    assert abs(medians[0] - medians[1]) < 0.05
+    assert abs(medians[0] - 1 / (1 + np.exp(-0.3))) < 0.05
+    with pytest.raises(ValueError, match="one summary per parameter"):
+        regression_adjust(u, s[:, :1], np.zeros(1), np.zeros(40), diagonal=True)

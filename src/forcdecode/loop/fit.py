@@ -345,7 +345,7 @@ class Refinement:
         return state
 
 
-def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float = 1e-3):
+def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float = 1e-3, diagonal: bool = False):
     """Local-linear regression adjustment (Beaumont, Zhang & Balding 2002, Genetics 162:2025) of
     particles ``u`` (k, d) in [0, 1] whose simulated families have summaries ``summaries`` (k, q), at
     the observed summary ``observed_summary`` (q,). In logit space z_i = α + B (s_i − s_o) + ε_i is fitted
@@ -353,8 +353,10 @@ def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float 
     Mahalanobis distance of s_i to s_o (bandwidth: the largest distance, so every particle counts);
     the adjusted particles z_i* = z_i − B (s_i − s_o) are a sample of p(u | s = s_o) where the
     regression holds. ``ridge`` regularizes B on standardized summaries (a summary that varies little
-    adds no noise). Returns (u adjusted (k, d), normalized weights (k,), B (q, d) per standardized
-    summary)."""
+    adds no noise). ``diagonal`` (needs q = d, one summary per parameter): each logit z_j regressed on
+    its own summary s_j only, so a summary that scatters with the disorder moves no other parameter.
+    Returns (u adjusted (k, d), normalized weights (k,), B (q, d) per standardized summary; zero off
+    the diagonal when ``diagonal``)."""
     u = np.atleast_2d(np.asarray(u, float))
     s = np.atleast_2d(np.asarray(summaries, float))
     if len(s) != len(u) or len(log_weights) != len(u):
@@ -375,6 +377,18 @@ def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float 
     w = w * kernel
     w /= w.sum()
     z = _logit(u)
+    if diagonal:
+        if x.shape[1] != z.shape[1]:
+            raise ValueError(f"a diagonal regression needs one summary per parameter: {x.shape[1]} summaries, "
+                             f"{z.shape[1]} parameters")
+        slopes = np.zeros((x.shape[1], z.shape[1]))
+        for j in range(z.shape[1]):
+            design = np.column_stack([np.ones(len(u)), x[:, j]])
+            gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0, 1.0])
+            slopes[j, j] = np.linalg.solve(gram, design.T @ (z[:, j] * w))[1]
+        z_adj = z - x @ slopes
+        u_adj = np.clip((1 / (1 + np.exp(-z_adj)) - SQUEEZE) / (1 - 2 * SQUEEZE), 0.0, 1.0)
+        return u_adj, w, slopes
     design = np.column_stack([np.ones(len(u)), x])
     gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0] + [1.0] * x.shape[1])
     coef = np.linalg.solve(gram, design.T @ (z * w[:, None]))

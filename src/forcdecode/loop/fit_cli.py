@@ -297,18 +297,23 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     log_p = np.zeros(len(u)) if prior == "uniform" else draw_log_density(u, names, Ms, est.bounds)
     with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
         log_w = np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
-    by_budget, variants = {}, {"proposal_as_prior": {}}
+    by_budget = {}
+    variants = {"proposal_as_prior": {}, "diagonal": {}, "proposal_as_prior_diagonal": {}}
+    readings = ((log_w, False, by_budget), (np.zeros(len(u)), False, variants["proposal_as_prior"]),
+                (log_w, True, variants["diagonal"]), (np.zeros(len(u)), True, variants["proposal_as_prior_diagonal"]))
     for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
         use = valid[:b] & np.isfinite(log_w[:b])
-        for weights, out in ((log_w, by_budget), (np.zeros(len(u)), variants["proposal_as_prior"])):
-            u_adj, w, coef = regression_adjust(u[:b][use], summaries[:b][use], observed_summary, weights[:b][use])
+        for weights, diagonal, out in readings:
+            u_adj, w, coef = regression_adjust(u[:b][use], summaries[:b][use], observed_summary, weights[:b][use],
+                                               diagonal=diagonal)
             summary = summarize_particles(u_adj, w, names)
             summary.update(tempered=False, wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
                            outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
                            regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
             out[str(b)] = summary
-    # the variant: q₀ taken as the prior (no importance weights), so the observation counts twice; kept
-    # to measure on validation what dividing q₀ out costs in variance
+    # the variants, read off the same simulations: q₀ taken as the prior (no importance weights, so the
+    # observation counts twice) and/or each parameter regressed on its own summary; kept to choose on
+    # validation what dividing q₀ out and the cross-terms cost in variance
     return {"method": "adjusted", "names": list(names), "Ms": float(Ms), "prior": prior,
             "amortized": summarize_particles(reported, np.ones(len(reported)), names),
             "observed_summary": observed_summary.tolist(), "refined_by_budget": by_budget, "variants": variants,
