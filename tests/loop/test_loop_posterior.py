@@ -212,6 +212,10 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
                  "--method", "adjusted", "--budget", "12", "--round-size", "6", "--out", str(out)]) == 0
     result = json.loads((out / "fit.json").read_text())
     assert result["method"] == "adjusted" and set(result["refined_by_budget"]) == {"12"}
+    # the answer is the reading chosen on validation; the others are read off the same simulations
+    assert result["reading"] == "proposal_as_prior"
+    assert set(result["variants"]) == {"prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    assert all(set(v) == {"12"} for v in result["variants"].values())
     final = result["refined_by_budget"]["12"]
     assert 1.0 <= final["ess"] <= 12.0 and final["failed_simulations"] == 0
     for name in result["names"]:
