@@ -324,7 +324,7 @@ def _bench_fit(args, say) -> int:
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..loop.fit_cli import fit_adjusted, fit_one
+    from ..loop.fit_cli import fit_function
 
     budgets = sorted(set(args.budgets))
     if args.first_family < 0 or args.families < 1:
@@ -360,16 +360,11 @@ def _bench_fit(args, say) -> int:
                                             {p: data.values[p][k] for p in data.values})
                 else:
                     image, family, truth = observations[n - 1]
-                if args.method == "adjusted":
-                    result = fit_adjusted(cfg, est, image, family, float(data.values["Ms"][k]),
-                                          budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
-                                          seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
-                                          state_path=f"{args.fit_dir}/adjusted_{sid}.npz", prior=args.prior)
-                else:
-                    result = fit_one(cfg, est, image, family, float(data.values["Ms"][k]),
-                                     budget=budgets[-1], round_size=args.round_size, workers=args.fit_workers,
-                                     seed=stage["seed"], key=sid, checkpoints=tuple(budgets),
-                                     state_path=f"{args.fit_dir}/state_{sid}.npz", prior=args.prior)
+                state = f"{args.fit_dir}/{'adjusted' if args.method == 'adjusted' else 'state'}_{sid}.npz"
+                result = fit_function(args.method)(cfg, est, image, family, float(data.values["Ms"][k]),
+                                                   budget=budgets[-1], round_size=args.round_size,
+                                                   workers=args.fit_workers, seed=stage["seed"], key=sid,
+                                                   checkpoints=tuple(budgets), state_path=state, prior=args.prior)
                 result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0, 1))
                                               for p in result["names"]}
                 if args.case:

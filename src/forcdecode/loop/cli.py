@@ -10,6 +10,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .fit_cli import METHODS
     from .physics_effects import NULL_REALISATIONS
 
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
@@ -24,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "film (forcdecode fit) and analyse the residual of the refined medians")
     parser.add_argument("--refine-round-size", type=int, default=25, help="simulations per refinement round (default 25)")
     parser.add_argument("--refine-workers", type=int, default=1, help="processes simulating the refinement")
-    parser.add_argument("--refine-method", choices=["pmc", "adjusted"], default="pmc",
+    parser.add_argument("--refine-method", choices=METHODS, default="pmc",
                         help="with --refine: pmc (tempered population Monte Carlo) or adjusted (the amortized draws "
                              "simulated on their own realisations, regression-adjusted; forcdecode fit --method)")
     parser.add_argument("--predictive-reference", help="with --refine: the posterior-predictive check's reference "

@@ -65,6 +65,11 @@ def _logit(u):
     return np.log(s) - np.log1p(-s)
 
 
+def _inverse_logit(z):
+    """u ∈ [0, 1] of logit ``z`` (the inverse of ``_logit``, clipped where the squeeze leaves [0, 1])."""
+    return np.clip((1 / (1 + np.exp(-z)) - SQUEEZE) / (1 - 2 * SQUEEZE), 0.0, 1.0)
+
+
 def _log_jacobian(u):
     """log |dz/du| of the logit map (for densities of u from densities in z)."""
     s = SQUEEZE + (1 - 2 * SQUEEZE) * np.clip(u, 0.0, 1.0)
@@ -253,9 +258,8 @@ class Refinement:
         from_q0 = self.pool[self.cursor:self.cursor + n_def]
         self.cursor += n_def
         z_new = self.rng.multivariate_normal(mean, cov, size=size - n_def)
-        from_gauss = (1 / (1 + np.exp(-z_new)) - SQUEEZE) / (1 - 2 * SQUEEZE)
         self.rounds.append((size, mean, cov))
-        return np.clip(np.concatenate([from_q0, from_gauss]), 0.0, 1.0)
+        return np.concatenate([np.clip(from_q0, 0.0, 1.0), _inverse_logit(z_new)])
 
     def update(self, take, families, log_q0, wall_s: float = 0.0, log_prior=None) -> None:
         """Add the round's candidates with their simulated families, log q₀ and log prior (None: the
@@ -377,24 +381,20 @@ def regression_adjust(u, summaries, observed_summary, log_weights, ridge: float 
     w = w * kernel
     w /= w.sum()
     z = _logit(u)
+
+    def slopes_on(columns, targets):  # weighted ridge least squares of targets on [1, x[:, columns]]
+        design = np.column_stack([np.ones(len(u)), x[:, columns]])
+        gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0] + [1.0] * len(columns))
+        return np.linalg.solve(gram, design.T @ (targets * w[:, None]))[1:]
+
     if diagonal:
         if x.shape[1] != z.shape[1]:
             raise ValueError(f"a diagonal regression needs one summary per parameter: {x.shape[1]} summaries, "
                              f"{z.shape[1]} parameters")
-        slopes = np.zeros((x.shape[1], z.shape[1]))
-        for j in range(z.shape[1]):
-            design = np.column_stack([np.ones(len(u)), x[:, j]])
-            gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0, 1.0])
-            slopes[j, j] = np.linalg.solve(gram, design.T @ (z[:, j] * w))[1]
-        z_adj = z - x @ slopes
-        u_adj = np.clip((1 / (1 + np.exp(-z_adj)) - SQUEEZE) / (1 - 2 * SQUEEZE), 0.0, 1.0)
-        return u_adj, w, slopes
-    design = np.column_stack([np.ones(len(u)), x])
-    gram = design.T @ (design * w[:, None]) + ridge * np.diag([0.0] + [1.0] * x.shape[1])
-    coef = np.linalg.solve(gram, design.T @ (z * w[:, None]))
-    z_adj = z - x @ coef[1:]
-    u_adj = np.clip((1 / (1 + np.exp(-z_adj)) - SQUEEZE) / (1 - 2 * SQUEEZE), 0.0, 1.0)
-    return u_adj, w, coef[1:]
+        slopes = np.diag([slopes_on([j], z[:, j:j + 1])[0, 0] for j in range(z.shape[1])])
+    else:
+        slopes = slopes_on(list(range(x.shape[1])), z)
+    return _inverse_logit(z - x @ slopes), w, slopes
 
 
 def observation_rms(state) -> dict:

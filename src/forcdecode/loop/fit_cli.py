@@ -101,8 +101,8 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
     # the proposal q₀ is the flow itself: its draws and its density (log_prob) must be the same law
-    draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key),
-                       recalibrated=False)[0]
+    draws = est.sample(np.asarray(image)[None], [ms_norm], max(4000, int(budget)),
+                       seed=stream_seed(seed, "posterior", "fit", key), recalibrated=False)[0]
     # the amortized answer reported beside the refinement: the posterior as `predict` gives it (the same
     # flow draws, recalibrated)
     reported = draws if est.recalibration is None else recalibrate_draws(draws[None], est.recalibration, names)[0]
@@ -206,6 +206,11 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
 
 
 METHODS = ("pmc", "adjusted")
+"""The refinement's methods: ``pmc``, tempered population Monte Carlo with the synthetic likelihood on
+one disorder realisation (``loop.fit.Refinement``); ``adjusted``, the amortized posterior's draws
+simulated each on its own realisation and its answer corrected by local-linear regression on the
+network's own summaries (``fit_adjusted``). ``fit_function`` gives each one's entry point."""
+
 # The adjusted fit's readings of one set of simulations: name → (importance-weighted by p(u | M_s)/q₀,
 # each parameter regressed on its own summary only). Chosen on 3 validation families at 200
 # simulations (`bench fit --method adjusted --split validation --families 3`), mean MAE of K_u, A_ex, D:
@@ -216,10 +221,6 @@ METHODS = ("pmc", "adjusted")
 ADJUSTED_READINGS = {"proposal_as_prior": (False, False), "prior_weighted": (True, False),
                      "diagonal": (True, True), "proposal_as_prior_diagonal": (False, True)}
 ADJUSTED_CHOICE = "proposal_as_prior"
-"""The refinement's methods: ``pmc``, tempered population Monte Carlo with the synthetic likelihood on
-one disorder realisation (``loop.fit.Refinement``); ``adjusted``, the amortized posterior's draws
-simulated each on its own realisation and its answer corrected by local-linear regression on the
-network's own summaries (``fit_adjusted``)."""
 
 SUMMARY_DRAWS = 256
 """Flow draws per family for its summary (the posterior mean in logit space)."""
@@ -274,8 +275,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
     summary_seed = stream_seed(seed, "posterior", "fit_summaries", key)
-    draws = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key),
-                       recalibrated=False)[0]
+    draws = est.sample(np.asarray(image)[None], [ms_norm], max(4000, int(budget)),
+                       seed=stream_seed(seed, "posterior", "fit", key), recalibrated=False)[0]
     reported = draws if est.recalibration is None else recalibrate_draws(draws[None], est.recalibration, names)[0]
     observed_summary = network_summaries(est, np.asarray(image)[None], ms_norm, summary_seed)[0]
     u = draws[:budget]
@@ -332,6 +333,16 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
             "reached_full_likelihood": True, "wall_s": wall}
 
 
+def fit_function(method: str):
+    """The entry point of a refinement ``method`` of ``METHODS`` (``fit_one`` or ``fit_adjusted``; the same
+    arguments); ConfigError for another name."""
+    from ..core.errors import ConfigError
+
+    if method not in METHODS:
+        raise ConfigError(f"refinement method {method!r} is not one of {METHODS}")
+    return fit_adjusted if method == "adjusted" else fit_one
+
+
 class _Context:
     """The two entries of a refinement state's context that ``_proposal_logpdf`` reads."""
 
@@ -361,8 +372,7 @@ def run(args) -> int:
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731
-    fit = fit_adjusted if args.method == "adjusted" else fit_one
-    result = fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
+    result = fit_function(args.method)(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                  workers=args.workers, seed=args.seed, key=key, prior=args.prior,
                  checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), log=log)
     result["truth"] = truth

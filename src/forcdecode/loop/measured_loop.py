@@ -92,13 +92,12 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
     ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
     particles' observation RMS)."""
     from ..core.parameters import denormalize
-    from .fit_cli import family_key, fit_adjusted, fit_one
+    from .fit_cli import family_key, fit_function
     from .posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
-    fit = fit_adjusted if method == "adjusted" else fit_one
-    result = fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                 seed=int(cfg.get("seed", 0)), key=key, log=log)
+    result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
+                                  seed=int(cfg.get("seed", 0)), key=key, log=log)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
@@ -266,10 +265,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
-    from .fit_cli import METHODS
+    from .fit_cli import fit_function
 
-    if refine_method not in METHODS:
-        raise ConfigError(f"refinement method {refine_method!r} is not one of {METHODS}")
+    fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
         raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
                           "RMS: it needs --refine-method pmc")
