@@ -100,8 +100,11 @@ def test_the_recalibration_is_fitted_on_held_out_splits_saved_and_reported_besid
     splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
     recal = metrics["recalibration"]
     assert recal["n"] == len(splits["validation"]) + len(splits["calibration"])
-    assert est.recalibration == recal["beta"] and set(recal["beta"]) == {"K_u", "D"}
-    for a, b in recal["beta"].values():
+    assert est.recalibration == recal["beta"] and set(recal["beta_fitted"]) == {"K_u", "D"}
+    # applied exactly where the likelihood-ratio test supports the map at the schema's level
+    assert set(recal["beta"]) == {n for n, p in recal["likelihood_ratio_p"].items() if p < recal["gate_alpha"]}
+    assert recal["gate_alpha"] == posterior_settings()["recalibration_gate_alpha"]
+    for a, b in recal["beta_fitted"].values():
         assert 0.3 < a < 3.0 and 0.3 < b < 3.0
     assert set(metrics["flow_without_recalibration"]["per_parameter"]) == {"K_u", "D"}
     flow = est.sample(data.images[:3], data.ms_norm[:3], 200, seed=4, recalibrated=False)
@@ -382,9 +385,12 @@ def test_a_recalibration_fitted_on_a_fresh_draw_sharpens_only_what_is_miscalibra
     est.metadata["recalibration"] = {"beta": {"K_u": [1.1, 1.0], "D": [1.0, 1.0]}}
     fresh = _fresh(n=400)
     record = fresh_recalibration(est, fresh, seed=SEED, draws=300)
-    (a, b), (a_d, b_d) = record["beta"]["K_u"], record["beta"]["D"]
+    (a, b), (a_d, b_d) = record["beta_fitted"]["K_u"], record["beta_fitted"]["D"]
     assert a > 1.5 and b > 1.5 and record["likelihood_ratio_p"]["K_u"] < 1e-6, record
-    assert abs(a_d - 1) < 0.2 and abs(b_d - 1) < 0.2 and record["likelihood_ratio_p"]["D"] > 0.01, record
+    assert abs(a_d - 1) < 0.2 and abs(b_d - 1) < 0.2 and record["likelihood_ratio_p"]["D"] > 0.05, record
+    # only the supported map is applied: D's marginal stays the (exact) flow's own
+    assert record["beta"] == {"K_u": [a, b]} and record["gate_alpha"] == 0.05
+    assert set(fresh_recalibration(est, fresh, seed=SEED, draws=300, gate_alpha=1.0)["beta"]) == {"K_u", "D"}
     assert record["n"] == 400 and record["sample_id_range"] == [100_000, 100_399]
     assert record["previous"] == {"beta": {"K_u": [1.1, 1.0], "D": [1.0, 1.0]}}
     assert any("1.100, 1.000" in line for line in recalibration_lines(record))
@@ -409,7 +415,7 @@ def test_the_recalibrate_command_saves_a_model_that_refuses_its_own_draw(stage, 
             "--training-dataset", str(tmp_path / "training.h5"), "--config", str(tmp_path / "learning.json")]
     assert main(args) == 0
     report = json.loads((tmp_path / "recal" / "report.json").read_text())
-    assert report["recalibration"]["n"] == 200 and set(report["recalibration"]["beta"]) == {"K_u", "D"}
+    assert report["recalibration"]["n"] == 200 and set(report["recalibration"]["beta_fitted"]) == {"K_u", "D"}
     splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
     assert report["test_split"]["n_fresh"] == len(splits["test"])
     assert "recalibrated on 200 families" in capsys.readouterr().out

@@ -220,3 +220,34 @@ def test_the_likelihood_ratio_supports_a_map_only_where_the_pits_are_miscalibrat
             beta = fit_recalibration(pit, ("a", "b"))
             p = recalibration_likelihood_ratio(pit, beta, ("a", "b"))
             assert all((v < 1e-6) if supported else (v > 0.01) for v in p.values()), (scale_factor, n, p, beta)
+
+
+def test_the_gate_applies_a_map_only_where_its_likelihood_ratio_test_rejects_the_identity():
+    """Coordinate a from a 1.7× too wide posterior, b from the exact one (200 observations): at the 0.05
+    level the gate keeps a's map and drops b's, so b's draws are left exactly as the flow gave them while
+    a's 90 % coverage comes back into the binomial band; alpha 1 keeps both maps, 0 none; a level outside
+    [0, 1] or a map without its p-value is refused."""
+    from forcdecode.core.errors import ConfigError
+    from forcdecode.learn.calibration import gate_recalibration, marginal_coverage, recalibration_likelihood_ratio
+
+    wide, wide_truth = bounded_gaussian(1.7, 0.0, seed=21)
+    exact, exact_truth = bounded_gaussian(1.0, 0.0, seed=22)
+    draws = np.concatenate([wide[:200, :, :1], exact[:200, :, 1:]], axis=2)
+    truth = np.concatenate([wide_truth[:200, :1], exact_truth[:200, 1:]], axis=1)
+    pit = probability_integral_transform(draws, truth)
+    beta = fit_recalibration(pit, ("a", "b"))
+    p = recalibration_likelihood_ratio(pit, beta, ("a", "b"))
+    gated = gate_recalibration(beta, p, 0.05)
+    assert set(gated) == {"a"}, (p, beta)
+    fixed = recalibrate_draws(draws, gated, ("a", "b"))
+    assert np.array_equal(fixed[:, :, 1], draws[:, :, 1])
+    test_draws, test_truth = bounded_gaussian(1.7, 0.0, seed=23)
+    before = marginal_coverage(test_draws, test_truth, [0.9])[0.9][0][0]
+    after = marginal_coverage(recalibrate_draws(test_draws, gated, ("a", "b")), test_truth, [0.9])[0.9][0][0]
+    low, high = binomial_band(len(test_truth), 0.9)
+    assert before > high and low <= after <= high, (before, after)
+    assert set(gate_recalibration(beta, p, 1.0)) == {"a", "b"} and gate_recalibration(beta, p, 0.0) == {}
+    with pytest.raises(ConfigError, match="alpha"):
+        gate_recalibration(beta, p, 1.5)
+    with pytest.raises(DatasetError, match="likelihood-ratio"):
+        gate_recalibration(beta, {"a": 0.0}, 0.05)

@@ -162,7 +162,7 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     record = json.loads((out / "posterior" / "recalibrated" / "cal" / "recalibration.json").read_text())
     with h5py.File(out / "fresh" / "cal" / "dataset.h5", "r") as h5:
         assert record["recalibration"]["n"] == h5["images"].shape[0]
-    assert record["test_split"]["n_fresh"] > 0 and set(record["recalibration"]["beta"]) == set(fresh["per_parameter"])
+    assert record["test_split"]["n_fresh"] > 0 and set(record["recalibration"]["beta_fitted"]) == set(fresh["per_parameter"])
     rechecked = json.loads((out / "posterior" / "recalibrated" / "cal" / "fresh" / "next.json").read_text())
     assert rechecked["n_fresh"] == fresh["n_fresh"]
     # a finished run has nothing left to do

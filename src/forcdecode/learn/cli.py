@@ -75,6 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--training-dataset", help="the dataset the posterior was trained on (its test split is scored "
                                               "with --config; needed for models saved without their fitted ids)")
     p.add_argument("--config", help="resolved learning.json of the training run (seed, split): score the test split")
+    p.add_argument("--gate-alpha", type=float, help="apply a parameter's map only where its likelihood-ratio p "
+                                                    "lies below this (default: the model's posterior setting)")
     p.add_argument("--seed", type=int, help="seed of the posterior draws (default: the model's)")
     p.add_argument("--draws", type=int, default=1000)
     p.add_argument("--threads", type=int, default=1)
@@ -154,7 +156,8 @@ def run(args) -> int:
         training = load_dataset(args.training_dataset) if args.training_dataset else None
         seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
         fresh = load_dataset(args.dataset)
-        record = fresh_recalibration(est, fresh, seed=seed, draws=args.draws, training_data=training)
+        record = fresh_recalibration(est, fresh, seed=seed, draws=args.draws, training_data=training,
+                                     gate_alpha=args.gate_alpha)
         est.metadata = apply_recalibration(est, record, fresh.sample_id, training)
         report = {"recalibration": record, "test_split": None}
         if args.config:

@@ -685,19 +685,34 @@ def _regression_summary(history: dict) -> dict | None:
             "validation_mse": float(history["regression_val_mse"][best])}
 
 
-def fit_held_out_recalibration(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int) -> dict:
+def gated_recalibration_record(pit, names, gate_alpha: float, **record) -> dict:
+    """The recalibration record of held-out PITs: every parameter's fitted Beta map (``beta_fitted``), its
+    likelihood-ratio p-value against the identity, and under ``beta`` only the maps that test supports at
+    ``gate_alpha`` (``learn.calibration.gate_recalibration``): ``beta`` is what the model applies."""
+    from .calibration import fit_recalibration, gate_recalibration, recalibration_likelihood_ratio
+
+    fitted = fit_recalibration(pit, names)
+    p_values = recalibration_likelihood_ratio(pit, fitted, names)
+    return {"method": "Beta quantile recalibration (Kuleshov et al. 2018), fitted by maximum likelihood, "
+                      "applied where its likelihood-ratio test against the identity gives p < gate_alpha",
+            **record, "n": int(len(pit)), "gate_alpha": float(gate_alpha),
+            "beta": gate_recalibration(fitted, p_values, gate_alpha), "beta_fitted": fitted,
+            "likelihood_ratio_p": p_values}
+
+
+def fit_held_out_recalibration(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int,
+                               gate_alpha: float) -> dict:
     """Quantile recalibration of ``est`` (``learn.calibration``) fitted on the PITs of the validation and
     calibration splits, the held-out families the flow's weights never saw (validation only chose the
-    epoch; on it alone the flow looks narrower than it is, so both splits are pooled)."""
-    from .calibration import fit_recalibration, probability_integral_transform
+    epoch; on it alone the flow looks narrower than it is, so both splits are pooled); a map is applied
+    only where its likelihood-ratio test gives p < ``gate_alpha`` (``gated_recalibration_record``)."""
+    from .calibration import probability_integral_transform
 
     held_out = np.union1d(splits["validation"], splits["calibration"])
     raw = est.sample(data.images[held_out], data.ms_norm[held_out], draws,
                      seed=stream_seed(seed, "posterior", "recalibration_draws"), recalibrated=False)
     pit = probability_integral_transform(raw, u[held_out])
-    return {"method": "Beta quantile recalibration (Kuleshov et al. 2018), fitted by maximum likelihood",
-            "fitted_on": "validation + calibration splits", "n": int(len(held_out)),
-            "beta": fit_recalibration(pit, est.names)}
+    return gated_recalibration_record(pit, est.names, gate_alpha, fitted_on="validation + calibration splits")
 
 
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
@@ -744,9 +759,13 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
             log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
                 f"{RECALIBRATION_MIN_SAMPLES}")
         else:
-            est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(est, data, u, splits, draws, seed)
-            log(f"posterior recalibrated on {recalibration['n']} held-out families (Beta a, b per parameter: "
-                + ", ".join(f"{n} {a:.2f} {b:.2f}" for n, (a, b) in recalibration["beta"].items()) + ")")
+            est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(
+                est, data, u, splits, draws, seed, settings["recalibration_gate_alpha"])
+            log(f"posterior recalibration fitted on {recalibration['n']} held-out families (Beta a, b; likelihood-"
+                f"ratio p; applied below {recalibration['gate_alpha']:g}): "
+                + ", ".join(f"{n} {a:.2f} {b:.2f} p {recalibration['likelihood_ratio_p'][n]:.3f}"
+                            + (" applied" if n in recalibration["beta"] else " not applied")
+                            for n, (a, b) in recalibration["beta_fitted"].items()))
     samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"),
                          recalibrated=False)
     # scored recalibrated, the flow alone on the same test draws reported beside it
@@ -817,5 +836,6 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
 
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "fit_held_out_recalibration", "summarize", "posterior_prediction",
+           "PosteriorEstimator", "fit_posterior", "gated_recalibration_record", "fit_held_out_recalibration",
+           "summarize", "posterior_prediction",
            "split_diagnostics", "train_posterior"]

@@ -94,7 +94,8 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     return metrics
 
 
-def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_data=None) -> dict:
+def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_data=None,
+                        gate_alpha: float | None = None) -> dict:
     """The quantile recalibration of ``est`` (``learn.calibration``: a Beta map per marginal) fitted on a
     fresh draw ``data`` instead of the laptop run's validation + calibration splits.
 
@@ -105,8 +106,11 @@ def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_dat
     independent sample of the same prior, screening and simulator, and none of its families entered
     the flow's fit. Returns the model's new ``recalibration`` record: method, ``beta`` per parameter,
     ``likelihood_ratio_p`` of each map against the identity on these PITs, ``n``, ``sample_id_range``,
-    ``fitted_on``, and ``previous`` (the record it replaces). Refused like ``fresh_calibration``."""
-    from .calibration import fit_recalibration, probability_integral_transform, recalibration_likelihood_ratio
+    ``fitted_on``, and ``previous`` (the record it replaces); ``beta`` holds the maps whose p lies below
+    ``gate_alpha`` (default: the model's setting, else the schema's), ``beta_fitted`` all of them.
+    Refused like ``fresh_calibration``."""
+    from .calibration import probability_integral_transform
+    from .posterior import gated_recalibration_record
 
     if int(draws) < 2:
         raise ConfigError(f"the recalibration needs at least 2 draws per family (got {draws})")
@@ -114,13 +118,13 @@ def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_dat
     raw = est.sample(data.images, data.ms_norm, int(draws),
                      seed=stream_seed(seed, "posterior", "fresh_recalibration_draws"), recalibrated=False)
     pit = probability_integral_transform(raw, u)
-    beta = fit_recalibration(pit, names)
+    if gate_alpha is None:
+        gate_alpha = {**defaults("posterior"), **(est.metadata.get("settings") or {})}["recalibration_gate_alpha"]
     ids = np.asarray(data.sample_id, dtype=np.int64)
-    return {"method": "Beta quantile recalibration (Kuleshov et al. 2018), fitted by maximum likelihood",
-            "fitted_on": f"fresh draw (sample ids {int(ids.min())}–{int(ids.max())})", "n": int(len(u)),
-            "sample_id_range": [int(ids.min()), int(ids.max())], "beta": beta,
-            "likelihood_ratio_p": recalibration_likelihood_ratio(pit, beta, names),
-            "previous": est.metadata.get("recalibration")}
+    return gated_recalibration_record(pit, names, gate_alpha,
+                                      fitted_on=f"fresh draw (sample ids {int(ids.min())}–{int(ids.max())})",
+                                      sample_id_range=[int(ids.min()), int(ids.max())],
+                                      previous=est.metadata.get("recalibration"))
 
 
 def apply_recalibration(est, recalibration: dict, fresh_ids, training_data=None) -> dict:
@@ -133,11 +137,14 @@ def apply_recalibration(est, recalibration: dict, fresh_ids, training_data=None)
 def recalibration_lines(record: dict) -> list[str]:
     """The Beta map per parameter beside the one it replaces."""
     previous = (record.get("previous") or {}).get("beta") or {}
-    lines = [f"recalibrated on {record['n']} families, {record['fitted_on']}",
-             f"{'parameter':16s} {'a':>6s} {'b':>6s} {'LR p':>8s}   previous a, b"]
-    for name, (a, b) in record["beta"].items():
+    gate = record.get("gate_alpha")
+    lines = [f"recalibrated on {record['n']} families, {record['fitted_on']}"
+             + (f"; a map is applied where its LR p < {gate:g}" if gate is not None else ""),
+             f"{'parameter':16s} {'a':>6s} {'b':>6s} {'LR p':>8s} {'applied':>8s}   previous a, b"]
+    for name, (a, b) in record.get("beta_fitted", record["beta"]).items():
         before = previous.get(name)
-        lines.append(f"{name:16s} {a:6.3f} {b:6.3f} {record['likelihood_ratio_p'][name]:8.2g}   "
+        lines.append(f"{name:16s} {a:6.3f} {b:6.3f} {record['likelihood_ratio_p'][name]:8.2g} "
+                     f"{'yes' if name in record['beta'] else 'no':>8s}   "
                      + (f"{before[0]:.3f}, {before[1]:.3f}" if before else "none"))
     return lines
 
