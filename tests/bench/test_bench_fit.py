@@ -48,6 +48,13 @@ def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
     assert variant["families_improved"]["50"]["K_u"] == 6
     assert out["mae_refined"]["50"]["K_u"] == pytest.approx(0.05)
     assert any(line.startswith("  variant proposal_as_prior, 50: MAE K_u 0.020") for line in summary_lines(out))
+    for k, r in enumerate(rows):  # the adjusted fit's summary resolution: the median over families, printed
+        r["refined_by_budget"]["50"]["summary_resolution"] = {"K_u": float(k)}
+    out = fit_summary(rows, [50], None, np.random.default_rng(1))
+    assert out["summary_resolution_median"] == {"50": {"K_u": 2.5}}
+    assert any(line.startswith("summary resolution at 50") and "K_u 2.5" in line for line in summary_lines(out))
+    rows[1]["refined_by_budget"]["50"].pop("summary_resolution")  # not in every row: not reported
+    assert "summary_resolution_median" not in fit_summary(rows, [50], None, np.random.default_rng(1))
     rows[0].pop("variants")  # a variant not in every row is not scored
     assert "variants" not in fit_summary(rows, [50], None, np.random.default_rng(1))
 

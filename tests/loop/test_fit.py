@@ -391,3 +391,25 @@ def test_a_diagonal_regression_keeps_a_noisy_summary_from_moving_another_paramet
     assert abs(medians[0] - 1 / (1 + np.exp(-0.3))) < 0.05
     with pytest.raises(ValueError, match="one summary per parameter"):
         regression_adjust(u, s[:, :1], np.zeros(1), np.zeros(40), diagonal=True)
+
+
+def test_summary_resolution_tells_a_summary_that_can_narrow_from_one_that_cannot():
+    """Draws with logit spread 2 and 1; summary 0 = 2·logit u₀ + noise of sd 0.2 (it pins u₀ to 0.1, a
+    twentieth of its spread), summary 1 = a slope 0.2 on logit u₁ (and 0.3 on logit u₀) in noise of
+    sd 1 (5× the spread). The ratio is the noise over the own slope over the spread, within 15 % and
+    30 % on 2000 draws; a constant summary is inf; a summary per parameter and enough rows are required."""
+    from forcdecode.loop.fit import _inverse_logit, summary_resolution
+
+    rng = np.random.default_rng(3)
+    z = rng.standard_normal((2000, 2)) * np.array([2.0, 1.0])
+    s = np.column_stack([2.0 * z[:, 0] + 0.2 * rng.standard_normal(2000),
+                         0.2 * z[:, 1] + 0.3 * z[:, 0] + rng.standard_normal(2000)])
+    ratio = summary_resolution(_inverse_logit(z), s)
+    assert ratio[0] == pytest.approx(0.05, rel=0.15) and ratio[1] == pytest.approx(5.0, rel=0.3), ratio
+    assert ratio[0] < 1 < ratio[1]
+    flat = summary_resolution(_inverse_logit(z), np.column_stack([s[:, 0], np.ones(2000)]))
+    assert np.isinf(flat[1]) and flat[0] == pytest.approx(ratio[0])
+    with pytest.raises(ValueError, match="one summary per parameter"):
+        summary_resolution(_inverse_logit(z), s[:, :1])
+    with pytest.raises(ValueError, match="usable simulations"):
+        summary_resolution(_inverse_logit(z[:4]), s[:4])

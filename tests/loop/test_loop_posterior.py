@@ -221,7 +221,11 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     for name in result["names"]:
         lo, hi = final["parameters"][name]["interval_90"]
         assert 0.0 <= lo <= final["parameters"][name]["median"] <= hi <= 1.0
-    assert "effective sample size" in capsys.readouterr().out
+    # how finely one simulated family's summary pins each parameter, in the record and printed
+    assert set(final["summary_resolution"]) == set(result["names"])
+    assert all(v > 0 for v in final["summary_resolution"].values())
+    printed = capsys.readouterr().out
+    assert "effective sample size" in printed and "summary resolution" in printed
     # --predictive-reference is the pmc particles' statistic: refused with the adjusted method
     reference = write_reference(tmp_path / "loose.json", 1e6)
     assert main(["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg_path),

@@ -67,6 +67,11 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
                                  bounds, rng, n_boot)
             out["variants"][name] = {k: scored[k] for k in ("mae_refined", "mae_difference_interval_90",
                                                             "families_improved", "coverage_refined", "ess")}
+    resolved = [b for b in budgets if all("summary_resolution" in refined[b](r) for r in rows)]
+    if resolved:  # the adjusted fit: how finely one simulated family's summary locates each parameter
+        out["summary_resolution_median"] = {str(b): {p: float(np.median([refined[b](r)["summary_resolution"][p]
+                                                                          for r in rows])) for p in names}
+                                            for b in resolved}
     checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
     if checks:  # at the final budget of each family's run
         out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],
@@ -97,6 +102,9 @@ def summary_lines(out: dict) -> list[str]:
         a, r = out["observation_rms_over_floor"]["amortized"], out["observation_rms_over_floor"]["refined"]
         lines.append(f"observation RMS / floor (10/50/90 % over families): amortized draws {a[0]:.2f}/{a[1]:.2f}/{a[2]:.2f}, "
                      f"refined {r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}")
+    for b, by_name in out.get("summary_resolution_median", {}).items():
+        lines.append(f"summary resolution at {b} (median over families; above 1 the simulations cannot narrow "
+                     "the parameter): " + ", ".join(f"{p} {v:.2g}" for p, v in by_name.items()))
     for name, variant in out.get("variants", {}).items():
         for b in budgets:
             lines.append(f"  variant {name}, {b}: MAE " + ", ".join(

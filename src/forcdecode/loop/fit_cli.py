@@ -264,7 +264,7 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from ..dataset.params import draw_log_density
     from ..forc.raster import rasterize_grid_family
     from ..learn.calibration import recalibrate_draws
-    from .fit import regression_adjust, summarize_particles
+    from .fit import regression_adjust, summarize_particles, summary_resolution
     from .posterior_predictive import draws_as_hamiltonians
     from .simulated import run_tasks
 
@@ -315,6 +315,7 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     answers = {name: {} for name in readings}
     for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
         use = valid[:b] & np.isfinite(log_w[:b])
+        resolution = summary_resolution(u[:b][use], summaries[:b][use]) if use.sum() >= len(names) + 3 else None
         for name, (weights, diagonal) in readings.items():
             out = answers[name]
             u_adj, w, coef = regression_adjust(u[:b][use], summaries[:b][use], observed_summary, weights[:b][use],
@@ -323,6 +324,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
             summary.update(tempered=False, wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
                            outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
                            regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
+            if resolution is not None:
+                summary["summary_resolution"] = {n: float(resolution[j]) for j, n in enumerate(names)}
             out[str(b)] = summary
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
     by_budget = answers[ADJUSTED_CHOICE]
@@ -387,6 +390,10 @@ def run(args) -> int:
         a, r = result["amortized"]["parameters"][name], final["parameters"][name]
         print(f"{name:16s} {a['median']:17.3f} {r['median']:15.3f}  [{r['interval_90'][0]:.3f}, {r['interval_90'][1]:.3f}]")
     print(f"effective sample size {final['ess']:.1f} of {args.budget} simulations; {result['wall_s']:.0f} s")
+    if "summary_resolution" in final:
+        print("summary resolution (width at which one simulated family locates the parameter / spread of the "
+              "draws; above 1 the simulations cannot narrow it): " + ", ".join(
+                  f"{n} {v:.2g}" for n, v in final["summary_resolution"].items()))
     if final.get("tempered"):
         print(f"warning: {final['note']}")
     if reference is not None:
