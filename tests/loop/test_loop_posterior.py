@@ -239,6 +239,9 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     short = fit_adjusted(cfg, est, image, family, Ms, budget=12, checkpoints=(12,), state_path=state, **common)
     longer = fit_adjusted(cfg, est, image, family, Ms, budget=18, checkpoints=(12, 18), state_path=state, **common)
     fresh = fit_adjusted(cfg, est, image, family, Ms, budget=18, checkpoints=(12, 18), **common)
+    with np.load(state) as saved:  # the simulated images are kept with the state, one per simulation
+        assert saved["images"].shape == (18, *np.shape(image)) and saved["images"].dtype == np.uint8
+        assert saved["images"][saved["valid"]].max() > 0
     # equal up to float32 rounding: the flow's log-density of the draws is evaluated as one batch, whose
     # size (12 or 18) may change the summation order of the matrix products
     for budget, reference in (("12", short), ("18", fresh)):

@@ -255,7 +255,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     and fall back to p(u | M_s) where the summary is flat; each parameter on its own summary) are under
     ``variants``. Independent realisations, not common random numbers: the regression's
     residual is then the disorder's scatter, which it averages instead of fitting one realisation.
-    ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws and summaries so
+    ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
+    simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
     far, saved after every ``round_size`` simulations; a longer budget extends a saved run."""
     from ..core.errors import ConfigError
     from ..core.io import atomic_path
@@ -281,11 +282,14 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     observed_summary = network_summaries(est, np.asarray(image)[None], ms_norm, summary_seed)[0]
     u = draws[:budget]
     summaries, valid, wall = np.zeros((0, len(names))), np.zeros(0, bool), 0.0
+    kept = np.zeros((0, *np.shape(image)), np.uint8)  # the simulated images, for other summaries later
     if state_path is not None and Path(state_path).exists():
         with np.load(state_path) as saved:
             if not np.array_equal(saved["u"], u[:len(saved["summaries"])]):
                 raise ConfigError(f"{state_path}: saved for other draws (another posterior, seed or family)")
             summaries, valid, wall = saved["summaries"], saved["valid"], float(saved["wall_s"])
+            # a state saved before the images were kept keeps none (a partial set would not line up)
+            kept = saved["images"] if "images" in saved.files else None
     while len(summaries) < budget:
         start = time.perf_counter()
         part = u[len(summaries): len(summaries) + round_size]
@@ -298,11 +302,13 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
         s_part = network_summaries(est, images, ms_norm, summary_seed + 1 + len(summaries))
         summaries = np.concatenate([summaries, np.where(ok[:, None], s_part, np.nan)])
         valid = np.concatenate([valid, ok])
+        kept = None if kept is None else np.concatenate([kept, images])
         wall += time.perf_counter() - start
         if state_path is not None:
             with atomic_path(state_path) as tmp:
                 with open(tmp, "wb") as handle:
-                    np.savez(handle, u=u[:len(summaries)], summaries=summaries, valid=valid, wall_s=wall)
+                    np.savez(handle, u=u[:len(summaries)], summaries=summaries, valid=valid, wall_s=wall,
+                             **({} if kept is None else {"images": kept}))
         if log:
             log(f"simulated {len(summaries)}/{budget}")
     log_q0 = _proposal_logpdf(est, _Context(image, ms_norm))(u)
