@@ -416,10 +416,9 @@ def summary_resolution(u, summaries) -> np.ndarray:
     design = np.column_stack([np.ones(len(z)), z])
     coef, *_ = np.linalg.lstsq(design, s[ok], rcond=None)
     residual_sd = (s[ok] - design @ coef).std(axis=0, ddof=design.shape[1])
-    own_slope = np.abs(np.diag(coef[1:]))
-    spread = z.std(axis=0)
     constant = s[ok].std(axis=0) <= 1e-12 * (1.0 + np.abs(s[ok]).mean(axis=0))
-    own_slope = np.where(constant, 0.0, own_slope)  # a constant summary pins nothing
+    own_slope = np.where(constant, 0.0, np.abs(np.diag(coef[1:])))  # a constant summary pins nothing
+    spread = z.std(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(own_slope > 0, residual_sd / own_slope, np.inf) / np.where(spread > 0, spread, np.nan)
     return ratio

@@ -319,9 +319,12 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     readings = {name: (log_w if weighted else flat, diagonal)
                 for name, (weighted, diagonal) in ADJUSTED_READINGS.items()}
     answers = {name: {} for name in readings}
+    resolution = {}  # of the summaries, whatever the reading: reported with the answer only
     for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
         use = valid[:b] & np.isfinite(log_w[:b])
-        resolution = summary_resolution(u[:b][use], summaries[:b][use]) if use.sum() >= len(names) + 3 else None
+        if use.sum() >= len(names) + 3:
+            ratio = summary_resolution(u[:b][use], summaries[:b][use])
+            resolution[str(b)] = {n: float(ratio[j]) for j, n in enumerate(names)}
         for name, (weights, diagonal) in readings.items():
             out = answers[name]
             u_adj, w, coef = regression_adjust(u[:b][use], summaries[:b][use], observed_summary, weights[:b][use],
@@ -330,11 +333,11 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
             summary.update(tempered=False, wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
                            outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
                            regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
-            if resolution is not None:
-                summary["summary_resolution"] = {n: float(resolution[j]) for j, n in enumerate(names)}
             out[str(b)] = summary
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
     by_budget = answers[ADJUSTED_CHOICE]
+    for b, by_name in resolution.items():
+        by_budget[b]["summary_resolution"] = by_name
     variants = {name: answer for name, answer in answers.items() if name != ADJUSTED_CHOICE}
     return {"method": "adjusted", "reading": ADJUSTED_CHOICE, "names": list(names), "Ms": float(Ms), "prior": prior,
             "amortized": summarize_particles(reported, np.ones(len(reported)), names),
@@ -382,8 +385,9 @@ def run(args) -> int:
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731
     result = fit_function(args.method)(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                 workers=args.workers, seed=args.seed, key=key, prior=args.prior,
-                 checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), log=log)
+                                       workers=args.workers, seed=args.seed, key=key, prior=args.prior,
+                                       checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
+                                       log=log)
     result["truth"] = truth
     if reference is not None:
         from .predictive_check import predictive_check
