@@ -213,8 +213,8 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     result = json.loads((out / "fit.json").read_text())
     assert result["method"] == "adjusted" and set(result["refined_by_budget"]) == {"12"}
     # the answer is the reading chosen on validation; the others are read off the same simulations
-    assert result["reading"] == "proposal_as_prior"
-    assert set(result["variants"]) == {"prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    assert result["reading"] == "anchored"
+    assert set(result["variants"]) == {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
     assert all(set(v) == {"12"} for v in result["variants"].values())
     final = result["refined_by_budget"]["12"]
     assert 1.0 <= final["ess"] <= 12.0 and final["failed_simulations"] == 0
