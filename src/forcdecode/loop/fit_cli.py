@@ -219,11 +219,17 @@ network's own summaries (``fit_adjusted``). ``fit_function`` gives each one's en
 # no longer holds; with q₀ as the prior the adjustment removes the network's local bias around its own
 # answer (the observation counts twice, so coverage is measured, not assumed); anchored on the reported
 # posterior, the 200 particles' own sampling error no longer enters where the summaries are flat.
-ADJUSTED_READINGS = {"proposal_as_prior": (False, False, False), "prior_weighted": (True, False, False),
-                     "diagonal": (True, True, False), "proposal_as_prior_diagonal": (False, True, False),
-                     "anchored": (False, False, True)}
+ADJUSTED_READINGS = {"proposal_as_prior": (False, False, False, "network"),
+                     "prior_weighted": (True, False, False, "network"),
+                     "diagonal": (True, True, False, "network"),
+                     "proposal_as_prior_diagonal": (False, True, False, "network"),
+                     "anchored": (False, False, True, "network"),
+                     "images_anchored": (False, False, True, "images"),
+                     "both_anchored": (False, False, True, "both")}
 """name → (importance-weighted by p(u | M_s)/q₀; each parameter regressed on its own summary only;
-anchored on the reported amortized posterior by a control variate, ``loop.fit.anchored_summary``)."""
+anchored on the reported amortized posterior by a control variate, ``loop.fit.anchored_summary``;
+summaries: the network's mean, ``loop.fit.image_summaries`` of the family's own simulated images, or
+both side by side). The image readings exist only for states that kept their images."""
 ADJUSTED_CHOICE = "anchored"
 
 SUMMARY_DRAWS = 256
@@ -270,7 +276,7 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from ..dataset.params import draw_log_density
     from ..forc.raster import rasterize_grid_family
     from ..learn.calibration import recalibrate_draws
-    from .fit import anchored_summary, regression_adjust, summarize_particles, summary_resolution
+    from .fit import anchored_summary, image_summaries, regression_adjust, summarize_particles, summary_resolution
     from .posterior_predictive import draws_as_hamiltonians
     from .simulated import run_tasks
 
@@ -321,30 +327,46 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
         log_w = np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
     flat = np.zeros(len(u))
-    readings = {name: (log_w if weighted else flat, diagonal, anchored)
-                for name, (weighted, diagonal, anchored) in ADJUSTED_READINGS.items()}
-    answers = {name: {} for name in readings}
-    resolution = {}  # of the summaries, whatever the reading: reported with the answer only
+    answers = {}
+    resolution, image_reading = {}, {}  # of the summaries, whatever the reading: reported with the answer only
     for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
         use = valid[:b] & np.isfinite(log_w[:b])
         if use.sum() >= len(names) + 3:
             ratio = summary_resolution(u[:b][use], summaries[:b][use])
             resolution[str(b)] = {n: float(ratio[j]) for j, n in enumerate(names)}
-        for name, (weights, diagonal, anchored) in readings.items():
-            out = answers[name]
-            u_adj, w, coef = regression_adjust(u[:b][use], summaries[:b][use], observed_summary, weights[:b][use],
+        by_source = {"network": (summaries[:b][use], observed_summary)}
+        if kept is not None:  # summaries read from the family's own simulated images (none in older states)
+            try:
+                s_images, observed_images, info = image_summaries(u[:b][use], kept[:b][use], image)
+            except ValueError:  # too few simulations to cross-fit
+                s_images = None
+            if s_images is not None:
+                image_reading[str(b)] = {"components": info["components"], "ridge": info["ridge"],
+                                         "resolution": dict(zip(names, info["resolution"]))}
+                by_source["images"] = (s_images, observed_images)
+                by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
+                                     np.concatenate([observed_summary, observed_images]))
+        for name, (weighted, diagonal, anchored, source) in ADJUSTED_READINGS.items():
+            if source not in by_source:
+                continue
+            s_b, s_o = by_source[source]
+            u_adj, w, coef = regression_adjust(u[:b][use], s_b, s_o, (log_w if weighted else flat)[:b][use],
                                                diagonal=diagonal)
             summary = (anchored_summary(reported, u[:b][use], u_adj, w, names) if anchored
                        else summarize_particles(u_adj, w, names))
             summary.update(tempered=False, wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
                            outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
                            regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
-            out[str(b)] = summary
+            answers.setdefault(name, {})[str(b)] = summary
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
     by_budget = answers[ADJUSTED_CHOICE]
     for b, by_name in resolution.items():
         by_budget[b]["summary_resolution"] = by_name
-    variants = {name: answer for name, answer in answers.items() if name != ADJUSTED_CHOICE}
+    for b, reading in image_reading.items():
+        by_budget[b]["image_summaries"] = reading
+    # a reading is kept only where every budget has it (the image readings need the simulated images)
+    variants = {name: answer for name, answer in answers.items()
+                if name != ADJUSTED_CHOICE and set(answer) == set(by_budget)}
     return {"method": "adjusted", "reading": ADJUSTED_CHOICE, "names": list(names), "Ms": float(Ms), "prior": prior,
             "amortized": summarize_particles(reported, np.ones(len(reported)), names),
             "observed_summary": observed_summary.tolist(), "refined_by_budget": by_budget, "variants": variants,
