@@ -53,6 +53,13 @@ def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
     out = fit_summary(rows, [50], None, np.random.default_rng(1))
     assert out["summary_resolution_median"] == {"50": {"K_u": 2.5}}
     assert any(line.startswith("summary resolution at 50") and "K_u 2.5" in line for line in summary_lines(out))
+    for k, r in enumerate(rows):  # and the image summaries' resolution, where every row has them
+        r["refined_by_budget"]["50"]["image_summaries"] = {"components": 5, "ridge": 1.0, "resolution": {"K_u": 2.0 * k}}
+    out = fit_summary(rows, [50], None, np.random.default_rng(1))
+    assert out["image_summary_resolution_median"] == {"50": {"K_u": 5.0}}
+    assert any(line.startswith("image summary resolution at 50") and "K_u 5" in line for line in summary_lines(out))
+    rows[2]["refined_by_budget"]["50"].pop("image_summaries")
+    assert "image_summary_resolution_median" not in fit_summary(rows, [50], None, np.random.default_rng(1))
     rows[1]["refined_by_budget"]["50"].pop("summary_resolution")  # not in every row: not reported
     assert "summary_resolution_median" not in fit_summary(rows, [50], None, np.random.default_rng(1))
     rows[0].pop("variants")  # a variant not in every row is not scored

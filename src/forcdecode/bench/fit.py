@@ -72,6 +72,11 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
         out["summary_resolution_median"] = {str(b): {p: float(np.median([refined[b](r)["summary_resolution"][p]
                                                                           for r in rows])) for p in names}
                                             for b in resolved}
+    imaged = [b for b in budgets if all("image_summaries" in refined[b](r) for r in rows)]
+    if imaged:  # the same, for the summaries read from each family's own simulated images
+        out["image_summary_resolution_median"] = {
+            str(b): {p: float(np.median([refined[b](r)["image_summaries"]["resolution"][p] for r in rows]))
+                     for p in names} for b in imaged}
     checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
     if checks:  # at the final budget of each family's run
         out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],
@@ -105,6 +110,9 @@ def summary_lines(out: dict) -> list[str]:
     for b, by_name in out.get("summary_resolution_median", {}).items():
         lines.append(f"summary resolution at {b} (median over families; above 1 the simulations cannot narrow "
                      "the parameter): " + ", ".join(f"{p} {v:.2g}" for p, v in by_name.items()))
+    for b, by_name in out.get("image_summary_resolution_median", {}).items():
+        lines.append(f"image summary resolution at {b} (median over families): "
+                     + ", ".join(f"{p} {v:.2g}" for p, v in by_name.items()))
     for name, variant in out.get("variants", {}).items():
         for b in budgets:
             lines.append(f"  variant {name}, {b}: MAE " + ", ".join(

@@ -432,6 +432,10 @@ def run(args) -> int:
         print("summary resolution (width at which one simulated family locates the parameter / spread of the "
               "draws; above 1 the simulations cannot narrow it): " + ", ".join(
                   f"{n} {v:.2g}" for n, v in final["summary_resolution"].items()))
+    if "image_summaries" in final:
+        reading = final["image_summaries"]
+        print(f"summaries from the simulated images ({reading['components']} components, ridge {reading['ridge']:g}), "
+              "resolution: " + ", ".join(f"{n} {v:.2g}" for n, v in reading["resolution"].items()))
     if final.get("tempered"):
         print(f"warning: {final['note']}")
     if reference is not None:
