@@ -213,6 +213,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     result = json.loads((out / "fit.json").read_text())
     assert result["method"] == "adjusted" and set(result["refined_by_budget"]) == {"12"}
     # the answer is the reading chosen on validation; the others are read off the same simulations
+    # (12 simulations are too few to cross-fit image summaries: the network's anchored reading stands in)
     assert result["reading"] == "anchored"
     assert set(result["variants"]) == {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
     assert all(set(v) == {"12"} for v in result["variants"].values())
@@ -246,7 +247,14 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     # size (12 or 18) may change the summation order of the matrix products
     # the image readings need 20 simulations to cross-fit: at 24 they exist, and only where every budget has them
     assert "image_summaries" in fresh["refined_by_budget"]["24"] and "image_summaries" not in fresh["refined_by_budget"]["12"]
-    assert not {"images_anchored", "both_anchored"} & set(fresh["variants"])
+    assert not {"images_anchored", "both_anchored"} & set(fresh["variants"]) and fresh["reading"] == "anchored"
+    # the saved state re-read at 24 alone (no new simulation): the image reading is the answer
+    reread = fit_adjusted(cfg, est, image, family, Ms, budget=24, checkpoints=(24,), state_path=state, **common)
+    assert reread["reading"] == "images_anchored" and reread["wall_s"] == longer["wall_s"]
+    assert set(reread["variants"]) == {"anchored", "both_anchored", "proposal_as_prior", "prior_weighted", "diagonal",
+                                       "proposal_as_prior_diagonal"}
+    assert reread["variants"]["anchored"]["24"]["parameters"] == fresh["refined_by_budget"]["24"]["parameters"]
+    assert set(reread["refined_by_budget"]["24"]["image_summaries"]["resolution"]) == set(reread["names"])
     for budget, reference in (("12", short), ("24", fresh)):
         a, b = longer["refined_by_budget"][budget], reference["refined_by_budget"][budget]
         assert a["parameters"].keys() == b["parameters"].keys()
