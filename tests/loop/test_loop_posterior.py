@@ -251,8 +251,15 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     # the saved state re-read at 24 alone (no new simulation): the image reading is the answer
     reread = fit_adjusted(cfg, est, image, family, Ms, budget=24, checkpoints=(24,), state_path=state, **common)
     assert reread["reading"] == "images_anchored" and reread["wall_s"] == longer["wall_s"]
-    assert set(reread["variants"]) == {"anchored", "both_anchored", "proposal_as_prior", "prior_weighted", "diagonal",
-                                       "proposal_as_prior_diagonal"}
+    assert set(reread["variants"]) == {"anchored", "both_anchored", "resolved_anchored", "proposal_as_prior",
+                                       "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    # the per-parameter pick takes each parameter from the summaries with the finer resolution
+    resolved, at24 = reread["variants"]["resolved_anchored"]["24"], reread["refined_by_budget"]["24"]
+    for n in reread["names"]:
+        finer = at24["image_summaries"]["resolution"][n] < at24["summary_resolution"][n]
+        assert resolved["summary_source"][n] == ("images" if finer else "network")
+        source = at24 if finer else reread["variants"]["anchored"]["24"]
+        assert resolved["parameters"][n] == source["parameters"][n]
     assert reread["variants"]["anchored"]["24"]["parameters"] == fresh["refined_by_budget"]["24"]["parameters"]
     assert set(reread["refined_by_budget"]["24"]["image_summaries"]["resolution"]) == set(reread["names"])
     for budget, reference in (("12", short), ("24", fresh)):

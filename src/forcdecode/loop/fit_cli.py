@@ -230,6 +230,9 @@ ADJUSTED_READINGS = {"proposal_as_prior": (False, False, False, "network"),
                      "anchored": (False, False, True, "network"),
                      "images_anchored": (False, False, True, "images"),
                      "both_anchored": (False, False, True, "both")}
+# and "resolved_anchored": each parameter from anchored or images_anchored, whichever summary resolves it
+# better (``loop.fit.summary_resolution`` of the network's and of the image summaries, measured on the
+# simulations alone)
 """name → (importance-weighted by p(u | M_s)/q₀; each parameter regressed on its own summary only;
 anchored on the reported amortized posterior by a control variate, ``loop.fit.anchored_summary``;
 summaries: the network's mean, ``loop.fit.image_summaries`` of the family's own simulated images, or
@@ -367,6 +370,12 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
                            regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
             answers.setdefault(name, {})[str(b)] = summary
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
+    for b, reading in image_reading.items():  # each parameter from the summaries that resolve it better
+        network, images = answers[ADJUSTED_FALLBACK][b], answers["images_anchored"][b]
+        source = {n: "images" if reading["resolution"][n] < resolution[b][n] else "network" for n in names}
+        answers.setdefault("resolved_anchored", {})[b] = {
+            **network, "parameters": {n: (images if source[n] == "images" else network)["parameters"][n] for n in names},
+            "ess": min(network["ess"], images["ess"]), "summary_source": source}
     complete = {name for name, answer in answers.items() if set(answer) == set(answers[ADJUSTED_FALLBACK])}
     choice = ADJUSTED_CHOICE if ADJUSTED_CHOICE in complete else ADJUSTED_FALLBACK
     by_budget = answers[choice]
