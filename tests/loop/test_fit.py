@@ -502,3 +502,22 @@ def test_image_summaries_read_what_the_images_encode_and_nothing_else():
         image_summaries(u, images[:, :8], observed)
     with pytest.raises(ValueError, match="cross-fitted"):
         image_summaries(u[:15], images[:15], observed)
+
+
+def test_an_observed_summary_outside_the_simulated_cloud_is_told_from_one_inside():
+    """500 simulated summaries from a correlated Gaussian: a point on their mean is inside; a point 3 sd
+    along the direction their correlation forbids (x₀ = −x₁ with correlation 0.9) is outside although each
+    coordinate alone is within the cloud's range; the distances are the Mahalanobis ones."""
+    from forcdecode.loop.fit import outside_simulations
+
+    rng = np.random.default_rng(31)
+    cov = np.array([[1.0, 0.9], [0.9, 1.0]])
+    s = rng.multivariate_normal([0.0, 0.0], cov, 500)
+    inside, d2, d2_max = outside_simulations(s, s.mean(axis=0))
+    assert not inside and d2 < 0.01 and 8 < d2_max < 30
+    off = np.array([1.5, -1.5])  # |x| well within the marginal range, but along the forbidden direction
+    assert np.all(np.abs(off) < np.abs(s).max(axis=0))
+    outside, d2, _ = outside_simulations(s, off)
+    assert outside and d2 == pytest.approx(off @ np.linalg.inv(cov) @ off, rel=0.15)
+    with pytest.raises(ValueError, match="covariance"):
+        outside_simulations(s[:3], off)

@@ -532,6 +532,25 @@ def image_summaries(u, images, observed_image, folds: int = 10) -> tuple[np.ndar
                                            "resolution": [float(v) for v in resolution]}
 
 
+def outside_simulations(summaries, observed_summary) -> tuple[bool, float, float]:
+    """Whether an observed summary lies outside the cloud of the simulated ones, where a local-linear
+    regression adjustment (valid near the simulations, Beaumont et al. 2002) would extrapolate: its
+    squared Mahalanobis distance from the simulations' mean (their covariance, pseudo-inverted) beyond
+    the largest of the simulations' own. No tuned threshold: the simulated cloud is the reference.
+    Returns (outside, observed distance², largest simulated distance²); rows with a non-finite summary
+    are left out."""
+    s = np.atleast_2d(np.asarray(summaries, float))
+    s = s[np.all(np.isfinite(s), axis=1)]
+    if len(s) < s.shape[1] + 2:
+        raise ValueError(f"{len(s)} finite summaries cannot give a covariance of {s.shape[1]} dimensions")
+    centre = s.mean(axis=0)
+    precision = np.linalg.pinv(np.atleast_2d(np.cov(s.T)))
+    simulated = np.einsum("ij,jk,ik->i", s - centre, precision, s - centre)
+    delta = np.asarray(observed_summary, float) - centre
+    observed = float(delta @ precision @ delta)
+    return bool(observed > simulated.max()), observed, float(simulated.max())
+
+
 def observation_rms(state) -> dict:
     """The posterior-predictive check the particles give for free: each candidate's observation RMS
     against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the

@@ -273,9 +273,10 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     the family's own simulated images by ``loop.fit.image_summaries``, q₀ as the prior, anchored on the
     reported amortized posterior: its quantiles moved by the adjustment, the particles' sampling error
     removed by a control variate), or ``ADJUSTED_FALLBACK`` (the network's summaries) where no images
-    were kept; the other ``ADJUSTED_READINGS`` (weights p(u | M_s)/q₀(u), which turn the draws into a prior sample
-    and fall back to p(u | M_s) where the summary is flat; each parameter on its own summary) are under
-    ``variants``. Independent realisations, not common random numbers: the regression's
+    were kept or the observed image summary lies outside the simulated ones (``loop.fit.
+    outside_simulations``: the regression would extrapolate); the other ``ADJUSTED_READINGS`` (weights
+    p(u | M_s)/q₀(u), which turn the draws into a prior sample and fall back to p(u | M_s) where the
+    summary is flat; each parameter on its own summary) are under ``variants``. Independent realisations, not common random numbers: the regression's
     residual is then the disorder's scatter, which it averages instead of fitting one realisation.
     ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
     simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
@@ -287,7 +288,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from ..dataset.params import draw_log_density
     from ..forc.raster import rasterize_grid_family
     from ..learn.calibration import recalibrate_draws
-    from .fit import anchored_summary, image_summaries, regression_adjust, summarize_particles, summary_resolution
+    from .fit import (anchored_summary, image_summaries, outside_simulations, regression_adjust, summarize_particles,
+                      summary_resolution)
     from .posterior_predictive import draws_as_hamiltonians
     from .simulated import run_tasks
 
@@ -352,8 +354,12 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
             except ValueError:  # too few simulations to cross-fit
                 s_images = None
             if s_images is not None:
+                outside, d2_observed, d2_max = outside_simulations(s_images, observed_images)
                 image_reading[str(b)] = {"components": info["components"], "ridge": info["ridge"],
-                                         "resolution": dict(zip(names, info["resolution"]))}
+                                         "resolution": dict(zip(names, info["resolution"])),
+                                         "outside_simulations": outside, "distance2_observed": d2_observed,
+                                         "distance2_simulated_max": d2_max}
+            if s_images is not None and not outside:  # no extrapolation: the network's readings stand in
                 by_source["images"] = (s_images, observed_images)
                 by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
                                      np.concatenate([observed_summary, observed_images]))
@@ -371,6 +377,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
             answers.setdefault(name, {})[str(b)] = summary
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
     for b, reading in image_reading.items():  # each parameter from the summaries that resolve it better
+        if reading["outside_simulations"]:
+            continue
         network, images = answers[ADJUSTED_FALLBACK][b], answers["images_anchored"][b]
         source = {n: "images" if reading["resolution"][n] < resolution[b][n] else "network" for n in names}
         answers.setdefault("resolved_anchored", {})[b] = {
