@@ -67,16 +67,14 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
                                  bounds, rng, n_boot)
             out["variants"][name] = {k: scored[k] for k in ("mae_refined", "mae_difference_interval_90",
                                                             "families_improved", "coverage_refined", "ess")}
-    resolved = [b for b in budgets if all("summary_resolution" in refined[b](r) for r in rows)]
-    if resolved:  # the adjusted fit: how finely one simulated family's summary locates each parameter
-        out["summary_resolution_median"] = {str(b): {p: float(np.median([refined[b](r)["summary_resolution"][p]
-                                                                          for r in rows])) for p in names}
-                                            for b in resolved}
-    imaged = [b for b in budgets if all("image_summaries" in refined[b](r) for r in rows)]
-    if imaged:  # the same, for the summaries read from each family's own simulated images
-        out["image_summary_resolution_median"] = {
-            str(b): {p: float(np.median([refined[b](r)["image_summaries"]["resolution"][p] for r in rows]))
-                     for p in names} for b in imaged}
+    # the adjusted fit: how finely one simulated family's summary locates each parameter, for the network's
+    # summaries and for those read from each family's own simulated images; where every row has it
+    for key, field, of in (("summary_resolution_median", "summary_resolution", lambda s: s),
+                           ("image_summary_resolution_median", "image_summaries", lambda s: s["resolution"])):
+        present = [b for b in budgets if all(field in refined[b](r) for r in rows)]
+        if present:
+            out[key] = {str(b): {p: float(np.median([of(refined[b](r)[field])[p] for r in rows])) for p in names}
+                        for b in present}
     checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
     if checks:  # at the final budget of each family's run
         out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],

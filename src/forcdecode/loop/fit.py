@@ -93,18 +93,28 @@ def weighted_quantiles(values, weights, qs) -> np.ndarray:
     return np.interp(qs, cum, values[order])
 
 
+def _summary_levels(levels) -> np.ndarray:
+    """The quantile levels a summary reports, ascending: the median and both ends of each central interval."""
+    return np.array(sorted({0.5} | {round(q, 6) for a in levels for q in ((1 - a) / 2, (1 + a) / 2)}))
+
+
+def _summary_row(qs, values, levels) -> dict:
+    """{"median", "interval_<pct>": [lo, hi]} from ``values`` at the levels ``qs`` of ``_summary_levels``."""
+    at = dict(zip(qs, (float(v) for v in values)))
+    row = {"median": at[0.5]}
+    for a in levels:
+        row[f"interval_{int(round(a * 100))}"] = [at[round((1 - a) / 2, 6)], at[round((1 + a) / 2, 6)]]
+    return row
+
+
 def summarize_particles(u, w, names, levels=(0.68, 0.9)) -> dict:
     """Weighted median and central intervals per parameter (normalized), and the effective sample size."""
     w = np.asarray(w, float)
     w = w / w.sum()
+    qs = _summary_levels(levels)
     out = {"ess": float(1.0 / np.sum(w ** 2)), "parameters": {}}
     for j, name in enumerate(names):
-        qs = [0.5] + [q for a in levels for q in ((1 - a) / 2, (1 + a) / 2)]
-        vals = weighted_quantiles(u[:, j], w, qs)
-        row = {"median": float(vals[0])}
-        for k, a in enumerate(levels):
-            row[f"interval_{int(round(a * 100))}"] = [float(vals[1 + 2 * k]), float(vals[2 + 2 * k])]
-        out["parameters"][name] = row
+        out["parameters"][name] = _summary_row(qs, weighted_quantiles(u[:, j], w, qs), levels)
     return out
 
 
@@ -420,7 +430,7 @@ def anchored_summary(reported, u, u_adjusted, adjusted_weights, names, levels=(0
         raise ValueError(f"draws {u.shape}, adjusted {u_adjusted.shape}, weights {w.shape} and reported "
                          f"{reported.shape}: the same particles and parameters are needed")
     w = w / w.sum()
-    qs = np.array(sorted({0.5} | {q for a in levels for q in ((1 - a) / 2, (1 + a) / 2)}))
+    qs = _summary_levels(levels)
     out = {"ess": float(1.0 / np.sum(w ** 2)), "parameters": {}}
     equal = np.full(len(u), 1.0 / len(u))
     z_u, z_adjusted = _logit(u), _logit(u_adjusted)
@@ -429,12 +439,7 @@ def anchored_summary(reported, u, u_adjusted, adjusted_weights, names, levels=(0
         c = 0.0 if spread <= 0 else float(np.clip(np.cov(z_adjusted[:, j], z_u[:, j])[0, 1] / spread, 0.0, 1.0))
         z = (_logit(weighted_quantiles(u_adjusted[:, j], w, qs))
              + c * (_logit(np.quantile(reported[:, j], qs)) - _logit(weighted_quantiles(u[:, j], equal, qs))))
-        z = np.maximum.accumulate(z)
-        vals = dict(zip(qs.round(6), _inverse_logit(z)))
-        row = {"median": float(vals[0.5])}
-        for a in levels:
-            row[f"interval_{int(round(a * 100))}"] = [float(vals[round((1 - a) / 2, 6)]), float(vals[round((1 + a) / 2, 6)])]
-        out["parameters"][name] = row
+        out["parameters"][name] = _summary_row(qs, _inverse_logit(np.maximum.accumulate(z)), levels)
     return out
 
 

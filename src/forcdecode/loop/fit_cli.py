@@ -276,8 +276,9 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     were kept or the observed image summary lies outside the simulated ones (``loop.fit.
     outside_simulations``: the regression would extrapolate); the other ``ADJUSTED_READINGS`` (weights
     p(u | M_s)/q₀(u), which turn the draws into a prior sample and fall back to p(u | M_s) where the
-    summary is flat; each parameter on its own summary) are under ``variants``. Independent realisations, not common random numbers: the regression's
-    residual is then the disorder's scatter, which it averages instead of fitting one realisation.
+    summary is flat; each parameter on its own summary) are under ``variants``. Independent
+    realisations, not common random numbers: the regression's residual is then the disorder's scatter,
+    which it averages instead of fitting one realisation.
     ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
     simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
     far, saved after every ``round_size`` simulations; a longer budget extends a saved run."""
@@ -359,10 +360,10 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
                                          "resolution": dict(zip(names, info["resolution"])),
                                          "outside_simulations": outside, "distance2_observed": d2_observed,
                                          "distance2_simulated_max": d2_max}
-            if s_images is not None and not outside:  # no extrapolation: the network's readings stand in
-                by_source["images"] = (s_images, observed_images)
-                by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
-                                     np.concatenate([observed_summary, observed_images]))
+                if not outside:  # outside, the regression would extrapolate: no image reading at this budget
+                    by_source["images"] = (s_images, observed_images)
+                    by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
+                                         np.concatenate([observed_summary, observed_images]))
         for name, (weighted, diagonal, anchored, source) in ADJUSTED_READINGS.items():
             if source not in by_source:
                 continue
