@@ -276,3 +276,56 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
             got, want = a["parameters"][name], b["parameters"][name]
             np.testing.assert_allclose([got["median"], *got["interval_68"], *got["interval_90"]],
                                        [want["median"], *want["interval_68"], *want["interval_90"]], rtol=0, atol=1e-5)
+
+
+def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, measured, tmp_path):
+    """The inside branch of the image reading, without simulating: a saved state of 40 draws whose
+    images are the observed one with logit K_u written into them (bright pixels dimmed below a value v,
+    dark ones lit above it, ±3 counts of noise), so the observed image is the family at u_K = v, well inside
+    the simulated cloud. The answer is the image reading, its K_u median is v (not the amortized
+    median), and the per-parameter pick takes K_u from the images."""
+    from forcdecode.config import load_config
+    from forcdecode.core.streams import stream_seed
+    from forcdecode.learn.posterior import PosteriorEstimator
+    from forcdecode.loop.fit_cli import fit_adjusted, network_summaries, observation
+
+    path, cfg_path = measured
+    cfg, est = load_config(cfg_path), PosteriorEstimator.load(posterior)
+    image, family, Ms, _ = observation(path, None, cfg, 600)
+    seed, key, budget = 0, 7, 40
+    ms_norm = float(normalize("Ms", Ms, est.bounds))
+    # the draws fit_adjusted makes (it refuses a state saved for other draws, so a change there fails here)
+    u = est.sample(np.asarray(image)[None], [ms_norm], 4000, seed=stream_seed(seed, "posterior", "fit", key),
+                   recalibrated=False)[0][:budget]
+    k_u = u[:, NAMES.index("K_u")]
+    v = float(np.quantile(k_u, 0.25))  # off the draws' median, so a reading that ignores the images misses it
+    bright, dark = image >= 200, image < 50
+    assert bright.sum() >= 50 and dark.sum() >= 50, "the fixture family needs both bright and dark pixels"
+    # linear in logit u, the scale the summaries regress on: at most 200 counts from the observed image
+    shift = np.log(k_u / (1 - k_u)) - np.log(v / (1 - v))
+    counts = np.rint(200 * shift / np.abs(shift).max()).astype(int)
+    rng = np.random.default_rng(1)
+    images = np.repeat(image[None].astype(int), budget, axis=0)
+    images[:, bright] -= np.maximum(-counts, 0)[:, None]
+    images[:, dark] += np.maximum(counts, 0)[:, None]
+    images = np.clip(images + rng.integers(-3, 4, images.shape), 0, 255).astype(np.uint8)
+    state = tmp_path / "encoded.npz"
+    np.savez(state, u=u, summaries=network_summaries(est, images, ms_norm, 11), valid=np.ones(budget, bool),
+             wall_s=1.0, images=images)
+
+    result = fit_adjusted(cfg, est, image, family, Ms, budget=budget, checkpoints=(budget,), state_path=state,
+                          workers=1, seed=seed, key=key)
+    at = result["refined_by_budget"][str(budget)]
+    reading = at["image_summaries"]
+    assert not reading["outside_simulations"] and reading["distance2_observed"] < reading["distance2_simulated_max"]
+    assert result["reading"] == "images_anchored" and result["wall_s"] == 1.0
+    assert {"anchored", "both_anchored", "resolved_anchored"} <= set(result["variants"])
+    # K_u is what the images encode: resolved (the draws span logit ±7, so the ridge's shrinkage, which
+    # changes from fold to fold, leaves ~0.2), the others not; read to within 0.03 of v
+    assert reading["resolution"]["K_u"] < 0.5 and min(r for n, r in reading["resolution"].items() if n != "K_u") > 2
+    median = at["parameters"]["K_u"]["median"]
+    amortized = result["amortized"]["parameters"]["K_u"]["median"]
+    assert abs(median - v) < 0.03 < abs(amortized - v), (median, v, amortized)
+    lo, hi = at["parameters"]["K_u"]["interval_90"]
+    assert lo <= v <= hi and hi - lo < 0.5 * np.subtract(*result["amortized"]["parameters"]["K_u"]["interval_90"][::-1])
+    assert result["variants"]["resolved_anchored"][str(budget)]["summary_source"]["K_u"] == "images"
