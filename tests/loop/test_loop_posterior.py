@@ -204,7 +204,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     answer regression-adjusted at every checkpoint; a saved run extended equals the longer run."""
     from forcdecode.config import load_config
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.loop.fit_cli import fit_adjusted, observation
+    from forcdecode.loop.fit_cli import fit_adjusted, observation, print_summary
 
     path, cfg_path = measured
     out = tmp_path / "fit"
@@ -227,6 +227,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     assert all(v > 0 for v in final["summary_resolution"].values())
     printed = capsys.readouterr().out
     assert "effective sample size" in printed and "summary resolution" in printed
+    assert "answer: reading 'anchored'" in printed
     # --predictive-reference is the pmc particles' statistic: refused with the adjusted method
     reference = write_reference(tmp_path / "loose.json", 1e6)
     assert main(["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg_path),
@@ -256,6 +257,11 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     images = at24["image_summaries"]
     assert images["outside_simulations"] == (images["distance2_observed"] > images["distance2_simulated_max"])
     network_readings = {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    capsys.readouterr()
+    print_summary(reread, 24)
+    printed = capsys.readouterr().out
+    assert f"answer: reading {reread['reading']!r}" in printed
+    assert ("outside the simulated ones" in printed) == images["outside_simulations"]
     if images["outside_simulations"]:  # this film's measured family is far from 24 simulations of the tiny film
         assert reread["reading"] == "anchored" and set(reread["variants"]) == network_readings
         assert at24["parameters"] == fresh["refined_by_budget"]["24"]["parameters"]
@@ -278,7 +284,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
                                        [want["median"], *want["interval_68"], *want["interval_90"]], rtol=0, atol=1e-5)
 
 
-def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, measured, tmp_path):
+def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, measured, tmp_path, capsys):
     """The inside branch of the image reading, without simulating: a saved state of 40 draws whose
     images are the observed one with logit K_u written into them (bright pixels dimmed below a value v,
     dark ones lit above it, ±3 counts of noise), so the observed image is the family at u_K = v, well inside
@@ -287,7 +293,7 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     from forcdecode.config import load_config
     from forcdecode.core.streams import stream_seed
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.loop.fit_cli import fit_adjusted, network_summaries, observation
+    from forcdecode.loop.fit_cli import fit_adjusted, network_summaries, observation, print_summary
 
     path, cfg_path = measured
     cfg, est = load_config(cfg_path), PosteriorEstimator.load(posterior)
@@ -329,3 +335,6 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     lo, hi = at["parameters"]["K_u"]["interval_90"]
     assert lo <= v <= hi and hi - lo < 0.5 * np.subtract(*result["amortized"]["parameters"]["K_u"]["interval_90"][::-1])
     assert result["variants"]["resolved_anchored"][str(budget)]["summary_source"]["K_u"] == "images"
+    print_summary(result, budget)
+    printed = capsys.readouterr().out
+    assert "answer: reading 'images_anchored'" in printed and "outside the simulated ones" not in printed

@@ -417,6 +417,33 @@ class _Context:
         self.context = {"image_uint8": np.asarray(image, dtype=np.uint8), "ms_norm": ms_norm}
 
 
+def print_summary(result: dict, budget: int) -> None:
+    """Print a fit's answer at its largest budget: amortized and refined medians, the refined 90 % interval,
+    the effective sample size, the summaries' resolution, which reading answers and, where the image
+    reading was refused, why."""
+    final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
+    print(f"{'parameter':16s} {'amortized median':>17s} {'refined median':>15s}  refined 90 % interval (normalized)")
+    for name in result["names"]:
+        a, r = result["amortized"]["parameters"][name], final["parameters"][name]
+        print(f"{name:16s} {a['median']:17.3f} {r['median']:15.3f}  [{r['interval_90'][0]:.3f}, {r['interval_90'][1]:.3f}]")
+    print(f"effective sample size {final['ess']:.1f} of {budget} simulations; {result['wall_s']:.0f} s")
+    if "summary_resolution" in final:
+        print("summary resolution (width at which one simulated family locates the parameter / spread of the "
+              "draws; above 1 the simulations cannot narrow it): " + ", ".join(
+                  f"{n} {v:.2g}" for n, v in final["summary_resolution"].items()))
+    if "image_summaries" in final:
+        reading = final["image_summaries"]
+        print(f"summaries from the simulated images ({reading['components']} components, ridge {reading['ridge']:g}), "
+              "resolution: " + ", ".join(f"{n} {v:.2g}" for n, v in reading["resolution"].items()))
+        if reading["outside_simulations"]:
+            print(f"the observed image summary lies outside the simulated ones (distance² "
+                  f"{reading['distance2_observed']:.3g} > {reading['distance2_simulated_max']:.3g}): not read from the images")
+    if "reading" in result:
+        print(f"answer: reading {result['reading']!r} (others under 'variants' in fit.json)")
+    if final.get("tempered"):
+        print(f"warning: {final['note']}")
+
+
 def run(args) -> int:
     from ..config import load_config, shipped_config
     from ..core.errors import ConfigError
@@ -449,22 +476,7 @@ def run(args) -> int:
 
         result["predictive_check"] = predictive_check(result, reference)
     write_json(Path(args.out) / "fit.json", result)
-    final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
-    print(f"{'parameter':16s} {'amortized median':>17s} {'refined median':>15s}  refined 90 % interval (normalized)")
-    for name in result["names"]:
-        a, r = result["amortized"]["parameters"][name], final["parameters"][name]
-        print(f"{name:16s} {a['median']:17.3f} {r['median']:15.3f}  [{r['interval_90'][0]:.3f}, {r['interval_90'][1]:.3f}]")
-    print(f"effective sample size {final['ess']:.1f} of {args.budget} simulations; {result['wall_s']:.0f} s")
-    if "summary_resolution" in final:
-        print("summary resolution (width at which one simulated family locates the parameter / spread of the "
-              "draws; above 1 the simulations cannot narrow it): " + ", ".join(
-                  f"{n} {v:.2g}" for n, v in final["summary_resolution"].items()))
-    if "image_summaries" in final:
-        reading = final["image_summaries"]
-        print(f"summaries from the simulated images ({reading['components']} components, ridge {reading['ridge']:g}), "
-              "resolution: " + ", ".join(f"{n} {v:.2g}" for n, v in reading["resolution"].items()))
-    if final.get("tempered"):
-        print(f"warning: {final['note']}")
+    print_summary(result, args.budget)
     if reference is not None:
         print(("warning: " if result["predictive_check"]["misspecified"] else "") + result["predictive_check"]["verdict"])
     return 0
