@@ -213,9 +213,10 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     result = json.loads((out / "fit.json").read_text())
     assert result["method"] == "adjusted" and set(result["refined_by_budget"]) == {"12"}
     # the answer is the reading chosen on validation; the others are read off the same simulations
-    # (12 simulations are too few to cross-fit image summaries: the network's anchored reading stands in)
-    assert result["reading"] == "anchored"
-    assert set(result["variants"]) == {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    # (12 simulations are too few to cross-fit image summaries: the network's shifted reading stands in)
+    assert result["reading"] == "shifted"
+    assert set(result["variants"]) == {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal",
+                                       "anchored"}
     assert all(set(v) == {"12"} for v in result["variants"].values())
     final = result["refined_by_budget"]["12"]
     assert 1.0 <= final["ess"] <= 12.0 and final["failed_simulations"] == 0
@@ -227,7 +228,21 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     assert all(v > 0 for v in final["summary_resolution"].values())
     printed = capsys.readouterr().out
     assert "effective sample size" in printed and "summary resolution" in printed
-    assert "answer: reading 'anchored'" in printed
+    assert "answer: reading 'shifted'" in printed
+    # shifted: the anchored medians, the amortized intervals moved there (in logit) and narrowed only by a
+    # summary resolution below 1
+    from forcdecode.loop.fit import _inverse_logit, _logit
+
+    for name in result["names"]:
+        row, anchored = final["parameters"][name], result["variants"]["anchored"]["12"]["parameters"][name]
+        assert row["median"] == pytest.approx(anchored["median"], abs=1e-9)
+        amortized = result["amortized"]["parameters"][name]
+        scale = min(1.0, final["summary_resolution"][name])
+        # the amortized summary's quantiles come from the same reported draws
+        want = _logit(np.array(row["median"])) + scale * (_logit(np.array(amortized["interval_90"]))
+                                                          - _logit(np.array(amortized["median"])))
+        # in u (the squeeze clips logit near 0 and 1); two quantile rules of the same draws
+        np.testing.assert_allclose(row["interval_90"], _inverse_logit(want), atol=0.005)
     # --predictive-reference is the pmc particles' statistic: refused with the adjusted method
     reference = write_reference(tmp_path / "loose.json", 1e6)
     assert main(["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg_path),
@@ -248,7 +263,8 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     # size (12 or 18) may change the summation order of the matrix products
     # the image readings need 20 simulations to cross-fit: at 24 they exist, and only where every budget has them
     assert "image_summaries" in fresh["refined_by_budget"]["24"] and "image_summaries" not in fresh["refined_by_budget"]["12"]
-    assert not {"images_anchored", "both_anchored"} & set(fresh["variants"]) and fresh["reading"] == "anchored"
+    assert not {"images_anchored", "both_anchored", "images_shifted"} & set(fresh["variants"])
+    assert fresh["reading"] == "shifted"
     # the saved state re-read at 24 alone (no new simulation): the image reading is the answer unless the
     # observed image summary lies outside the simulated ones (then the regression would extrapolate)
     reread = fit_adjusted(cfg, est, image, family, Ms, budget=24, checkpoints=(24,), state_path=state, **common)
@@ -256,24 +272,25 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     assert set(at24["image_summaries"]["resolution"]) == set(reread["names"]) and reread["wall_s"] == longer["wall_s"]
     images = at24["image_summaries"]
     assert images["outside_simulations"] == (images["distance2_observed"] > images["distance2_simulated_max"])
-    network_readings = {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal"}
+    network_readings = {"proposal_as_prior", "prior_weighted", "diagonal", "proposal_as_prior_diagonal", "anchored"}
     capsys.readouterr()
     print_summary(reread, 24)
     printed = capsys.readouterr().out
     assert f"answer: reading {reread['reading']!r}" in printed
     assert ("outside the simulated ones" in printed) == images["outside_simulations"]
     if images["outside_simulations"]:  # this film's measured family is far from 24 simulations of the tiny film
-        assert reread["reading"] == "anchored" and set(reread["variants"]) == network_readings
+        assert reread["reading"] == "shifted" and set(reread["variants"]) == network_readings
         assert at24["parameters"] == fresh["refined_by_budget"]["24"]["parameters"]
     else:
-        assert reread["reading"] == "images_anchored"
-        assert set(reread["variants"]) == network_readings | {"anchored", "both_anchored", "resolved_anchored"}
+        assert reread["reading"] == "images_shifted"
+        assert set(reread["variants"]) == network_readings | {"images_anchored", "shifted", "both_anchored",
+                                                              "resolved_anchored"}
         # the per-parameter pick takes each parameter from the summaries with the finer resolution
         resolved = reread["variants"]["resolved_anchored"]["24"]
         for n in reread["names"]:
             finer = images["resolution"][n] < at24["summary_resolution"][n]
             assert resolved["summary_source"][n] == ("images" if finer else "network")
-            source = at24 if finer else reread["variants"]["anchored"]["24"]
+            source = reread["variants"]["images_anchored" if finer else "anchored"]["24"]
             assert resolved["parameters"][n] == source["parameters"][n]
     for budget, reference in (("12", short), ("24", fresh)):
         a, b = longer["refined_by_budget"][budget], reference["refined_by_budget"][budget]
@@ -324,8 +341,8 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     at = result["refined_by_budget"][str(budget)]
     reading = at["image_summaries"]
     assert not reading["outside_simulations"] and reading["distance2_observed"] < reading["distance2_simulated_max"]
-    assert result["reading"] == "images_anchored" and result["wall_s"] == 1.0
-    assert {"anchored", "both_anchored", "resolved_anchored"} <= set(result["variants"])
+    assert result["reading"] == "images_shifted" and result["wall_s"] == 1.0
+    assert {"anchored", "images_anchored", "both_anchored", "resolved_anchored"} <= set(result["variants"])
     # K_u is what the images encode: resolved (the draws span logit ±7, so the ridge's shrinkage, which
     # changes from fold to fold, leaves ~0.2), the others not; read to within 0.03 of v
     assert reading["resolution"]["K_u"] < 0.5 and min(r for n, r in reading["resolution"].items() if n != "K_u") > 2
@@ -337,4 +354,4 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     assert result["variants"]["resolved_anchored"][str(budget)]["summary_source"]["K_u"] == "images"
     print_summary(result, budget)
     printed = capsys.readouterr().out
-    assert "answer: reading 'images_anchored'" in printed and "outside the simulated ones" not in printed
+    assert "answer: reading 'images_shifted'" in printed and "outside the simulated ones" not in printed

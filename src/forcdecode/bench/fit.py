@@ -22,11 +22,15 @@ def _inside(rows, summary_of, name) -> np.ndarray:
                      <= summary_of(r)["parameters"][name]["interval_90"][1] for r in rows])
 
 
+def _widths(rows, summary_of, name) -> np.ndarray:
+    return np.array([np.subtract(*summary_of(r)["parameters"][name]["interval_90"][::-1]) for r in rows])
+
+
 def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2000) -> dict:
     """Per parameter: MAE of the amortized median, of the refined median at each budget and of the
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
-    (amortized, refined) and its binomial band; mean ESS and wall time per budget; the 10/50/90 %
+    (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); mean ESS and wall time per budget; the 10/50/90 %
     points over families of the observation RMS over the floor (amortized draws, refined particles).
     Rows carrying ``variants`` (other readings of the same simulations) get each variant's MAE, paired
     interval and coverage under ``variants``."""
@@ -41,12 +45,14 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
            "mae_refined": {}, "mae_difference": {}, "mae_difference_interval_90": {}, "families_improved": {},
            "coverage_amortized": {p: float(_inside(rows, amortized, p).mean()) for p in names},
            "coverage_refined": {}, "coverage_band_90": binomial_band(len(rows)),
+           "width_90_amortized": {p: float(_widths(rows, amortized, p).mean()) for p in names}, "width_90_refined": {},
            "ess": {}, "wall_s": {}, "reached_full_likelihood": {}}
     for b in budgets:
         key = str(b)
         out["mae_refined"][key], out["mae_difference"][key] = {}, {}
         out["mae_difference_interval_90"][key], out["families_improved"][key] = {}, {}
         out["coverage_refined"][key] = {}
+        out["width_90_refined"][key] = {p: float(_widths(rows, refined[b], p).mean()) for p in names}
         for p in names:
             before, after = _abs_errors(rows, amortized, p), _abs_errors(rows, refined[b], p)
             out["mae_refined"][key][p] = float(after.mean())
@@ -66,7 +72,8 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
             scored = fit_summary([{k: v for k, v in r.items() if k != "variants"} for r in as_rows], budgets,
                                  bounds, rng, n_boot)
             out["variants"][name] = {k: scored[k] for k in ("mae_refined", "mae_difference_interval_90",
-                                                            "families_improved", "coverage_refined", "ess")}
+                                                            "families_improved", "coverage_refined",
+                                                            "width_90_refined", "ess")}
     # the adjusted fit: how finely one simulated family's summary locates each parameter, for the network's
     # summaries and for those read from each family's own simulated images; where every row has it
     for key, field, of in (("summary_resolution_median", "summary_resolution", lambda s: s),
@@ -101,6 +108,9 @@ def summary_lines(out: dict) -> list[str]:
     for b in budgets:
         lines.append(f"  refined {b}: " + ", ".join(f"{p} {out['coverage_refined'][str(b)][p]:.2f}" for p in names)
                      + f"; beta = 1 in {out['reached_full_likelihood'][str(b)]} of {out['families']}")
+    lines.append("mean 90 % width: amortized " + ", ".join(f"{p} {out['width_90_amortized'][p]:.3f}" for p in names))
+    for b in budgets:
+        lines.append(f"  refined {b}: " + ", ".join(f"{p} {out['width_90_refined'][str(b)][p]:.3f}" for p in names))
     if "observation_rms_over_floor" in out:
         a, r = out["observation_rms_over_floor"]["amortized"], out["observation_rms_over_floor"]["refined"]
         lines.append(f"observation RMS / floor (10/50/90 % over families): amortized draws {a[0]:.2f}/{a[1]:.2f}/{a[2]:.2f}, "
@@ -115,7 +125,8 @@ def summary_lines(out: dict) -> list[str]:
         for b in budgets:
             lines.append(f"  variant {name}, {b}: MAE " + ", ".join(
                 f"{p} {variant['mae_refined'][str(b)][p]:.3f}" for p in names) + "; 90 % coverage " + ", ".join(
-                f"{p} {variant['coverage_refined'][str(b)][p]:.2f}" for p in names))
+                f"{p} {variant['coverage_refined'][str(b)][p]:.2f}" for p in names) + "; mean 90 % width " + ", ".join(
+                f"{p} {variant['width_90_refined'][str(b)][p]:.3f}" for p in names))
     lines.append("mean wall time per family: " + ", ".join(f"{b} simulations {out['wall_s'][str(b)]:.0f} s"
                                                            for b in budgets))
     return lines
