@@ -29,6 +29,10 @@ def test_a_refinement_that_halves_every_error_is_scored_as_better():
     assert out["mae_prior"]["K_u"] == pytest.approx(np.mean(np.abs(2**-0.5 - truths)), abs=1e-3)
     assert any("beta = 1 in 12 of 12" in line for line in summary_lines(out))
     assert out["observation_rms_over_floor"] == {"amortized": [3.0, 3.0, 3.0], "refined": [1.0, 1.0, 1.0]}
+    # the mean 90 % widths: (0, 1) amortized; refined 0.21 in nine families, 0.19 in three
+    assert out["width_90_amortized"]["K_u"] == pytest.approx(1.0)
+    assert out["width_90_refined"]["50"]["K_u"] == pytest.approx(0.205)
+    assert "image_reading_refused" not in out
 
 
 def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
@@ -58,6 +62,13 @@ def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
     out = fit_summary(rows, [50], None, np.random.default_rng(1))
     assert out["image_summary_resolution_median"] == {"50": {"K_u": 5.0}}
     assert any(line.startswith("image summary resolution at 50") and "K_u 5" in line for line in summary_lines(out))
+    # the guard's refusals counted over the rows that have image summaries
+    for k, r in enumerate(rows):
+        r["refined_by_budget"]["50"]["image_summaries"]["outside_simulations"] = k in (1, 4)
+    del rows[0]["refined_by_budget"]["50"]["image_summaries"]
+    out = fit_summary(rows, [50], None, np.random.default_rng(1))
+    assert out["image_reading_refused"] == {"50": {"refused": 2, "formed": 5}}
+    assert "image reading at 50: refused in 2 of the 5 families that have image summaries" in "\n".join(summary_lines(out))
     rows[2]["refined_by_budget"]["50"].pop("image_summaries")
     assert "image_summary_resolution_median" not in fit_summary(rows, [50], None, np.random.default_rng(1))
     rows[1]["refined_by_budget"]["50"].pop("summary_resolution")  # not in every row: not reported

@@ -30,7 +30,8 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     """Per parameter: MAE of the amortized median, of the refined median at each budget and of the
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
-    (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); mean ESS and wall time per budget; the 10/50/90 %
+    (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); where
+    rows have image summaries, in how many the guard refused the image reading (``image_reading_refused``); mean ESS and wall time per budget; the 10/50/90 %
     points over families of the observation RMS over the floor (amortized draws, refined particles).
     Rows carrying ``variants`` (other readings of the same simulations) get each variant's MAE, paired
     interval and coverage under ``variants``."""
@@ -82,6 +83,10 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
         if present:
             out[key] = {str(b): {p: float(np.median([of(refined[b](r)[field])[p] for r in rows])) for p in names}
                         for b in present}
+    refused = {str(b): [refined[b](r)["image_summaries"]["outside_simulations"] for r in rows
+                        if "outside_simulations" in refined[b](r).get("image_summaries", {})] for b in budgets}
+    if any(refused.values()):  # the adjusted fit's guard: families whose observed image summary lay outside
+        out["image_reading_refused"] = {b: {"refused": int(sum(v)), "formed": len(v)} for b, v in refused.items()}
     checks = [r["observation_rms"] for r in rows if "observation_rms" in r]
     if checks:  # at the final budget of each family's run
         out["observation_rms_over_floor"] = {k: [float(v) for v in np.quantile([c[f"{k}_over_floor"] for c in checks],
@@ -121,6 +126,9 @@ def summary_lines(out: dict) -> list[str]:
     for b, by_name in out.get("image_summary_resolution_median", {}).items():
         lines.append(f"image summary resolution at {b} (median over families): "
                      + ", ".join(f"{p} {v:.2g}" for p, v in by_name.items()))
+    for b, count in out.get("image_reading_refused", {}).items():
+        lines.append(f"image reading at {b}: refused in {count['refused']} of the {count['formed']} families that have "
+                     "image summaries (the observed summary outside the simulated cloud)")
     for name, variant in out.get("variants", {}).items():
         for b in budgets:
             lines.append(f"  variant {name}, {b}: MAE " + ", ".join(
