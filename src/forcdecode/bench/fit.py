@@ -31,8 +31,8 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
     (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); where
-    rows have image summaries, in how many the guard refused the image reading (``image_reading_refused``); mean ESS and wall time per budget; the 10/50/90 %
-    points over families of the observation RMS over the floor (amortized draws, refined particles).
+    rows have image summaries, in how many the guard refused the image reading (``image_reading_refused``);
+    mean ESS and wall time per budget; the 10/50/90 % points over families of the observation RMS over the floor (amortized draws, refined particles).
     Rows carrying ``variants`` (other readings of the same simulations) get each variant's MAE, paired
     interval and coverage under ``variants``."""
     names = rows[0]["names"]
