@@ -264,7 +264,11 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     # the image readings need 20 simulations to cross-fit: at 24 they exist, and only where every budget has them
     assert "image_summaries" in fresh["refined_by_budget"]["24"] and "image_summaries" not in fresh["refined_by_budget"]["12"]
     assert not {"images_anchored", "both_anchored", "images_shifted"} & set(fresh["variants"])
-    assert fresh["reading"] == "shifted"
+    # the answer is chosen per budget: at 12 the network's, at 24 the images' unless refused there
+    assert fresh["refined_by_budget"]["12"]["reading"] == "shifted"
+    assert fresh["reading"] == fresh["refined_by_budget"]["24"]["reading"]
+    assert fresh["reading"] == ("shifted" if fresh["refined_by_budget"]["24"]["image_summaries"]["outside_simulations"]
+                                else "images_shifted")
     # the saved state re-read at 24 alone (no new simulation): the image reading is the answer unless the
     # observed image summary lies outside the simulated ones (then the regression would extrapolate)
     reread = fit_adjusted(cfg, est, image, family, Ms, budget=24, checkpoints=(24,), state_path=state, **common)

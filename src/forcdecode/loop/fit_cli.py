@@ -401,8 +401,12 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
                                    image_reading[b]["resolution"] if anchored.startswith("images") else resolution.get(b))
                 for b, summary in answers[anchored].items()}
     complete = {name for name, answer in answers.items() if set(answer) == set(answers[ADJUSTED_FALLBACK])}
-    choice = ADJUSTED_CHOICE if ADJUSTED_CHOICE in complete else ADJUSTED_FALLBACK
-    by_budget = answers[choice]
+    # per budget: the image reading where it was formed at that budget (a refusal at an early checkpoint
+    # does not hold for a later one, where more simulations may surround the observation)
+    by_budget = {b: {**(answers.get(ADJUSTED_CHOICE, {}).get(b) or summary),
+                     "reading": ADJUSTED_CHOICE if b in answers.get(ADJUSTED_CHOICE, {}) else ADJUSTED_FALLBACK}
+                 for b, summary in answers[ADJUSTED_FALLBACK].items()}
+    choice = by_budget[str(max(int(b) for b in by_budget))]["reading"]
     for b, by_name in resolution.items():
         by_budget[b]["summary_resolution"] = by_name
     for b, reading in image_reading.items():
