@@ -248,7 +248,8 @@ validation (5 families) cannot tell coverages apart (all 0.8 or 1.0 either way),
 the mechanism, shown on linear-Gaussian problems in ``tests/loop/test_fit.py``."""
 ADJUSTED_CHOICE = "images_shifted"
 ADJUSTED_FALLBACK = "shifted"
-"""The reading reported where ``ADJUSTED_CHOICE`` is missing at some budget (no simulated images kept)."""
+"""The reading reported at a budget where ``ADJUSTED_CHOICE`` is missing (no simulated images kept, too few
+to cross-fit, or the observed image summary outside the simulated ones at that budget)."""
 
 SUMMARY_DRAWS = 256
 """Flow draws per family for its summary (the posterior mean in logit space)."""
@@ -398,14 +399,15 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
         if anchored in answers:
             answers[shifted] = {
                 b: shifted_summary(reported, summary, names,
-                                   image_reading[b]["resolution"] if anchored.startswith("images") else resolution.get(b))
+                                   image_reading[b]["resolution"] if ADJUSTED_READINGS[anchored][3] == "images"
+                                   else resolution.get(b))
                 for b, summary in answers[anchored].items()}
     complete = {name for name, answer in answers.items() if set(answer) == set(answers[ADJUSTED_FALLBACK])}
     # per budget: the image reading where it was formed at that budget (a refusal at an early checkpoint
     # does not hold for a later one, where more simulations may surround the observation)
-    by_budget = {b: {**(answers.get(ADJUSTED_CHOICE, {}).get(b) or summary),
-                     "reading": ADJUSTED_CHOICE if b in answers.get(ADJUSTED_CHOICE, {}) else ADJUSTED_FALLBACK}
-                 for b, summary in answers[ADJUSTED_FALLBACK].items()}
+    preferred = answers.get(ADJUSTED_CHOICE, {})
+    by_budget = {b: {**preferred[b], "reading": ADJUSTED_CHOICE} if b in preferred
+                 else {**summary, "reading": ADJUSTED_FALLBACK} for b, summary in answers[ADJUSTED_FALLBACK].items()}
     choice = by_budget[str(max(int(b) for b in by_budget))]["reading"]
     for b, by_name in resolution.items():
         by_budget[b]["summary_resolution"] = by_name
