@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from forcdecode.bench.fit import fit_summary, summary_lines
+from forcdecode.bench.fit import families_to_resolve, fit_summary, summary_lines
 
 
 def row(truth, amortized, refined, lo_hi, Ms=8e5):
@@ -75,6 +75,27 @@ def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
     assert "summary_resolution_median" not in fit_summary(rows, [50], None, np.random.default_rng(1))
     rows[0].pop("variants")  # a variant not in every row is not scored
     assert "variants" not in fit_summary(rows, [50], None, np.random.default_rng(1))
+
+
+def test_the_families_a_bench_needs_follow_the_spread_of_the_paired_differences():
+    """Differences −0.1, 0, −0.1, 0: mean −0.05, s = 0.0577, so ⌈(1.645 · 0.0577 / 0.05)²⌉ = 4 families; a
+    spread ten times larger needs a hundred times more. In the scoring, per budget and parameter, and printed."""
+    assert families_to_resolve([-0.1, 0.0, -0.1, 0.0]) == 4
+    assert families_to_resolve([-0.55, 0.45, -0.55, 0.45]) == 361  # mean −0.05, s = 0.577
+    assert families_to_resolve([0.1, 0.1, 0.1]) == 2 and families_to_resolve([0.0, 0.0]) is None
+    assert families_to_resolve([0.3]) is None
+    # mean −0.05 and s 0.2 need 44 families; normal samples of 44 families then exclude 0 from their 90 %
+    # interval about half the time (the count is where the power is 0.5, not a guarantee)
+    rng = np.random.default_rng(3)
+    z = rng.normal(size=500)
+    n = families_to_resolve(-0.05 + 0.2 * (z - z.mean()) / z.std(ddof=1))  # mean −0.05, s 0.2 exactly
+    assert n == 44  # ⌈(1.645 · 0.2 / 0.05)²⌉ = ⌈43.3⌉
+    excluded = [abs(d.mean()) > 1.645 * d.std(ddof=1) / np.sqrt(n) for d in rng.normal(-0.05, 0.2, (2000, n))]
+    assert 0.45 < np.mean(excluded) < 0.55
+    rows = [row(0.5, 0.5 + e, 0.5 + e - d, (0.0, 1.0)) for e, d in zip([0.2, 0.2, 0.2, 0.2], [0.1, 0.0, 0.1, 0.0])]
+    out = fit_summary(rows, [50], None, np.random.default_rng(1))
+    assert out["families_to_resolve"] == {"50": {"K_u": 4}}
+    assert "families for the Δ interval at 50 to exclude 0 if the effect is as measured (now 4): K_u 4" in summary_lines(out)
 
 
 @pytest.mark.parametrize("flags", [["--first-family", "-1"], ["--families", "0"]])

@@ -26,10 +26,23 @@ def _widths(rows, summary_of, name) -> np.ndarray:
     return np.array([np.subtract(*summary_of(r)["parameters"][name]["interval_90"][::-1]) for r in rows])
 
 
+def families_to_resolve(differences, z: float = 1.645) -> int | None:
+    """Families whose paired differences would give a two-sided 90 % interval of the mean (normal
+    approximation) that just excludes 0, if the mean and spread stay as in ``differences``: ⌈(z s / |mean|)²⌉.
+    None for a zero mean or fewer than two differences."""
+    d = np.asarray(differences, float)
+    if d.size < 2 or d.mean() == 0:
+        return None
+    return max(2, int(np.ceil((z * d.std(ddof=1) / abs(d.mean())) ** 2)))
+
+
 def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2000) -> dict:
     """Per parameter: MAE of the amortized median, of the refined median at each budget and of the
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
-    bootstrap 90 % interval and the number of families the refinement improved; 90 % coverage
+    bootstrap 90 % interval, the number of families the refinement improved and the number of families a
+    bench would need for that interval to exclude 0 if the mean difference is what was measured
+    (``families_to_resolve`` = ⌈(1.645 s / |mean|)²⌉, s the paired differences' standard deviation;
+    None where the mean is 0); 90 % coverage
     (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); where
     rows have image summaries, in how many the guard refused the image reading (``image_reading_refused``);
     mean ESS and wall time per budget; the 10/50/90 % points over families of the observation RMS over the floor (amortized draws, refined particles).
@@ -44,6 +57,7 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
            "mae_prior": {p: float(prior_err[p].mean()) for p in names},
            "mae_amortized": {p: float(_abs_errors(rows, amortized, p).mean()) for p in names},
            "mae_refined": {}, "mae_difference": {}, "mae_difference_interval_90": {}, "families_improved": {},
+           "families_to_resolve": {},
            "coverage_amortized": {p: float(_inside(rows, amortized, p).mean()) for p in names},
            "coverage_refined": {}, "coverage_band_90": binomial_band(len(rows)),
            "width_90_amortized": {p: float(_widths(rows, amortized, p).mean()) for p in names}, "width_90_refined": {},
@@ -52,6 +66,7 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
         key = str(b)
         out["mae_refined"][key], out["mae_difference"][key] = {}, {}
         out["mae_difference_interval_90"][key], out["families_improved"][key] = {}, {}
+        out["families_to_resolve"][key] = {}
         out["coverage_refined"][key] = {}
         out["width_90_refined"][key] = {p: float(_widths(rows, refined[b], p).mean()) for p in names}
         for p in names:
@@ -61,6 +76,7 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
             out["mae_difference_interval_90"][key][p] = bootstrap_interval(lambda d: float(d.mean()), [after - before],
                                                                            rng, n_boot)
             out["families_improved"][key][p] = int(np.sum(after < before))
+            out["families_to_resolve"][key][p] = families_to_resolve(after - before)
             out["coverage_refined"][key][p] = float(_inside(rows, refined[b], p).mean())
         out["ess"][key] = float(np.mean([refined[b](r)["ess"] for r in rows]))
         out["wall_s"][key] = float(np.mean([refined[b](r)["wall_s"] for r in rows]))
@@ -108,6 +124,10 @@ def summary_lines(out: dict) -> list[str]:
             cells.append(f"{out['mae_refined'][str(b)][p]:12.3f} [{lo:+.3f}, {hi:+.3f}]")
         lines.append(f"{p:16s} {out['mae_prior'][p]:9.3f} {out['mae_amortized'][p]:10.3f} " + " ".join(cells))
     band = out["coverage_band_90"]
+    for b in budgets:
+        needed = out["families_to_resolve"][str(b)]
+        lines.append(f"families for the Δ interval at {b} to exclude 0 if the effect is as measured (now "
+                     f"{out['families']}): " + ", ".join(f"{p} {'-' if needed[p] is None else needed[p]}" for p in names))
     lines.append(f"90 % coverage (band {band[0]:.2f}-{band[1]:.2f} at n = {out['families']}): amortized "
                  + ", ".join(f"{p} {out['coverage_amortized'][p]:.2f}" for p in names))
     for b in budgets:
@@ -140,4 +160,4 @@ def summary_lines(out: dict) -> list[str]:
     return lines
 
 
-__all__ = ["fit_summary", "summary_lines"]
+__all__ = ["families_to_resolve", "fit_summary", "summary_lines"]
