@@ -78,8 +78,8 @@ def test_a_variant_of_the_same_simulations_is_scored_beside_the_refinement():
 
 
 def test_the_families_a_bench_needs_follow_the_spread_of_the_paired_differences():
-    """Differences −0.1, 0, −0.1, 0: mean −0.05, s = 0.0577, so ⌈(1.645 · 0.0577 / 0.05)²⌉ = 4 families; a
-    spread ten times larger needs a hundred times more. In the scoring, per budget and parameter, and printed."""
+    """Differences −0.1, 0, −0.1, 0: mean −0.05, s = 0.0577, so ⌈(1.645 · 0.0577 / 0.05)²⌉ = ⌈3.6⌉ = 4 families; a
+    spread ten times larger needs a hundred times more (⌈360.8⌉). In the scoring, per budget and parameter, and printed."""
     assert families_to_resolve([-0.1, 0.0, -0.1, 0.0]) == 4
     assert families_to_resolve([-0.55, 0.45, -0.55, 0.45]) == 361  # mean −0.05, s = 0.577
     assert families_to_resolve([0.1, 0.1, 0.1]) == 2 and families_to_resolve([0.0, 0.0]) is None

@@ -41,11 +41,10 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     M_s-only predictor (``mae_prior``); the refined − amortized MAE difference with its paired
     bootstrap 90 % interval, the number of families the refinement improved and the number of families a
     bench would need for that interval to exclude 0 if the mean difference is what was measured
-    (``families_to_resolve`` = ⌈(1.645 s / |mean|)²⌉, s the paired differences' standard deviation;
-    None where the mean is 0); 90 % coverage
-    (amortized, refined) and its binomial band; the mean width of the 90 % intervals (normalized); where
-    rows have image summaries, in how many the guard refused the image reading (``image_reading_refused``);
-    mean ESS and wall time per budget; the 10/50/90 % points over families of the observation RMS over the floor (amortized draws, refined particles).
+    (``families_to_resolve``); 90 % coverage (amortized, refined) and its binomial band; the mean width
+    of the 90 % intervals (normalized); where rows have image summaries, in how many the guard refused
+    the image reading (``image_reading_refused``); mean ESS and wall time per budget; the 10/50/90 %
+    points over families of the observation RMS over the floor (amortized draws, refined particles).
     Rows carrying ``variants`` (other readings of the same simulations) get each variant's MAE, paired
     interval and coverage under ``variants``."""
     names = rows[0]["names"]
