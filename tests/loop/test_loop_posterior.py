@@ -123,6 +123,34 @@ def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_pat
     assert main(["fit", str(path), "--posterior", str(posterior), "--config", str(cfg), "--out", str(out)]) == 2
 
 
+def test_fit_in_a_box_extended_beyond_the_prior_reports_the_mass_beyond_and_refuses_what_it_cannot_do(
+        posterior, measured, tmp_path, capsys):
+    """`forcdecode fit --extend-prior N_pin=3`: the run says where its box ends and, in words and in
+    fit.json, how much posterior mass lies past the prior's bound (None until β = 1); the options that
+    cannot go with it are one clear error each."""
+    path, cfg = measured
+    out = tmp_path / "fit"
+    common = ["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg),
+              "--budget", "6", "--round-size", "3", "--out", str(out)]
+    assert main([*common, "--extend-prior", "N_pin=3"]) == 0
+    result = json.loads((out / "fit.json").read_text())
+    assert result["extend"] == {"N_pin": 3.0}
+    beyond = result["beyond_prior"]
+    row = beyond["parameters"]["N_pin"]
+    assert row["scale"] == 3.0 and row["prior_mass_beyond"] == pytest.approx(2 / 3)
+    assert (row["posterior_mass_beyond"] is None) == (not beyond["reached_full_likelihood"])
+    assert beyond["best_over_floor"] <= beyond["best_inside_over_floor"]
+    for b in result["refined_by_budget"].values():
+        assert 0.0 <= b["parameters"]["N_pin"]["median"] <= 3.0
+    assert "beyond the prior's bound" in capsys.readouterr().out
+    for extra, message in [(["--extend-prior", "K_u"], "uniformly on a linear scale"),
+                           (["--extend-prior", "N_pin", "--method", "adjusted"], "needs --method pmc"),
+                           (["--extend-prior", "N_pin", "--predictive-reference", str(tmp_path / "r.json")],
+                            "answers the question itself")]:
+        assert main([*common, *extra]) == 2
+        assert message in capsys.readouterr().err
+
+
 def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured, tmp_path):
     """`loop --estimator posterior --refine N`: the refined medians (not the amortized ones) are the
     Hamiltonian re-simulated and analysed; the report carries both."""

@@ -81,6 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "amortized draws simulated on their own realisations, regression-adjusted)")
     fit.add_argument("--prior", choices=PRIORS, default="draw",
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
+    fit.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
+                     help="fit, pmc: refine in a box extended beyond the prior's bound (forcdecode fit --extend-prior); "
+                          "each family's posterior mass beyond the bound is reported")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
     ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
@@ -324,9 +327,11 @@ def _bench_fit(args, say) -> int:
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..loop.fit_cli import fit_function
+    from ..loop.fit_cli import beyond_prior_lines, fit_function, parse_extension
 
     budgets = sorted(set(args.budgets))
+    if args.extend_prior and args.method != "pmc":
+        raise ConfigError("--extend-prior needs --method pmc")
     if args.first_family < 0 or args.families < 1:
         raise ConfigError(f"--first-family must be >= 0 and --families >= 1 (got {args.first_family}, {args.families})")
     if any(b % args.round_size for b in budgets):
@@ -337,6 +342,7 @@ def _bench_fit(args, say) -> int:
         raise ConfigError(f"the {args.split} split has {len(held_out)} families: --first-family {args.first_family} "
                           f"+ --families {args.families} is beyond it")
     chosen = held_out[args.first_family: args.first_family + args.families]
+    extend = parse_extension(args.extend_prior, tuple(est.names))
     observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
     rows = []
     import h5py
@@ -352,6 +358,9 @@ def _bench_fit(args, say) -> int:
             if result is not None and result.get("method", "pmc") != args.method:
                 raise ConfigError(f"{path} was refined by the {result.get('method', 'pmc')} method, not "
                                   f"--method {args.method}: use another --fit-dir")
+            if result is not None and (result.get("extend") or {}) != extend:
+                raise ConfigError(f"{path} was refined with the prior's box extended as {result.get('extend') or {}}, "
+                                  f"not {extend}: use another --fit-dir")
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
                 say(f"family {n}/{len(chosen)} (sample {sid}{', case ' + args.case if args.case else ''}): "
                     f"budget {budgets[-1]}")
@@ -364,9 +373,11 @@ def _bench_fit(args, say) -> int:
                 result = fit_function(args.method)(cfg, est, image, family, float(data.values["Ms"][k]),
                                                    budget=budgets[-1], round_size=args.round_size,
                                                    workers=args.fit_workers, seed=stage["seed"], key=sid,
-                                                   checkpoints=tuple(budgets), state_path=state, prior=args.prior)
-                result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0, 1))
-                                              for p in result["names"]}
+                                                   checkpoints=tuple(budgets), state_path=state, prior=args.prior,
+                                                   **({"extend": extend} if extend else {}))
+                # in an extended box the truth may lie beyond the bound, and is scored there
+                result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0,
+                                                               extend.get(p, 1.0))) for p in result["names"]}
                 if args.case:
                     result["case"] = args.case
                 write_json(path, result)
@@ -377,6 +388,12 @@ def _bench_fit(args, say) -> int:
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
     for line in summary_lines(out):
         say(line)
+    if extend:
+        out["extend"] = extend
+        out["beyond_prior"] = {str(sid): r.get("beyond_prior") for sid, r in zip(out["sample_ids"], rows)}
+        for sid, beyond in out["beyond_prior"].items():
+            for line in beyond_prior_lines(beyond):
+                say(f"sample {sid}: {line}")
     write_json(f"{args.fit_dir}/summary.json", out)
     print(json.dumps(out))
     return 0

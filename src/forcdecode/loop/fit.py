@@ -43,7 +43,17 @@ target of round r is a tempered π_β, β rising from 0 to 1: after each round �
 so round 1 starts with equal weights. Path ``"prior"``: π_β ∝ p L^β, which at small β is the box
 prior, badly covered by a narrow q₀ (measured: round-1 ESS ≈ 1–3 of 25 with a proposal 2 logits off).
 Summaries use the weights at the β of their round; one with β < 1 is flagged ``tempered`` with a
-note (not the posterior: the likelihood enters only to the power β)."""
+note (not the posterior: the likelihood enters only to the power β).
+
+Beyond the prior's bound (``scale``). A film pinned more densely than any training film is decoded,
+inside the prior, as the densest pinning the prior allows with other parameters bent to compensate
+(measured on the laptop film). To ask whether the family wants a parameter past its bound, the box of
+that parameter is stretched to ``scale`` times its prior range and the prior continued uniformly
+there: the particles live in u' = u / scale ∈ [0, 1]^d, the proposals are fitted in logit u', and q₀
+(0 beyond the bound) enters the mixture with its Jacobian. The bridge q₀^{1−β}(pL)^β is 0 beyond
+the bound while β < 1; at β = 1 every candidate weighs p L / q_mix, those simulated beyond included
+(the Gaussian proposals, inflated, reach there on their own). ``beyond_prior`` reports the posterior
+mass past the bound against the prior's."""
 
 from __future__ import annotations
 
@@ -197,7 +207,7 @@ class Refinement:
 
     def __init__(self, observed, proposal_draws, sigma2: float, budget: int, round_size: int, rng: np.random.Generator,
                  names, checkpoints=(), n_effective: float | None = None, *, tempering: bool = True,
-                 target_ess_fraction: float = 0.3, path: str = "amortized"):
+                 target_ess_fraction: float = 0.3, path: str = "amortized", scale=None):
         if budget < round_size or round_size < 2:
             raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
         if not 0.0 < target_ess_fraction <= 1.0:
@@ -206,8 +216,13 @@ class Refinement:
             raise ConfigError(f"tempering path {path!r} is not one of {PATHS}")
         self.observed = np.asarray(observed, float)
         self.n_curves = float(self.observed.shape[0] if n_effective is None else n_effective)
-        self.pool = np.asarray(proposal_draws, float)
-        d = self.pool.shape[1]
+        draws = np.asarray(proposal_draws, float)
+        d = draws.shape[1]
+        self.scale = np.ones(d) if scale is None else np.asarray(scale, float)
+        if self.scale.shape != (d,) or not np.all(np.isfinite(self.scale)) or np.any(self.scale < 1.0):
+            raise ConfigError(f"scale must hold one factor >= 1 per parameter ({d}); got {np.asarray(scale).tolist()}")
+        self.extended = bool(np.any(self.scale != 1.0))
+        self.pool = draws / self.scale  # the particles live in u' = u / scale ∈ [0, 1]^d
         self.sigma2, self.budget, self.round_size, self.rng = float(sigma2), int(budget), int(round_size), rng
         self.names, self.checkpoints = tuple(names), tuple(int(c) for c in checkpoints)
         self.tempering, self.target_ess_fraction, self.path = bool(tempering), float(target_ess_fraction), path
@@ -255,7 +270,7 @@ class Refinement:
             take = self.pool[self.cursor:self.cursor + size]
             self.cursor += size
             self.rounds.append((size, None, None))
-            return take
+            return take * self.scale
         w = _normalized(self.logw)
         z = _logit(self.u)
         mean = w @ z
@@ -269,15 +284,16 @@ class Refinement:
         self.cursor += n_def
         z_new = self.rng.multivariate_normal(mean, cov, size=size - n_def)
         self.rounds.append((size, mean, cov))
-        return np.concatenate([np.clip(from_q0, 0.0, 1.0), _inverse_logit(z_new)])
+        return np.concatenate([np.clip(from_q0, 0.0, 1.0), _inverse_logit(z_new)]) * self.scale
 
     def update(self, take, families, log_q0, wall_s: float = 0.0, log_prior=None) -> None:
         """Add the round's candidates with their simulated families, log q₀ and log prior (None: the
         uniform box, 0); raise β; summarize at checkpoints (``wall_s``: the round's time, accumulated
         into the summaries' ``wall_s``)."""
-        self.u = np.concatenate([self.u, take])
+        self.u = np.concatenate([self.u, np.asarray(take, float) / self.scale])
         self.loglik = np.concatenate([self.loglik, synthetic_loglik(families, self.observed, self.sigma2, self.n_curves)])
-        self.log_q0 = np.concatenate([self.log_q0, np.asarray(log_q0, float)])
+        # q₀'s density per unit u' (the Jacobian of u = scale · u'; 0 where the draws of q₀ never reach)
+        self.log_q0 = np.concatenate([self.log_q0, np.asarray(log_q0, float) + float(np.log(self.scale).sum())])
         self.log_prior = np.concatenate([self.log_prior, np.zeros(len(take)) if log_prior is None
                                          else np.asarray(log_prior, float)])
         with np.errstate(invalid="ignore"):
@@ -290,12 +306,17 @@ class Refinement:
         self.beta = (next_beta(tilt, base, self.beta, self.target_ess_fraction * self.round_size)
                      if self.tempering else 1.0)
         self.logw = _log_weights(tilt, base, self.beta)
+        if self.extended and self.beta == 1.0:
+            # at β = 1 the target no longer involves q₀, so candidates beyond its support (q₀ = 0: the
+            # extended part of the box) weigh by p L / q_mix like any other
+            self.logw = _log_weights(np.where(np.isneginf(self.log_prior), -np.inf, self.loglik + self.log_prior),
+                                     log_q, 1.0)
         self.betas.append(self.beta)
         self.ess.append(_ess(self.logw))
         self.wall_s += float(wall_s)
         spent = len(self.rounds) * self.round_size
         if spent in self.checkpoints or spent == self.n_rounds * self.round_size:
-            summary = summarize_particles(self.u, _normalized(self.logw), self.names)
+            summary = summarize_particles(self.u * self.scale, _normalized(self.logw), self.names)
             summary.update(beta=self.beta, tempered=self.beta < 1.0, wall_s=self.wall_s)
             if self.beta < 1.0:
                 summary["note"] = (f"tempered posterior: likelihood to the power beta = {self.beta:.3g} < 1 "
@@ -305,7 +326,7 @@ class Refinement:
             self.by_budget[spent] = summary
 
     def result(self) -> dict:
-        return {"u": self.u, "loglik": self.loglik, "weights": _normalized(self.logw),
+        return {"u": self.u * self.scale, "loglik": self.loglik, "weights": _normalized(self.logw),
                 "summary": self.by_budget[max(self.by_budget)], "by_budget": dict(self.by_budget),
                 "sigma2": self.sigma2, "n_curves": self.n_curves, "betas": list(self.betas), "ess": list(self.ess),
                 "reached_full_likelihood": self.beta == 1.0, "path": self.path if self.tempering else None}
@@ -324,7 +345,7 @@ class Refinement:
                 "target_ess_fraction": self.target_ess_fraction, "path": self.path, "cursor": self.cursor,
                 "beta": self.beta, "betas": self.betas, "ess": self.ess, "wall_s": self.wall_s,
                 "round_sizes": [r[0] for r in self.rounds], "by_budget": {str(k): v for k, v in self.by_budget.items()},
-                "rng": self.rng.bit_generator.state, "context": self.context}
+                "rng": self.rng.bit_generator.state, "context": self.context, "scale": self.scale.tolist()}
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as handle:
                 np.savez(handle, observed=self.observed, pool=self.pool, u=self.u, loglik=self.loglik,
@@ -347,7 +368,8 @@ class Refinement:
         rng.bit_generator.state = meta["rng"]
         state = cls(arrays["observed"], arrays["pool"], meta["sigma2"], meta["budget"], meta["round_size"], rng,
                     meta["names"], meta["checkpoints"], meta["n_curves"], tempering=meta["tempering"],
-                    target_ess_fraction=meta["target_ess_fraction"], path=meta["path"])
+                    target_ess_fraction=meta["target_ess_fraction"], path=meta["path"], scale=meta.get("scale"))
+        state.pool = arrays["pool"]  # saved in u' (not divided twice)
         state.u, state.loglik, state.log_q0, state.logw = arrays["u"], arrays["loglik"], arrays["log_q0"], arrays["logw"]
         state.log_prior = arrays.get("log_prior", np.zeros(len(state.u)))
         state.rounds = [(size, None if np.isnan(m).all() else m, None if np.isnan(c).all() else c)
@@ -614,10 +636,46 @@ def observation_rms(state) -> dict:
             "best_over_floor_by_budget": best}
 
 
+def beyond_prior(state) -> dict:
+    """Where a refinement run in an extended box (``Refinement(scale=…)``: parameter j may reach
+    ``scale[j]`` times its prior's range) puts the film: per extended parameter, the posterior mass
+    beyond the prior's bound (u > 1), that mass under the extended prior (1 − 1/scale: the extension
+    is uniform in u), and the Bayes factor of "beyond" against "inside"
+    (posterior odds / prior odds). Beside them, the observation RMS over the floor of the best
+    candidate inside the prior box and of the best overall: a film the prior cannot make is
+    reproduced better beyond it. The masses hold only at β = 1 (``reached_full_likelihood``: before,
+    the target is bridged to q₀, which is 0 beyond the bound). {} for a run in the prior's box."""
+    if not state.extended:
+        return {}
+    ok = np.isfinite(state.loglik)
+    ratio = np.where(ok, np.sqrt(np.clip(-2.0 * np.where(ok, state.loglik, 0.0) * state.sigma2 / state.n_curves, 0, None))
+                     / np.sqrt(state.sigma2), np.inf)
+    u = state.u * state.scale
+    inside = np.all(u <= 1.0 + 1e-9, axis=1)
+    w = _normalized(state.logw)
+    reached = bool(state.beta == 1.0)
+    out = {"reached_full_likelihood": reached,
+           "best_inside_over_floor": float(ratio[inside].min()) if inside.any() else float("nan"),
+           "best_over_floor": float(ratio.min()), "parameters": {}}
+    for j, name in enumerate(state.names):
+        if state.scale[j] == 1.0:
+            continue
+        beyond = u[:, j] > 1.0 + 1e-9
+        prior_mass = 1.0 - 1.0 / float(state.scale[j])
+        mass = factor = None  # before β = 1 there is no posterior mass beyond the bound to report
+        if reached:
+            mass = float(w[beyond].sum())
+            factor = (mass / (1.0 - mass)) / (prior_mass / (1.0 - prior_mass)) if mass < 1.0 else float("inf")
+        out["parameters"][name] = {"scale": float(state.scale[j]), "posterior_mass_beyond": mass,
+                                   "prior_mass_beyond": prior_mass, "bayes_factor_beyond": factor,
+                                   "candidates_beyond": int(beyond.sum())}
+    return out
+
+
 def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
            rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None, *,
            tempering: bool = True, target_ess_fraction: float = 0.3, path: str = "amortized",
-           prior_logpdf=None) -> dict:
+           prior_logpdf=None, scale=None) -> dict:
     """Tempered population Monte Carlo for one observation (see the module docstring).
 
     ``proposal_draws`` (m, d): draws of the amortized posterior q₀ in u ∈ [0, 1]^d (round 1 takes the
@@ -633,7 +691,7 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
     ``reached_full_likelihood`` (final β = 1; otherwise the result is a tempered posterior, not the
     target: raise the budget)."""
     state = Refinement(observed, proposal_draws, sigma2, budget, round_size, rng, names, checkpoints, n_effective,
-                       tempering=tempering, target_ess_fraction=target_ess_fraction, path=path)
+                       tempering=tempering, target_ess_fraction=target_ess_fraction, path=path, scale=scale)
     while not state.done:
         started = time.perf_counter()
         take = state.propose()
@@ -667,4 +725,4 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     return simulate
 
 
-__all__ = ["Refinement", "refine", "regression_adjust", "summary_resolution", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]
+__all__ = ["Refinement", "beyond_prior", "refine", "regression_adjust", "summary_resolution", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]

@@ -22,6 +22,42 @@ import numpy as np
 PRIORS = ("draw", "uniform")
 """The refinement's priors: the dataset's draw prior given M_s, or the uniform box."""
 
+EXTENSION_FACTOR = 4.0
+"""Default factor of ``--extend-prior NAME``: the box of NAME reaches 4 × its prior's range (for N_pin,
+four times the densest pinning the dataset was drawn with)."""
+
+
+def parse_extension(items, names) -> dict:
+    """``["N_pin=4", "D"]`` → {"N_pin": 4.0, "D": EXTENSION_FACTOR}: the parameters whose box the
+    refinement extends beyond the prior's bound, each by the factor of its range (``loop.fit.beyond_prior``).
+    Only parameters drawn uniformly on a linear scale can be extended (the extension continues that
+    uniform density past the upper bound). ConfigError for anything else."""
+    from ..core.errors import ConfigError
+    from ..core.parameters import LOG_SCALE
+    from ..dataset.params import UNIFORM_DRAWS
+
+    out = {}
+    for item in items or ():
+        name, _, factor = str(item).partition("=")
+        if name not in names:
+            raise ConfigError(f"--extend-prior {item!r}: {name!r} is not a refined parameter ({', '.join(names)})")
+        if name not in UNIFORM_DRAWS or name in LOG_SCALE:
+            raise ConfigError(f"--extend-prior {item!r}: only parameters drawn uniformly on a linear scale can be "
+                              f"extended ({', '.join(n for n in UNIFORM_DRAWS if n not in LOG_SCALE)})")
+        try:
+            value = float(factor) if factor else EXTENSION_FACTOR
+        except ValueError:
+            raise ConfigError(f"--extend-prior {item!r}: the factor must be a number, e.g. {name}=4") from None
+        if not np.isfinite(value) or value <= 1.0:
+            raise ConfigError(f"--extend-prior {item!r}: the factor must be > 1 (the box's reach in prior ranges)")
+        out[name] = value
+    return out
+
+
+def extension_scale(names, extend) -> np.ndarray:
+    """Per parameter, the factor by which its box reaches beyond the prior's range (1: not extended)."""
+    return np.array([float((extend or {}).get(n, 1.0)) for n in names])
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="dataset.h5 (with --sample-id) or a measured FORC file")
@@ -38,6 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the amortized draws simulated on their own realisations and regression-adjusted")
     parser.add_argument("--prior", choices=PRIORS, default="draw",
                         help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
+    parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
+                        help="pmc: let these parameters go beyond the prior's upper bound, to FACTOR times its range "
+                             f"(default {EXTENSION_FACTOR:g}); fit.json's beyond_prior then gives the posterior mass "
+                             "beyond the bound (e.g. --extend-prior N_pin: is the film pinned more densely than any "
+                             "training film?)")
     parser.add_argument("--predictive-reference", help="the posterior-predictive check's reference "
                         "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`): fit.json then "
                         "says whether a film inside the prior reproduces this family")
@@ -80,13 +121,15 @@ def family_key(label: str) -> int:
     return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
 
 
-def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), prior="draw"):
+def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), prior="draw",
+              extend=None):
     """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
     σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
     realisations. The state carries what later rounds
     need (``context``: M_s, key, names, the amortized summary, the prior) so that each round can run as a
     job. ``prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
-    or "uniform" on the normalized box (the former target, kept for comparison)."""
+    or "uniform" on the normalized box (the former target, kept for comparison). ``extend``: {name:
+    factor} of ``parse_extension`` (the box beyond the prior's bound; ``loop.fit.beyond_prior``)."""
     from ..core.errors import ConfigError
 
     if prior not in PRIORS:
@@ -113,9 +156,10 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
     sigma2, nu = difference_variance(floor, quantization_step=2 / 255)
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
-                       names, checkpoints=checkpoints, n_effective=nu)
+                       names, checkpoints=checkpoints, n_effective=nu,
+                       scale=extension_scale(names, extend) if extend else None)
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
-                     "prior": prior,
+                     "prior": prior, **({"extend": dict(extend)} if extend else {}),
                      "n_effective": nu, "simulations_for_sigma2": n_real,
                      "amortized": summarize_particles(reported, np.ones(len(reported)), names),
                      "image_uint8": np.asarray(image, dtype=np.uint8).tolist()}
@@ -140,18 +184,22 @@ def prior_logpdf(state, bounds):
     from ..dataset.params import draw_log_density
 
     ctx = state.context
+    scale = extension_scale(state.names, ctx.get("extend"))
     if ctx.get("prior", "uniform") == "uniform":
-        return lambda u: np.zeros(len(np.atleast_2d(u)))
-    return lambda u: draw_log_density(u, state.names, ctx["Ms"], bounds)
+        return lambda u: np.where(np.all(np.atleast_2d(u) <= scale, axis=1), 0.0, -np.inf)
+    # an extended parameter is drawn uniformly: its density continues past the bound, so the draw
+    # density is evaluated with that coordinate brought back into [0, 1] (a constant factor)
+    return lambda u: draw_log_density(np.atleast_2d(u) / scale, state.names, ctx["Ms"], bounds)
 
 
 def finish_fit(state) -> dict:
     """fit.json's content (plain values) from a finished refinement state."""
-    from .fit import observation_rms
+    from .fit import beyond_prior, observation_rms
 
     ctx = state.context
     result = state.result()
-    return {"names": ctx["names"], "Ms": ctx["Ms"], "prior": ctx.get("prior", "uniform"), "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
+    extension = {"extend": ctx["extend"], "beyond_prior": beyond_prior(state)} if ctx.get("extend") else {}
+    return {**extension, "names": ctx["names"], "Ms": ctx["Ms"], "prior": ctx.get("prior", "uniform"), "sigma2": ctx["sigma2"], "n_effective": ctx["n_effective"],
             "simulations_for_sigma2": ctx["simulations_for_sigma2"], "amortized": ctx["amortized"],
             "refined_by_budget": {str(b): v for b, v in result["by_budget"].items()},
             "betas": result["betas"], "ess_per_round": result["ess"],
@@ -166,18 +214,19 @@ def _proposal_logpdf(est, state):
 
     def logpdf(u):
         u = np.atleast_2d(u)
-        out = np.empty(len(u))
-        images = np.repeat(image[None], min(256, len(u)), axis=0)
-        for s in range(0, len(u), 256):
-            part = u[s:s + 256]
-            out[s:s + len(part)] = est.log_prob(part, images[:len(part)], np.full(len(part), ms_norm))
+        out = np.full(len(u), -np.inf)  # beyond the prior's box (an extended refinement) q₀ has no mass
+        inside = np.flatnonzero(np.all(u <= 1.0, axis=1))
+        images = np.repeat(image[None], min(256, max(len(inside), 1)), axis=0)
+        for s in range(0, len(inside), 256):
+            part = inside[s:s + 256]
+            out[part] = est.log_prob(u[part], images[:len(part)], np.full(len(part), ms_norm))
         return out
 
     return logpdf
 
 
 def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
-            state_path=None, prior="draw") -> dict:
+            state_path=None, prior="draw", extend=None) -> dict:
     """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
     The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
     ``state_path``: the state (every particle) is saved there after each round; a run that stops
@@ -192,10 +241,13 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
         if state.context.get("prior", "uniform") != prior:
             raise ConfigError(f"{state_path}: refined with the {state.context.get('prior', 'uniform')} prior, "
                               f"asked for {prior}")
+        if (state.context.get("extend") or {}) != (extend or {}):
+            raise ConfigError(f"{state_path}: refined with the prior's box extended as {state.context.get('extend') or {}}, "
+                              f"asked for {extend or {}}")
         state.extend(budget, checkpoints)  # nested rounds: a longer budget continues the saved run
     else:
         state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                          seed=seed, key=key, checkpoints=checkpoints, prior=prior)
+                          seed=seed, key=key, checkpoints=checkpoints, prior=prior, extend=extend)
     while not state.done:
         fit_round(state, cfg, est, workers)
         if state_path is not None:
@@ -463,6 +515,24 @@ def print_summary(result: dict, budget: int) -> None:
         print(f"answer: reading {result['reading']!r} (others under 'variants' in fit.json)")
     if final.get("tempered"):
         print(f"warning: {final['note']}")
+    for line in beyond_prior_lines(result.get("beyond_prior")):
+        print(line)
+
+
+def beyond_prior_lines(beyond: dict | None) -> list[str]:
+    """What an extended refinement (``--extend-prior``) says about the prior's bound, in words."""
+    if not beyond:
+        return []
+    lines = [f"best simulated film inside the prior: {beyond['best_inside_over_floor']:.2f} x the realisation floor; "
+             f"anywhere in the extended box: {beyond['best_over_floor']:.2f} x"]
+    for name, row in beyond["parameters"].items():
+        if row["posterior_mass_beyond"] is None:
+            lines.append(f"{name}: the refinement did not reach the full likelihood, so the mass beyond the prior's "
+                         f"bound is unknown ({row['candidates_beyond']} candidates simulated beyond it): raise the budget")
+        else:
+            lines.append(f"{name}: posterior mass beyond the prior's bound {row['posterior_mass_beyond']:.3f} "
+                         f"(prior mass there {row['prior_mass_beyond']:.2f}; Bayes factor {row['bayes_factor_beyond']:.3g})")
+    return lines
 
 
 def run(args) -> int:
@@ -477,6 +547,12 @@ def run(args) -> int:
     reference = None
     if args.predictive_reference and args.method != "pmc":
         raise ConfigError("--predictive-reference needs --method pmc (its statistic is the particles' observation RMS)")
+    if args.extend_prior and args.method != "pmc":
+        raise ConfigError("--extend-prior needs --method pmc (the adjusted fit only reweights the amortized draws, "
+                          "which never leave the prior's box)")
+    if args.extend_prior and args.predictive_reference:
+        raise ConfigError("--extend-prior and --predictive-reference: the reference was refined inside the prior's "
+                          "box; an extended refinement answers the question itself (fit.json beyond_prior)")
     if args.predictive_reference:
         from ..core.io import read_json
         from .predictive_check import check_reference
@@ -484,13 +560,14 @@ def run(args) -> int:
         reference = read_json(args.predictive_reference, what="predictive-check reference")
         check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=args.budget)
     est = PosteriorEstimator.load(args.posterior)
+    extend = parse_extension(args.extend_prior, tuple(est.names))
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731
     result = fit_function(args.method)(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                                        workers=args.workers, seed=args.seed, key=key, prior=args.prior,
                                        checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
-                                       log=log)
+                                       log=log, **({"extend": extend} if extend else {}))
     result["truth"] = truth
     if reference is not None:
         from .predictive_check import predictive_check
