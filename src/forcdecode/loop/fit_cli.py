@@ -155,9 +155,14 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     n_real = 4
     floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
     sigma2, nu = difference_variance(floor, quantization_step=2 / 255)
+    scale = None
+    if extend:  # the proposal widened over the extended box (loop.fit.widened_logpdf; _proposal_logpdf)
+        from .fit import widen_draws
+
+        scale = extension_scale(names, extend)
+        draws = widen_draws(draws, scale, stream_rng(seed, "posterior", "fit_widening", key))
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
-                       names, checkpoints=checkpoints, n_effective=nu,
-                       scale=extension_scale(names, extend) if extend else None)
+                       names, checkpoints=checkpoints, n_effective=nu, scale=scale)
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
                      "prior": prior, **({"extend": dict(extend)} if extend else {}),
                      "n_effective": nu, "simulations_for_sigma2": n_real,
@@ -208,13 +213,24 @@ def finish_fit(state) -> dict:
 
 
 def _proposal_logpdf(est, state):
-    """log q₀(u) of the amortized posterior at this observation (the image is kept in the state)."""
+    """log q₀(u) of the amortized posterior at this observation (the image is kept in the state); for a
+    refinement in an extended box, of q₀ widened over it (``loop.fit.widened_logpdf``)."""
     image = np.asarray(state.context["image_uint8"], dtype=np.uint8)
     ms_norm = state.context["ms_norm"]
+    extend = state.context.get("extend")
+    if extend:
+        from .fit import widened_logpdf
+
+        return widened_logpdf(_flow_logpdf(est, image, ms_norm), extension_scale(state.names, extend))
+    return _flow_logpdf(est, image, ms_norm)
+
+
+def _flow_logpdf(est, image, ms_norm: float):
+    """log q₀(u) of the flow at one observation; −∞ beyond the prior's box, where it has no mass."""
 
     def logpdf(u):
         u = np.atleast_2d(u)
-        out = np.full(len(u), -np.inf)  # beyond the prior's box (an extended refinement) q₀ has no mass
+        out = np.full(len(u), -np.inf)
         inside = np.flatnonzero(np.all(u <= 1.0, axis=1))
         images = np.repeat(image[None], min(256, max(len(inside), 1)), axis=0)
         for s in range(0, len(inside), 256):
