@@ -164,7 +164,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
                        names, checkpoints=checkpoints, n_effective=nu, scale=scale)
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
-                     "prior": prior, **({"extend": dict(extend)} if extend else {}),
+                     "prior": prior, **({"extend": dict(extend), "proposal": "widened"} if extend else {}),
                      "n_effective": nu, "simulations_for_sigma2": n_real,
                      "amortized": summarize_particles(reported, np.ones(len(reported)), names),
                      "image_uint8": np.asarray(image, dtype=np.uint8).tolist()}
@@ -257,6 +257,9 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
         if state.context.get("prior", "uniform") != prior:
             raise ConfigError(f"{state_path}: refined with the {state.context.get('prior', 'uniform')} prior, "
                               f"asked for {prior}")
+        if extend and state.context.get("proposal") != "widened":
+            raise ConfigError(f"{state_path}: an extended refinement from before its proposal was widened "
+                              f"(loop.fit.widened_logpdf): start it again in another place")
         if (state.context.get("extend") or {}) != (extend or {}):
             raise ConfigError(f"{state_path}: refined with the prior's box extended as {state.context.get('extend') or {}}, "
                               f"asked for {extend or {}}")
