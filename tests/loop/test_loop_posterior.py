@@ -151,6 +151,29 @@ def test_fit_in_a_box_extended_beyond_the_prior_reports_the_mass_beyond_and_refu
         assert message in capsys.readouterr().err
 
 
+def test_the_loop_refines_in_an_extended_box_and_reports_the_mass_beyond_the_bound(posterior, measured, tmp_path):
+    """`loop --refine N --refine-extend-prior N_pin=3`: report.json's refined entry carries beyond_prior, the
+    re-simulated N_pin is the refined median even past the bound, report.md says it in words; without
+    --refine, with the adjusted method or beside a predictive reference it is one clear error."""
+    path, cfg = measured
+    out = tmp_path / "loop"
+    common = ["loop", str(path), "--config", str(cfg), "--estimator", "posterior", "--posterior", str(posterior),
+              "--Ms-kA-m", "600", "--profiles", "1", "--no-physics", "--no-measured-protocol", "--force"]
+    assert main([*common, "--out", str(out), "--refine", "6", "--refine-round-size", "3",
+                 "--refine-extend-prior", "N_pin=3"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    refined = report["refined"]
+    assert refined["extend"] == {"N_pin": 3.0} and "N_pin" in refined["beyond_prior"]["parameters"]
+    low, high = DEFAULT_BOUNDS["N_pin"]
+    assert 0 <= report["parameters"]["N_pin"] <= low + 3 * (high - low)
+    assert report["parameters"]["N_pin"] == round(refined["parameters"]["N_pin"]["value"])
+    assert "beyond the prior's bound" in (out / "report.md").read_text()
+    for extra in (["--refine-extend-prior", "N_pin"],
+                  ["--refine", "6", "--refine-method", "adjusted", "--refine-extend-prior", "N_pin"],
+                  ["--refine", "6", "--refine-extend-prior", "K_u"]):
+        assert main([*common, "--out", str(tmp_path / "x"), *extra]) == 2
+
+
 def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured, tmp_path):
     """`loop --estimator posterior --refine N`: the refined medians (not the amortized ones) are the
     Hamiltonian re-simulated and analysed; the report carries both."""

@@ -31,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--predictive-reference", help="with --refine: the posterior-predictive check's reference "
                         "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`, B <= --refine): "
                         "flags a family no film inside the prior reproduces")
+    parser.add_argument("--refine-extend-prior", nargs="+", metavar="NAME[=FACTOR]",
+                        help="with --refine (pmc): refine in a box reaching FACTOR (default 4) times the prior's range "
+                             "for these parameters and report the posterior mass beyond the bound (e.g. N_pin: is the "
+                             "film pinned more densely than any training film?)")
     parser.add_argument("--params", help="JSON file with a Hamiltonian to re-simulate (SI) instead of predicting one")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, help="known M_s (kA/m): no sweep")
     parser.add_argument("--Ms-sweep-kA-m", dest="ms_sweep", type=float, nargs=3, default=[470.0, 1400.0, 6],
@@ -97,7 +101,7 @@ def run(args) -> int:
                                 posterior_path=args.posterior, fixed_point=args.fixed_point,
                                 refine_budget=args.refine, refine_round_size=args.refine_round_size,
                                 refine_workers=args.refine_workers, refine_method=args.refine_method,
-                                predictive_reference=args.predictive_reference,
+                                predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")

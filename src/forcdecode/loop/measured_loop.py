@@ -84,20 +84,23 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
 
 
 def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
-            method: str = "pmc"):
+            method: str = "pmc", extend=None):
     """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
     ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check.
     ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
-    particles' observation RMS)."""
+    particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
+    beyond the prior's bound (``fit_cli.parse_extension``); the entry then carries ``beyond_prior``
+    (``loop.fit.beyond_prior``) and the medians may lie past the bound."""
     from ..core.parameters import denormalize
-    from .fit_cli import family_key, fit_function
+    from .fit_cli import beyond_prior_lines, family_key, fit_function
     from .posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                                  seed=int(cfg.get("seed", 0)), key=key, log=log)
+                                  seed=int(cfg.get("seed", 0)), key=key, log=log,
+                                  **({"extend": dict(extend)} if extend else {}))
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
@@ -116,6 +119,10 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         + ("" if result["reached_full_likelihood"] else " (tempered: not the full posterior)"))
     if "observation_rms" in result:  # pmc: the particles' own posterior-predictive RMS
         entry["observation_rms"] = result["observation_rms"]
+    if extend:
+        entry["extend"], entry["beyond_prior"] = result["extend"], result["beyond_prior"]
+        for line in beyond_prior_lines(result["beyond_prior"]):
+            log(line)
     if predictive_reference is not None:
         from .predictive_check import predictive_check
 
@@ -216,7 +223,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
                        null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
                        refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
-                       moment_tolerance: float = MOMENT_TOLERANCE,
+                       refine_extend=None, moment_tolerance: float = MOMENT_TOLERANCE,
                        log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
@@ -251,7 +258,10 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
     method): the calibrated posterior-predictive check (``loop.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
-    ``refined.predictive_check``). ``moment_tolerance``: relative uncertainty of the moment
+    ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
+    the pmc method; not with ``predictive_reference``, whose reference was refined in the prior's box):
+    refine in a box extended beyond the prior's bound and report the posterior mass past it (report key
+    ``refined.beyond_prior``). ``moment_tolerance``: relative uncertainty of the moment
     normalization inside which a fitted scale is not named an effect
     (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
     from ..forc.raster import measurement_on_grid
@@ -265,12 +275,17 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
-    from .fit_cli import fit_function
+    from ..core.parameters import TARGETS
+    from .fit_cli import fit_function, parse_extension
 
     fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
         raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
                           "RMS: it needs --refine-method pmc")
+    if refine_extend and (not refine_budget or refine_method != "pmc" or predictive_reference is not None):
+        raise ConfigError("--refine-extend-prior needs --refine with --refine-method pmc, and not --predictive-reference "
+                          "(its reference was refined inside the prior's box; the extended refinement answers itself)")
+    extend = parse_extension(refine_extend, TARGETS)  # an unknown or non-extensible name: before any simulation
     reference = None
     if predictive_reference is not None:
         if not refine_budget:
@@ -353,7 +368,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         if refine_budget:
             report["refined"], params = _refine(cfg, est, image, family, best["Ms"], path, refine_budget,
                                                 refine_round_size, refine_workers, log, reference,
-                                                method=refine_method)
+                                                method=refine_method,
+                                                extend=extend)
             report["parameters"] = params
             resim = None  # re-simulate the refined Hamiltonian
     if resim is None:
@@ -504,6 +520,10 @@ def _markdown(path, report, analysis) -> str:
             for name, row in refined["parameters"].items():
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
+            if refined.get("beyond_prior"):
+                from .fit_cli import beyond_prior_lines
+
+                lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")
             if check:
                 lines += ["", ("**Misspecified: " if check["misspecified"] else "Posterior-predictive check: ")
