@@ -77,7 +77,7 @@ def test_a_truth_inside_the_prior_keeps_the_exact_posterior_and_no_mass_beyond()
         assert np.max(np.abs(np.array(medians) - exact)) < 0.02, (seed, medians, exact)
         assert beyond["parameters"]["b"]["posterior_mass_beyond"] < 0.01
         assert beyond["parameters"]["b"]["prior_mass_beyond"] == pytest.approx(0.6)
-        assert beyond["best_over_floor"] == beyond["best_inside_over_floor"]
+        assert beyond["best_over_floor"] == beyond["best_inside_over_floor"] and beyond["inside_over_anywhere"] == 1.0
 
 
 def test_a_truth_beyond_the_bound_puts_the_posterior_there_or_says_it_cannot_tell():
@@ -94,7 +94,7 @@ def test_a_truth_beyond_the_bound_puts_the_posterior_there_or_says_it_cannot_tel
         assert exact_mass > 0.99
         beyond = beyond_prior(state)
         row = beyond["parameters"]["b"]
-        assert row["candidates_beyond"] > 0
+        assert row["candidates_beyond"] > 0 and beyond["inside_over_anywhere"] > 1.0
         if beyond["reached_full_likelihood"]:
             reached += 1
             assert row["posterior_mass_beyond"] > 0.95 and row["bayes_factor_beyond"] > 10

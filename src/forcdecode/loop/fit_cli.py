@@ -543,7 +543,8 @@ def beyond_prior_lines(beyond: dict | None) -> list[str]:
     if not beyond:
         return []
     lines = [f"best simulated film inside the prior: {beyond['best_inside_over_floor']:.2f} x the realisation floor; "
-             f"anywhere in the extended box: {beyond['best_over_floor']:.2f} x"]
+             f"anywhere in the extended box: {beyond['best_over_floor']:.2f} x (ratio {beyond['inside_over_anywhere']:.2f}; "
+             "above 1 a film beyond the bound reproduces the family better)"]
     for name, row in beyond["parameters"].items():
         if row["posterior_mass_beyond"] is None:
             lines.append(f"{name}: the refinement did not reach the full likelihood, so the mass beyond the prior's "
