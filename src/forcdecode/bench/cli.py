@@ -374,7 +374,7 @@ def _bench_fit(args, say) -> int:
                                                    budget=budgets[-1], round_size=args.round_size,
                                                    workers=args.fit_workers, seed=stage["seed"], key=sid,
                                                    checkpoints=tuple(budgets), state_path=state, prior=args.prior,
-                                                   **({"extend": extend} if extend else {}))
+                                                   extend=extend)
                 # in an extended box the truth may lie beyond the bound, and is scored there
                 result["truth_normalized"] = {p: float(np.clip(normalize(p, truth[p], data.bounds), 0,
                                                                extend.get(p, 1.0))) for p in result["names"]}

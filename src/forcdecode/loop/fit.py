@@ -615,6 +615,14 @@ def outside_simulations(summaries, observed_summary) -> tuple[bool, float, float
     return bool(observed > simulated.max()), observed, float(simulated.max())
 
 
+def _rms_over_floor(state) -> np.ndarray:
+    """Each candidate's observation RMS over the realisation floor, from its synthetic log-likelihood
+    (MSE = −2 log L σ² / ν); ∞ where its simulation failed."""
+    ok = np.isfinite(state.loglik)
+    return np.sqrt(np.clip(-2.0 * np.where(ok, state.loglik, -np.inf) * state.sigma2 / state.n_curves, 0, None)) \
+        / np.sqrt(state.sigma2)
+
+
 def observation_rms(state) -> dict:
     """The posterior-predictive check the particles give for free: each candidate's observation RMS
     against the observed family (from its synthetic log-likelihood, MSE = −2 log L σ² / ν; on the
@@ -625,8 +633,7 @@ def observation_rms(state) -> dict:
     calibrated misspecification check, ``loop.predictive_check``: it does not depend on the budget
     run beyond b)."""
     ok = np.isfinite(state.loglik)
-    ratio_all = np.sqrt(np.clip(-2.0 * np.where(ok, state.loglik, -np.inf) * state.sigma2 / state.n_curves, 0, None)) \
-        / np.sqrt(state.sigma2)
+    ratio_all = _rms_over_floor(state)
     ratio = ratio_all[ok]
     first = np.zeros(len(state.loglik), bool)
     first[: state.round_size] = True
@@ -695,9 +702,7 @@ def beyond_prior(state) -> dict:
     the target is bridged to q₀, which is 0 beyond the bound). {} for a run in the prior's box."""
     if not state.extended:
         return {}
-    ok = np.isfinite(state.loglik)
-    ratio = np.where(ok, np.sqrt(np.clip(-2.0 * np.where(ok, state.loglik, 0.0) * state.sigma2 / state.n_curves, 0, None))
-                     / np.sqrt(state.sigma2), np.inf)
+    ratio = _rms_over_floor(state)
     u = state.u * state.scale
     inside = np.all(u <= 1.0 + 1e-9, axis=1)
     w = _normalized(state.logw)

@@ -342,7 +342,7 @@ def network_summaries(est, images, ms_norm: float, seed: int) -> np.ndarray:
 
 
 def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, checkpoints=(), log=None,
-                 state_path=None, prior="draw", round_size: int = 25) -> dict:
+                 state_path=None, prior="draw", round_size: int = 25, extend=None) -> dict:
     """The amortized posterior corrected by simulation of this film, by regression adjustment.
 
     ``budget`` draws of the amortized posterior q₀ (the flow) are simulated, each on its own disorder
@@ -362,7 +362,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     which it averages instead of fitting one realisation.
     ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
     simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
-    far, saved after every ``round_size`` simulations; a longer budget extends a saved run."""
+    far, saved after every ``round_size`` simulations; a longer budget extends a saved run. ``extend``
+    (the pmc method's box beyond the prior) is refused: the draws never leave the prior's box."""
     from ..core.errors import ConfigError
     from ..core.io import atomic_path
     from ..core.parameters import normalize
@@ -377,6 +378,9 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
 
     if prior not in PRIORS:
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
+    if extend:
+        raise ConfigError("a box extended beyond the prior needs the pmc method (the adjusted fit only reweights "
+                          "the amortized draws, which never leave the prior's box)")
     if budget < 10:
         raise ConfigError(f"budget {budget}: the regression adjustment needs at least 10 simulations")
     names = tuple(est.names)
@@ -587,7 +591,7 @@ def run(args) -> int:
     result = fit_function(args.method)(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                                        workers=args.workers, seed=args.seed, key=key, prior=args.prior,
                                        checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
-                                       log=log, **({"extend": extend} if extend else {}))
+                                       log=log, extend=extend)
     result["truth"] = truth
     if reference is not None:
         from .predictive_check import predictive_check

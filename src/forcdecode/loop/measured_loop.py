@@ -99,8 +99,7 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
 
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                                  seed=int(cfg.get("seed", 0)), key=key, log=log,
-                                  **({"extend": dict(extend)} if extend else {}))
+                                  seed=int(cfg.get("seed", 0)), key=key, log=log, extend=extend)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
