@@ -137,3 +137,40 @@ def test_case_observations_take_the_stored_families_and_the_cases_truth(tmp_path
     args.families = 3
     with pytest.raises(ConfigError, match="holds 3 families"):
         _case_observations(args, {}, data, held_out, held_out)
+
+
+def extended_row(ratio):
+    """A fit result in a box with N_pin extended ×4 whose log-likelihood ratio is ``ratio`` at 25 and 50."""
+    return {"prior": "draw", "extend": {"N_pin": 4.0},
+            "beyond_prior": {"log_likelihood_ratio_by_budget": {"25": ratio, "50": ratio}}}
+
+
+def test_an_extended_validation_bench_writes_the_reference_that_judges_other_films(tmp_path):
+    """``bench fit --extend-prior``: a validation run writes FIT_DIR/extension_reference.json from its
+    families' Λ; a run with ``--extension-reference`` judges each family against it and counts the flags
+    (conformal: with 20 reference values of 0, a positive Λ gets p = 1/21 < 0.05, Λ = 0 gets p = 1)."""
+    import argparse
+    import json
+
+    from forcdecode.bench.cli import _extension_check
+
+    said = []
+    args = argparse.Namespace(split="validation", case=None, fit_dir=str(tmp_path), round_size=25, prior="draw",
+                              extension_reference=None)
+    out = {"sample_ids": list(range(20))}
+    _extension_check(args, out, [extended_row(0.0)] * 19 + [extended_row(0.002)], 50, {"N_pin": 4.0}, None, said.append)
+    reference = json.loads((tmp_path / "extension_reference.json").read_text())
+    assert reference["extend"] == {"N_pin": 4.0} and reference["budget"] == 50 and len(reference["values"]) == 20
+    assert out["log_likelihood_ratio"]["19"] == 0.002 and "extension_check" not in out
+    assert any("reference of 20 validation families" in line for line in said)
+    args = argparse.Namespace(split="test", case="pinning_beyond_prior", fit_dir=str(tmp_path / "case"), round_size=25,
+                              prior="draw", extension_reference=str(tmp_path / "extension_reference.json"))
+    out = {"sample_ids": [7, 13, 33]}
+    _extension_check(args, out, [extended_row(2.2), extended_row(0.0), extended_row(0.001)], 50, {"N_pin": 4.0},
+                     reference, said.append)
+    check = out["extension_check"]
+    assert (check["flagged"], check["of"]) == (1, 3)
+    assert check["per_family"]["7"]["misspecified"] and check["per_family"]["7"]["p_value"] == pytest.approx(1 / 21)
+    assert check["per_family"]["13"]["p_value"] == 1.0 and check["per_family"]["33"]["p_value"] == pytest.approx(2 / 21)
+    assert not (tmp_path / "case").exists()  # a case run writes no reference
+    assert said[-1].startswith("extension check: 1 of 3 families flagged")

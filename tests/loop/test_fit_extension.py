@@ -9,7 +9,9 @@ import pytest
 from scipy.stats import norm
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.loop.fit import Refinement, _log_jacobian, _logit, beyond_prior, widen_draws, widened_logpdf
+from forcdecode.loop.fit import (Refinement, _log_jacobian, _logit, beyond_prior, log_likelihood_ratio, widen_draws,
+                                 widened_logpdf)
+from forcdecode.loop.predictive_check import EXTENSION_STATISTIC, make_reference, predictive_check
 
 from test_fit import SIGMA, forward
 
@@ -164,3 +166,68 @@ def test_the_extension_is_parsed_and_the_draw_prior_continues_uniformly_past_the
     assert values[0] == pytest.approx(values[1]) and np.isneginf(values[2])
     plain = draw_log_density(u[:1], names, 8e5)
     assert values[0] == pytest.approx(plain[0])  # uniform in N_pin: the same density per unit of the prior's u
+
+
+def test_the_log_likelihood_ratio_is_the_best_fit_gained_beyond_the_bound():
+    """Λ = max log L − max log L inside: 0 when the best candidate is inside, ∞ when nothing inside
+    succeeded, NaN when nothing did; failed candidates are left out; in floor units ν/2 · (T_in² − T_all²)."""
+    inside = np.array([True, True, False, False])
+    assert log_likelihood_ratio(np.array([-3.0, -1.0, -2.0, np.nan]), inside) == 0.0
+    assert log_likelihood_ratio(np.array([-3.0, -np.inf, -0.5, -2.0]), inside) == pytest.approx(2.5)
+    assert log_likelihood_ratio(np.array([np.nan, -np.inf, -0.5, -2.0]), inside) == np.inf
+    assert np.isnan(log_likelihood_ratio(np.array([np.nan, -np.inf, -np.inf, np.nan]), inside))
+    _, _, state = extended_run(3, b_truth=1.3, budget=100)
+    beyond = beyond_prior(state)
+    t_in, t_all = beyond["best_inside_over_floor"], beyond["best_over_floor"]
+    assert beyond["log_likelihood_ratio"] == pytest.approx(state.n_curves / 2 * (t_in**2 - t_all**2), rel=1e-9)
+    assert beyond["log_likelihood_ratio_by_budget"]["100"] == beyond["log_likelihood_ratio"] > 0
+    assert set(beyond["log_likelihood_ratio_by_budget"]) == {"25", "50", "75", "100"}
+
+
+def null_run(seed, budget=100):
+    """An in-prior family with b anywhere in the prior's range [0, 1] (near the bound too)."""
+    return extended_run(seed, b_truth=np.random.default_rng(seed).uniform(0.0, 1.0), budget=budget)[2]
+
+
+def extension_result(state) -> dict:
+    """The parts of a fit result the extension check reads."""
+    return {"prior": "uniform", "extend": {"b": float(SCALE[1])}, "beyond_prior": beyond_prior(state)}
+
+
+def test_the_extension_check_keeps_its_false_alarm_rate_and_flags_a_truth_just_past_the_bound():
+    """Calibrated on 20 in-prior families (b uniform on [0, 1]), the conformal extension check raises
+    ≤ 6 false alarms on 40 new ones at α = 0.05 (expected ≤ 2; ≥ 7 has probability < 1 %; measured 2)
+    and flags truths only 15 % of the range past the bound, b = 1.15, in ≥ 9 of 12 (measured 12; their
+    Λ 1.4–57 against a reference of 0 in all 20 families); a reference of the prior's box, or of another
+    extension, is refused."""
+    values = [beyond_prior(null_run(400 + s))["log_likelihood_ratio_by_budget"]["100"] for s in range(20)]
+    reference = make_reference(values, budget=100, round_size=25, prior="uniform", sample_ids=range(20),
+                               extend={"b": float(SCALE[1])})
+    assert reference["extend"] == {"b": 2.5} and reference["statistic"] == EXTENSION_STATISTIC
+    false_alarms = [predictive_check(extension_result(null_run(500 + s)), reference) for s in range(40)]
+    assert all(c["check"] == "extension" for c in false_alarms)
+    print(sum(c["misspecified"] for c in false_alarms), sorted(values))
+    assert sum(c["misspecified"] for c in false_alarms) <= 6
+    beyond = [predictive_check(extension_result(extended_run(600 + s, b_truth=1.15, budget=100)[2]), reference)
+              for s in range(12)]
+    print(sum(c["misspecified"] for c in beyond), [round(c["statistic"], 2) for c in beyond])
+    assert sum(c["misspecified"] for c in beyond) >= 9
+    assert "outside the training prior" in next(c for c in beyond if c["misspecified"])["verdict"]
+    result = extension_result(null_run(700))
+    with pytest.raises(ConfigError, match="refine with the same --extend-prior"):
+        predictive_check({**result, "extend": {"b": 3.0}}, reference)
+    with pytest.raises(ConfigError, match="extension_reference.json"):
+        predictive_check(result, {**reference, "extend": {}})
+
+
+def test_an_extension_check_with_no_successful_simulation_says_so_and_flags_nothing():
+    """Λ is undefined when none of the first b simulations succeeded (e.g. more pinning sites than cells on
+    a small film): the verdict says so, with no p-value, and nothing is flagged."""
+    reference = make_reference([0.0] * 20, budget=25, round_size=25, prior="uniform", sample_ids=range(20),
+                               extend={"b": 2.5})
+    result = {"prior": "uniform", "extend": {"b": 2.5},
+              "beyond_prior": {"log_likelihood_ratio_by_budget": {"25": float("nan"), "50": 0.0}}}
+    check = predictive_check(result, reference)
+    assert check["p_value"] is None and not check["misspecified"] and "undetermined" in check["verdict"]
+    result["beyond_prior"]["log_likelihood_ratio_by_budget"]["25"] = 0.3
+    assert predictive_check(result, reference)["p_value"] == pytest.approx(1 / 21)

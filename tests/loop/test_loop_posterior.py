@@ -15,6 +15,7 @@ from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
 from forcdecode.learn.data import LearningData
 from forcdecode.learn.posterior import train_posterior
 from forcdecode.loop import resimulate
+from forcdecode.loop.predictive_check import make_reference
 from forcdecode.measured.writers import write_micromag_0015
 from forcdecode.micromag.build import mesh_from_config
 
@@ -126,8 +127,9 @@ def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_pat
 def test_fit_in_a_box_extended_beyond_the_prior_reports_the_mass_beyond_and_refuses_what_it_cannot_do(
         posterior, measured, tmp_path, capsys):
     """`forcdecode fit --extend-prior N_pin=3`: the run says where its box ends and, in words and in
-    fit.json, how much posterior mass lies past the prior's bound (None until β = 1); the options that
-    cannot go with it are one clear error each."""
+    fit.json, how much posterior mass lies past the prior's bound (None until β = 1); with an extension
+    reference it is checked against validation families; the options that cannot go with it are one clear
+    error each."""
     path, cfg = measured
     out = tmp_path / "fit"
     common = ["fit", str(path), "--Ms-kA-m", "600", "--posterior", str(posterior), "--config", str(cfg),
@@ -143,10 +145,24 @@ def test_fit_in_a_box_extended_beyond_the_prior_reports_the_mass_beyond_and_refu
     for b in result["refined_by_budget"].values():
         assert 0.0 <= b["parameters"]["N_pin"]["median"] <= 3.0
     assert "beyond the prior's bound" in capsys.readouterr().out
+    # with an extension reference made in the same box, fit.json says whether a film beyond fits better
+    extension = tmp_path / "extension.json"
+    extension.write_text(json.dumps(make_reference([-1.0] * 20, budget=6, round_size=3, prior="draw",
+                                                   sample_ids=range(20), extend={"N_pin": 3.0})))
+    assert main([*common, "--extend-prior", "N_pin=3", "--predictive-reference", str(extension)]) == 0
+    check = json.loads((out / "fit.json").read_text())["predictive_check"]
+    assert check["check"] == "extension" and check["misspecified"] and check["p_value"] == pytest.approx(1 / 21)
+    assert check["statistic"] == json.loads((out / "fit.json").read_text())["beyond_prior"][
+        "log_likelihood_ratio_by_budget"]["6"] >= 0
+    assert "outside the training prior" in capsys.readouterr().out
+    in_box = write_reference(tmp_path / "in_box.json", 1.0)
     for extra, message in [(["--extend-prior", "K_u"], "uniformly on a linear scale"),
                            (["--extend-prior", "N_pin", "--method", "adjusted"], "needs --method pmc"),
-                           (["--extend-prior", "N_pin", "--predictive-reference", str(tmp_path / "r.json")],
-                            "answers the question itself")]:
+                           (["--extend-prior", "N_pin", "--predictive-reference", str(in_box)],
+                            "extension_reference.json"),
+                           (["--extend-prior", "N_pin=2", "--predictive-reference", str(extension)],
+                            "refine with the same --extend-prior"),
+                           (["--predictive-reference", str(extension)], "refine with the same --extend-prior")]:
         assert main([*common, *extra]) == 2
         assert message in capsys.readouterr().err
 
@@ -154,7 +170,8 @@ def test_fit_in_a_box_extended_beyond_the_prior_reports_the_mass_beyond_and_refu
 def test_the_loop_refines_in_an_extended_box_and_reports_the_mass_beyond_the_bound(posterior, measured, tmp_path):
     """`loop --refine N --refine-extend-prior N_pin=3`: report.json's refined entry carries beyond_prior, the
     re-simulated N_pin is the refined median even past the bound, report.md says it in words; without
-    --refine, with the adjusted method or beside a predictive reference it is one clear error."""
+    --refine, with the adjusted method or beside a reference made in the prior's box it is one clear error;
+    with an extension reference the report flags a family a film beyond the bound fits better."""
     path, cfg = measured
     out = tmp_path / "loop"
     common = ["loop", str(path), "--config", str(cfg), "--estimator", "posterior", "--posterior", str(posterior),
@@ -168,7 +185,19 @@ def test_the_loop_refines_in_an_extended_box_and_reports_the_mass_beyond_the_bou
     assert 0 <= report["parameters"]["N_pin"] <= low + 3 * (high - low)
     assert report["parameters"]["N_pin"] == round(refined["parameters"]["N_pin"]["value"])
     assert "beyond the prior's bound" in (out / "report.md").read_text()
+    # an extension reference from validation families that all fitted as well inside: flagged in the report
+    extension = tmp_path / "extension.json"
+    extension.write_text(json.dumps(make_reference([-1.0] * 20, budget=6, round_size=3, prior="draw",
+                                                   sample_ids=range(20), extend={"N_pin": 3.0})))
+    flagged = tmp_path / "flagged"
+    assert main([*common, "--out", str(flagged), "--refine", "6", "--refine-round-size", "3",
+                 "--refine-extend-prior", "N_pin=3", "--predictive-reference", str(extension)]) == 0
+    check = json.loads((flagged / "report.json").read_text())["refined"]["predictive_check"]
+    assert check["check"] == "extension" and check["misspecified"]
+    assert "**Outside the prior (N_pin)" in (flagged / "report.md").read_text()
     for extra in (["--refine-extend-prior", "N_pin"],
+                  ["--refine", "6", "--refine-extend-prior", "N_pin", "--predictive-reference",
+                   str(write_reference(tmp_path / "in_box.json", 1.0))],
                   ["--refine", "6", "--refine-method", "adjusted", "--refine-extend-prior", "N_pin"],
                   ["--refine", "6", "--refine-extend-prior", "K_u"]):
         assert main([*common, "--out", str(tmp_path / "x"), *extra]) == 2

@@ -84,6 +84,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
                      help="fit, pmc: refine in a box extended beyond the prior's bound (forcdecode fit --extend-prior); "
                           "each family's posterior mass beyond the bound is reported")
+    fit.add_argument("--extension-reference", metavar="JSON",
+                     help="fit, with --extend-prior: judge each family by the extension check against this reference "
+                          "(FIT_DIR/extension_reference.json, written by a --split validation run in the same box)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
     ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
@@ -332,6 +335,8 @@ def _bench_fit(args, say) -> int:
     budgets = sorted(set(args.budgets))
     if args.extend_prior and args.method != "pmc":
         raise ConfigError("--extend-prior needs --method pmc")
+    if args.extension_reference and not args.extend_prior:
+        raise ConfigError("--extension-reference judges refinements in an extended box: it needs --extend-prior")
     if args.first_family < 0 or args.families < 1:
         raise ConfigError(f"--first-family must be >= 0 and --families >= 1 (got {args.first_family}, {args.families})")
     if any(b % args.round_size for b in budgets):
@@ -343,6 +348,12 @@ def _bench_fit(args, say) -> int:
                           f"+ --families {args.families} is beyond it")
     chosen = held_out[args.first_family: args.first_family + args.families]
     extend = parse_extension(args.extend_prior, tuple(est.names))
+    reference = None
+    if args.extension_reference:
+        from ..loop.predictive_check import check_reference
+
+        reference = read_json(args.extension_reference, what="extension-check reference")
+        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=budgets[-1], extend=extend)
     observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
     rows = []
     import h5py
@@ -361,6 +372,13 @@ def _bench_fit(args, say) -> int:
             if result is not None and (result.get("extend") or {}) != extend:
                 raise ConfigError(f"{path} was refined with the prior's box extended as {result.get('extend') or {}}, "
                                   f"not {extend}: use another --fit-dir")
+            state_path = f"{args.fit_dir}/state_{sid}.npz"
+            if (result is not None and extend and os.path.exists(state_path)
+                    and "log_likelihood_ratio_by_budget" not in (result.get("beyond_prior") or {})):
+                from ..loop.fit import Refinement, beyond_prior  # a result from before Λ: from its saved particles
+
+                result["beyond_prior"] = beyond_prior(Refinement.load(state_path))
+                write_json(path, result)
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
                 say(f"family {n}/{len(chosen)} (sample {sid}{', case ' + args.case if args.case else ''}): "
                     f"budget {budgets[-1]}")
@@ -394,9 +412,40 @@ def _bench_fit(args, say) -> int:
         for sid, beyond in out["beyond_prior"].items():
             for line in beyond_prior_lines(beyond):
                 say(f"sample {sid}: {line}")
+        _extension_check(args, out, rows, budgets[-1], extend, reference, say)
     write_json(f"{args.fit_dir}/summary.json", out)
     print(json.dumps(out))
     return 0
+
+
+def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
+    """The extension check (``loop.predictive_check``, Λ) of a bench over films refined in an extended box:
+    a run on validation families writes its reference (FIT_DIR/extension_reference.json); with a
+    reference, each family is judged and the flag rate goes into the summary (key ``extension_check``)."""
+    import numpy as np
+
+    from ..core.io import write_json
+    from ..loop.predictive_check import make_reference, predictive_check, predictive_statistic
+
+    values = [predictive_statistic(r, budget, extension=True) for r in rows]
+    out["log_likelihood_ratio"] = {str(s): v for s, v in zip(out["sample_ids"], values)}
+    if args.split == "validation" and not args.case:
+        made = make_reference(values, budget=budget, round_size=args.round_size, prior=args.prior,
+                              sample_ids=out["sample_ids"], extend=extend)
+        write_json(f"{args.fit_dir}/extension_reference.json", made)
+        say(f"extension check: reference of {len(values)} validation families written to "
+            f"{args.fit_dir}/extension_reference.json (log-likelihood ratio median {np.median(values):.3g}, "
+            f"max {np.max(values):.3g}; smallest p it can give {made['resolvable_p']:.3f})")
+    if reference is not None:
+        checks = [predictive_check(r, reference) for r in rows]
+        flagged = sum(c["misspecified"] for c in checks)
+        out["extension_check"] = {"reference": args.extension_reference, "flagged": int(flagged), "of": len(checks),
+                                  "per_family": {str(s): {k: c[k] for k in ("statistic", "p_value", "misspecified")}
+                                                 for s, c in zip(out["sample_ids"], checks)}}
+        for sid, c in zip(out["sample_ids"], checks):
+            say(f"sample {sid}: extension check: {c['verdict']}")
+        say(f"extension check: {flagged} of {len(checks)} families flagged (α {checks[0]['alpha']:g}, "
+            f"{checks[0]['n_reference']} reference families)")
 
 
 def _case_observations(args, cfg, data, held_out, chosen) -> list:

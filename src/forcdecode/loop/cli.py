@@ -28,9 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-method", choices=METHODS, default="pmc",
                         help="with --refine: pmc (tempered population Monte Carlo) or adjusted (the amortized draws "
                              "simulated on their own realisations, regression-adjusted; forcdecode fit --method)")
-    parser.add_argument("--predictive-reference", help="with --refine: the posterior-predictive check's reference "
-                        "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`, B <= --refine): "
-                        "flags a family no film inside the prior reproduces")
+    parser.add_argument("--predictive-reference", help="with --refine: the misspecification check's reference, "
+                        "made with B <= --refine simulations: predictive_reference.json of `forcdecode bench ood "
+                        "--predictive-budget B` flags a family no film inside the prior reproduces; with "
+                        "--refine-extend-prior, extension_reference.json of `forcdecode bench fit --extend-prior "
+                        "--split validation` flags one that a film beyond the bound fits better")
     parser.add_argument("--refine-extend-prior", nargs="+", metavar="NAME[=FACTOR]",
                         help="with --refine (pmc): refine in a box reaching FACTOR (default 4) times the prior's range "
                              "for these parameters and report the posterior mass beyond the bound (e.g. N_pin: is the "

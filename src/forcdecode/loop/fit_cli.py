@@ -79,9 +79,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(default {EXTENSION_FACTOR:g}); fit.json's beyond_prior then gives the posterior mass "
                              "beyond the bound (e.g. --extend-prior N_pin: is the film pinned more densely than any "
                              "training film?)")
-    parser.add_argument("--predictive-reference", help="the posterior-predictive check's reference "
-                        "(predictive_reference.json of `forcdecode bench ood --predictive-budget B`): fit.json then "
-                        "says whether a film inside the prior reproduces this family")
+    parser.add_argument("--predictive-reference", help="the misspecification check's reference: without "
+                        "--extend-prior predictive_reference.json of `forcdecode bench ood --predictive-budget B` "
+                        "(fit.json then says whether a film inside the prior reproduces this family); with it "
+                        "extension_reference.json of `forcdecode bench fit --extend-prior --split validation` "
+                        "(whether a film beyond the bound fits better than any inside)")
     parser.add_argument("--out", required=True, help="output directory (fit.json)")
 
 
@@ -547,8 +549,9 @@ def beyond_prior_lines(beyond: dict | None) -> list[str]:
     if not beyond:
         return []
     lines = [f"best simulated film inside the prior: {beyond['best_inside_over_floor']:.2f} x the realisation floor; "
-             f"anywhere in the extended box: {beyond['best_over_floor']:.2f} x (ratio {beyond['inside_over_anywhere']:.2f}; "
-             "above 1 a film beyond the bound reproduces the family better)"]
+             f"anywhere in the extended box: {beyond['best_over_floor']:.2f} x"
+             + (f" (log-likelihood ratio {beyond['log_likelihood_ratio']:.3g}; above 0 a film beyond the bound "
+                "reproduces the family better)" if "log_likelihood_ratio" in beyond else "")]
     for name, row in beyond["parameters"].items():
         if row["posterior_mass_beyond"] is None:
             lines.append(f"{name}: the refinement did not reach the full likelihood, so the mass beyond the prior's "
@@ -574,17 +577,14 @@ def run(args) -> int:
     if args.extend_prior and args.method != "pmc":
         raise ConfigError("--extend-prior needs --method pmc (the adjusted fit only reweights the amortized draws, "
                           "which never leave the prior's box)")
-    if args.extend_prior and args.predictive_reference:
-        raise ConfigError("--extend-prior and --predictive-reference: the reference was refined inside the prior's "
-                          "box; an extended refinement answers the question itself (fit.json beyond_prior)")
+    est = PosteriorEstimator.load(args.posterior)
+    extend = parse_extension(args.extend_prior, tuple(est.names))
     if args.predictive_reference:
         from ..core.io import read_json
         from .predictive_check import check_reference
 
         reference = read_json(args.predictive_reference, what="predictive-check reference")
-        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=args.budget)
-    est = PosteriorEstimator.load(args.posterior)
-    extend = parse_extension(args.extend_prior, tuple(est.names))
+        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=args.budget, extend=extend)
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731

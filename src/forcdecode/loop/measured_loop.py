@@ -126,7 +126,7 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         from .predictive_check import predictive_check
 
         entry["predictive_check"] = predictive_check(result, predictive_reference)
-        log(f"posterior-predictive check: {entry['predictive_check']['verdict']}")
+        log(f"{entry['predictive_check'].get('check', 'predictive')} check: {entry['predictive_check']['verdict']}")
     return entry, params
 
 
@@ -258,9 +258,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     method): the calibrated posterior-predictive check (``loop.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
     ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
-    the pmc method; not with ``predictive_reference``, whose reference was refined in the prior's box):
-    refine in a box extended beyond the prior's bound and report the posterior mass past it (report key
-    ``refined.beyond_prior``). ``moment_tolerance``: relative uncertainty of the moment
+    the pmc method): refine in a box extended beyond the prior's bound and report the posterior mass past
+    it (report key ``refined.beyond_prior``); ``predictive_reference`` is then an extension reference
+    (made in the same box), and a family that a film beyond the bound fits better is flagged. ``moment_tolerance``: relative uncertainty of the moment
     normalization inside which a fitted scale is not named an effect
     (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
     from ..forc.raster import measurement_on_grid
@@ -281,9 +281,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if predictive_reference is not None and refine_method != "pmc":
         raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
                           "RMS: it needs --refine-method pmc")
-    if refine_extend and (not refine_budget or refine_method != "pmc" or predictive_reference is not None):
-        raise ConfigError("--refine-extend-prior needs --refine with --refine-method pmc, and not --predictive-reference "
-                          "(its reference was refined inside the prior's box; the extended refinement answers itself)")
+    if refine_extend and (not refine_budget or refine_method != "pmc"):
+        raise ConfigError("--refine-extend-prior needs --refine with --refine-method pmc")
     extend = parse_extension(refine_extend, TARGETS)  # an unknown or non-extensible name: before any simulation
     reference = None
     if predictive_reference is not None:
@@ -293,7 +292,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         from .predictive_check import check_reference
 
         reference = read_json(predictive_reference, what="predictive-check reference")
-        check_reference(reference, round_size=refine_round_size, prior="draw", budget_run=refine_budget)
+        check_reference(reference, round_size=refine_round_size, prior="draw", budget_run=refine_budget, extend=extend)
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
                           "networks, not a given Hamiltonian (--params)")
@@ -525,7 +524,10 @@ def _markdown(path, report, analysis) -> str:
                 lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")
             if check:
-                lines += ["", ("**Misspecified: " if check["misspecified"] else "Posterior-predictive check: ")
+                extension = check.get("check") == "extension"
+                lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
+                                else "**Misspecified: ") if check["misspecified"] else
+                               ("Extension check: " if extension else "Posterior-predictive check: "))
                           + check["verdict"] + (".**" if check["misspecified"] else ".")]
         if report.get("ood"):
             lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]

@@ -22,6 +22,17 @@ The statistic is the minimum over the first b candidates, not the weighted media
 it depends on the first b simulations only, so a refinement run to any budget ≥ b gives the same T
 as the calibration run (and the weights of a tempered run do not enter). What it flags is measured
 (``forcdecode bench ood --predictive-budget``, README).
+
+The extension check asks the same question of a refinement run in a box extended beyond the prior's
+bound (``fit --extend-prior``, ``loop.fit.beyond_prior``): does a film beyond the bound reproduce the
+family better than every film inside? Its statistic is the generalized log-likelihood ratio
+
+    Λ = max log L over the first b candidates − max log L over those of them inside the prior's box
+
+(≥ 0, and 0 when the best candidate lies inside), calibrated the same way on validation families
+refined in the same extended box (``bench fit --extend-prior --split validation`` writes the
+reference). A reference says which statistic it holds (``statistic``, and ``extend``: {name: factor}
+of its box, empty for T), and is refused for a refinement whose box differs.
 """
 
 from __future__ import annotations
@@ -32,6 +43,8 @@ from ..core.errors import ConfigError, InputFileError
 
 ALPHA = 0.05
 STATISTIC = "min over the first b candidates of observation RMS / realisation floor"
+EXTENSION_STATISTIC = ("log-likelihood ratio of the best of the first b candidates anywhere in the extended box "
+                       "over the best of them inside the prior's box")
 
 
 def _best_by_budget(fit_result: dict) -> dict:
@@ -42,9 +55,23 @@ def _best_by_budget(fit_result: dict) -> dict:
     return by_budget
 
 
-def predictive_statistic(fit_result: dict, budget: int) -> float:
-    """T at ``budget`` from a fit result (``loop.fit_cli.finish_fit``'s dict)."""
-    by_budget = _best_by_budget(fit_result)
+def _ratio_by_budget(fit_result: dict) -> dict:
+    """The fit result's Λ per round boundary ({"b": Λ}, ``loop.fit.beyond_prior``)."""
+    by_budget = (fit_result.get("beyond_prior") or {}).get("log_likelihood_ratio_by_budget")
+    if not by_budget:
+        raise ConfigError("the fit result has no beyond_prior.log_likelihood_ratio_by_budget: the extension check "
+                          "needs a refinement with --extend-prior (made by this version: run it again)")
+    return by_budget
+
+
+def is_extension(reference: dict) -> bool:
+    """Whether a reference holds the extension check's Λ (else the predictive check's T)."""
+    return bool(reference.get("extend"))
+
+
+def predictive_statistic(fit_result: dict, budget: int, extension: bool = False) -> float:
+    """T (or, with ``extension``, Λ) at ``budget`` from a fit result (``loop.fit_cli.finish_fit``'s dict)."""
+    by_budget = _ratio_by_budget(fit_result) if extension else _best_by_budget(fit_result)
     if str(int(budget)) not in by_budget:
         raise ConfigError(f"the refinement ran {max(int(b) for b in by_budget)} simulations in rounds "
                           f"{sorted(int(b) for b in by_budget)}; the check needs the first {budget}")
@@ -52,25 +79,47 @@ def predictive_statistic(fit_result: dict, budget: int) -> float:
 
 
 def make_reference(statistics, *, budget: int, round_size: int, prior: str, sample_ids, split: str = "validation",
-                   alpha: float = ALPHA) -> dict:
-    """The check's reference: T of held-out in-distribution families and the settings that made them."""
+                   alpha: float = ALPHA, extend: dict | None = None) -> dict:
+    """The check's reference: T (or, with ``extend`` = {name: factor} of the extended box, Λ) of held-out
+    in-distribution families and the settings that made them."""
     values = np.asarray(statistics, dtype=float)
     if values.size < 1 or not np.all(np.isfinite(values)):
         raise ConfigError(f"the predictive reference needs finite statistics (got {values.tolist()})")
     if budget % round_size:
         raise ConfigError(f"budget {budget} is not a multiple of the round size {round_size}")
-    return {"statistic": STATISTIC, "budget": int(budget), "round_size": int(round_size), "prior": str(prior),
-            "split": split, "sample_ids": [int(s) for s in sample_ids], "values": sorted(float(v) for v in values),
+    return {"statistic": EXTENSION_STATISTIC if extend else STATISTIC,
+            "extend": {str(k): float(v) for k, v in (extend or {}).items()},
+            "budget": int(budget), "round_size": int(round_size), "prior": str(prior), "split": split, "sample_ids": [int(s) for s in sample_ids], "values": sorted(float(v) for v in values),
             "alpha": float(alpha), "resolvable_p": 1.0 / (values.size + 1.0)}
 
 
-def check_reference(reference: dict, *, round_size: int, prior: str, budget_run: int) -> None:
-    """Raise if a refinement's settings cannot be compared with the reference's."""
+def _check_box(ref_extend: dict | None, extend: dict | None) -> None:
+    """Raise unless the refinement's box ({name: factor}; {} or None: the prior's) is the reference's."""
+    extend = {str(k): float(v) for k, v in (extend or {}).items()}
+    ref_extend = {str(k): float(v) for k, v in (ref_extend or {}).items()}
+    if ref_extend == extend:
+        return
+
+    def box(e):
+        return ("the prior's box" if not e else
+                "a box extended beyond the prior (" + ", ".join(f"{k}={v:g}" for k, v in sorted(e.items())) + ")")
+
+    raise ConfigError(f"the check's reference was refined in {box(ref_extend)}; this refinement ran in {box(extend)}: "
+                      + ("refine with the same --extend-prior" if ref_extend else
+                         "the predictive reference is for refinements inside the prior's box (for an extended one, "
+                         "use the extension_reference.json of `forcdecode bench fit --extend-prior --split validation`)"))
+
+
+def check_reference(reference: dict, *, round_size: int, prior: str, budget_run: int, extend: dict | None = None) -> None:
+    """Raise if a refinement's settings (``extend``: {name: factor} of its box, {} or None in the prior's
+    box) cannot be compared with the reference's."""
     try:
         ref_budget, ref_round, ref_prior = int(reference["budget"]), int(reference["round_size"]), reference["prior"]
         _ = reference["values"]
-    except (KeyError, TypeError, ValueError) as error:
+        ref_extend = {str(k): float(v) for k, v in (reference.get("extend") or {}).items()}
+    except (KeyError, TypeError, ValueError, AttributeError) as error:
         raise InputFileError(f"the predictive-check reference is damaged: {error}") from None
+    _check_box(ref_extend, extend)
     if ref_round != int(round_size) or ref_prior != prior:
         raise ConfigError(f"the predictive-check reference was made with rounds of {ref_round} and the {ref_prior} "
                           f"prior; this refinement has rounds of {round_size} and the {prior} prior")
@@ -80,25 +129,46 @@ def check_reference(reference: dict, *, round_size: int, prior: str, budget_run:
 
 
 def predictive_p_value(statistic: float, reference_values) -> float:
-    """Conformal p-value of T against the reference families' T (large T = worse fit)."""
+    """Conformal p-value of the statistic (T or Λ) against the reference families' (large = the films inside
+    the prior fit worse)."""
     ref = np.asarray(reference_values, dtype=float)
     return float((1.0 + (ref >= statistic).sum()) / (ref.size + 1.0))
 
 
 def predictive_check(fit_result: dict, reference: dict, alpha: float | None = None) -> dict:
-    """Verdict of the check for one refined family (module docstring)."""
+    """Verdict of the check for one refined family (module docstring): the predictive check (T) or, for a
+    reference made in an extended box, the extension check (Λ)."""
     budget = int(reference["budget"])
-    boundaries = [int(b) for b in _best_by_budget(fit_result)]  # round_size, 2·round_size, …
+    extension = is_extension(reference)
+    _check_box(reference.get("extend"), fit_result.get("extend"))
+    by_budget = _ratio_by_budget(fit_result) if extension else _best_by_budget(fit_result)
+    boundaries = [int(b) for b in by_budget]  # round_size, 2·round_size, …
     check_reference(reference, round_size=min(boundaries), prior=fit_result.get("prior", "uniform"),
-                    budget_run=max(boundaries))
+                    budget_run=max(boundaries), extend=fit_result.get("extend"))
     alpha = float(reference.get("alpha", ALPHA) if alpha is None else alpha)
-    t = predictive_statistic(fit_result, budget)
-    p = predictive_p_value(t, reference["values"])
+    t = predictive_statistic(fit_result, budget, extension)
     values = np.asarray(reference["values"], float)
+    if np.isnan(t):  # Λ with no successful simulation among the first b: nothing to judge, nothing flagged
+        return {"check": "extension" if extension else "predictive", "statistic": None, "budget": budget,
+                "p_value": None, "alpha": alpha, "n_reference": int(values.size), "misspecified": False,
+                "reference_median": float(np.median(values)), "reference_max": float(values.max()),
+                "verdict": f"undetermined: none of the first {budget} simulations of the refinement succeeded"}
+    p = predictive_p_value(t, reference["values"])
     flagged = p < alpha
-    return {"statistic": t, "budget": budget, "p_value": p, "alpha": alpha, "n_reference": int(values.size),
-            "reference_median": float(np.median(values)), "reference_max": float(values.max()),
-            "misspecified": bool(flagged),
+    out = {"check": "extension" if extension else "predictive", "statistic": t, "budget": budget, "p_value": p,
+           "alpha": alpha, "n_reference": int(values.size), "reference_median": float(np.median(values)),
+           "reference_max": float(values.max()), "misspecified": bool(flagged)}
+    if extension:
+        names = ", ".join(sorted(reference["extend"]))
+        out["verdict"] = (f"a film beyond the prior's bound of {names} reproduces this family better than any film "
+                          f"inside: log-likelihood ratio {t:.3g} over the best of {budget} candidates inside, above "
+                          f"the held-out validation families (max {values.max():.3g}; p = {p:.3f} < {alpha}); the "
+                          f"film lies outside the training prior" if flagged else
+                          f"no film beyond the prior's bound of {names} fits better than the films inside, beyond "
+                          f"what the held-out validation families show (log-likelihood ratio {t:.3g}; validation "
+                          f"max {values.max():.3g}; p = {p:.2f})")
+        return out
+    return {**out,
             "verdict": (f"no film inside the prior reproduces this family: the best of {budget} simulated "
                         f"Hamiltonians misses it by {t:.2f}× the realisation floor, more than for the held-out "
                         f"validation families (max {values.max():.2f}×; p = {p:.3f} < {alpha})" if flagged else
@@ -106,5 +176,5 @@ def predictive_check(fit_result: dict, reference: dict, alpha: float | None = No
                         f"(validation families: median {np.median(values):.2f}×; p = {p:.2f})")}
 
 
-__all__ = ["ALPHA", "STATISTIC", "check_reference", "make_reference", "predictive_check", "predictive_p_value",
-           "predictive_statistic"]
+__all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_reference", "is_extension", "make_reference",
+           "predictive_check", "predictive_p_value", "predictive_statistic"]
