@@ -277,6 +277,20 @@ def test_fit_one_round_per_job_equals_fit_in_one_process(posterior, measured, tm
         assert a["ess"] == b["ess"] and a["parameters"] == b["parameters"], budget
     assert steps["amortized"] == whole["amortized"] and steps["sigma2"] == whole["sigma2"]
     assert main(["fit-step", "round", *common, "--state-in", str(states[2]), "--state-out", str(tmp_path / "x.npz")]) == 2
+    # in a box extended beyond the prior the same holds, and the report carries beyond_prior
+    assert main(["fit", str(path), "--Ms-kA-m", "600", *common, "--budget", "6", "--round-size", "3",
+                 "--extend-prior", "N_pin=3", "--out", str(tmp_path / "whole_ext")]) == 0
+    ext = [tmp_path / f"ext_{r}.npz" for r in range(3)]
+    assert main(["fit-step", "init", str(path), "--Ms-kA-m", "600", *common, "--budget", "6", "--round-size", "3",
+                 "--extend-prior", "N_pin=3", "--state", str(ext[0])]) == 0
+    for r in (1, 2):
+        assert main(["fit-step", "round", *common, "--state-in", str(ext[r - 1]), "--state-out", str(ext[r])]) == 0
+    assert main(["fit-step", "report", "--state", str(ext[2]), "--out", str(tmp_path / "steps_ext.json")]) == 0
+    whole = json.loads((tmp_path / "whole_ext" / "fit.json").read_text())
+    steps = json.loads((tmp_path / "steps_ext.json").read_text())
+    assert steps["extend"] == whole["extend"] == {"N_pin": 3.0}
+    assert steps["beyond_prior"] == whole["beyond_prior"] and steps["betas"] == whole["betas"]
+    assert steps["refined_by_budget"]["6"]["parameters"] == whole["refined_by_budget"]["6"]["parameters"]
 
 
 def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(posterior, measured, tmp_path, capsys):

@@ -139,7 +139,8 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     fit_config = tmp_path / "fit.yaml"
     fit_config.write_text(json.dumps({
         "posterior": {"epochs": 5, "patience": 2, "draws": 50, "width": 8, "hidden": 8, "transforms": 1, "ensemble": 2},
-        "fit": {"input": "results/dataset.h5", "sample_id": sample, "budget": 4, "round_size": 2, "workers": 1}}))
+        "fit": {"input": "results/dataset.h5", "sample_id": sample, "budget": 4, "round_size": 2, "workers": 1,
+                "extend_prior": ["N_pin=3"]}}))
     fit_run = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
                         f"results/fit/dataset_sample{sample}/fit.json", timeout=600)
     assert fit_run.returncode == 0, fit_run.stdout[-3000:] + fit_run.stderr[-3000:]
@@ -148,6 +149,8 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     fitted = json.loads((out / "fit" / f"dataset_sample{sample}" / "fit.json").read_text())
     assert set(fitted["refined_by_budget"]) == {"2", "4"} and len(fitted["betas"]) == 2
     assert fitted["truth"]["Ms"] > 0  # a dataset sample: its truth travels with the state
+    # the box reached 3 × N_pin's prior range (fit.extend_prior): the report says what lies beyond the bound
+    assert fitted["extend"] == {"N_pin": 3.0} and set(fitted["beyond_prior"]["log_likelihood_ratio_by_budget"]) == {"2", "4"}
     # the posterior on a fresh draw: 16 more samples of the same configuration (ids 40-55), then its check
     fresh_draw(tmp_path, "next", first_id=40, n=16)
     with_fit_posterior(tmp_path, fit_config, "results/posterior/fresh/next.json")

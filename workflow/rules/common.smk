@@ -85,3 +85,5 @@ FIT_WHICH = (
     if FIT["sample_id"] is not None
     else (f"--Ms-kA-m {FIT['Ms_kA_m']}" if FIT["Ms_kA_m"] is not None else "")
 )
+# the box beyond the prior's bound (fit.extend_prior: NAME[=FACTOR] items, checked by the schema's pattern)
+FIT_EXTEND = f"--extend-prior {' '.join(FIT['extend_prior'])}" if FIT["extend_prior"] else ""

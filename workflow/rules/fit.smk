@@ -1,7 +1,7 @@
 # Refinement of the posterior for one family by simulation of that film (forcdecode fit-step): one
 # job per round, so that on a cluster each round is a job whose simulations use its cores. Not in
 # `all`: `snakemake --configfile config/config.yaml FIT.yaml -- results/fit/NAME/fit.json`, FIT.yaml holding
-# a `fit:` section (input, Ms_kA_m or sample_id, budget, round_size, workers; the config schema).
+# a `fit:` section (input, Ms_kA_m or sample_id, budget, round_size, workers, extend_prior; the config schema).
 
 
 rule fit_init:
@@ -26,10 +26,11 @@ rule fit_init:
         seed=config["seed"],
         budget=FIT["budget"],
         round_size=FIT["round_size"],
+        extend_prior=FIT_EXTEND,
     shell:
         "{params.cli} fit-step init {input.data:q} {params.which} --posterior {input.posterior} "
         "--config {input.config} --budget {params.budget} --round-size {params.round_size} --seed {params.seed} "
-        "--workers {threads} --state {output} > {log} 2>&1"
+        "--workers {threads} {params.extend_prior} --state {output} > {log} 2>&1"
 
 
 rule fit_round:

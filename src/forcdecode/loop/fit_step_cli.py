@@ -5,6 +5,7 @@ per round, its simulations spread over the job's cores). The state between round
 rounds give exactly what ``forcdecode fit`` gives in one process.
 
     fit-step init INPUT [--sample-id N | --Ms-kA-m M] --posterior P --budget N --round-size R --state S0.npz
+                  [--extend-prior NAME[=F] ...]
     fit-step round --state-in S0.npz --state-out S1.npz --posterior P [--workers W]
     fit-step report --state SK.npz --out fit.json
 """
@@ -29,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-size", type=int, default=25, help="init: simulations per round (default 25)")
     parser.add_argument("--seed", type=int, default=0, help="init: seed of the draws and of the proposal rounds")
     parser.add_argument("--workers", type=int, default=1, help="init, round: processes simulating in parallel")
+    parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
+                        help="init: refine in a box reaching FACTOR (default 4) times the prior's range for these "
+                             "parameters (forcdecode fit --extend-prior); the rounds and the report follow the state")
     parser.add_argument("--state", help="init: the state written; report: the state read")
     parser.add_argument("--state-in", help="round: the state before the round")
     parser.add_argument("--state-out", help="round: the state after the round")
@@ -40,7 +44,7 @@ def run(args) -> int:
     from ..core.errors import ConfigError
     from ..core.io import write_json
     from .fit import Refinement
-    from .fit_cli import family_key, finish_fit, fit_round, observation, start_fit
+    from .fit_cli import family_key, finish_fit, fit_round, observation, parse_extension, start_fit
 
     def need(*names):
         missing = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) in (None, "")]
@@ -71,11 +75,12 @@ def run(args) -> int:
         need("input", "state")
         if args.budget < args.round_size or args.round_size < 2:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
+        extend = parse_extension(args.extend_prior, tuple(est.names))
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
                           workers=args.workers, seed=args.seed, key=key,
-                          checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)))
+                          checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), extend=extend)
         state.context["truth"] = truth
         state.save(args.state)
         print(f"{state.n_rounds} rounds of {state.round_size} simulations to run")
