@@ -260,8 +260,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
     the pmc method): refine in a box extended beyond the prior's bound and report the posterior mass past
     it (report key ``refined.beyond_prior``); ``predictive_reference`` is then an extension reference
-    (made in the same box), and a family that a film beyond the bound fits better is flagged. ``moment_tolerance``: relative uncertainty of the moment
-    normalization inside which a fitted scale is not named an effect
+    (made in the same box), and a family that a film beyond the bound fits better is flagged.
+    ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
+    not named an effect
     (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
     from ..forc.raster import measurement_on_grid
     from ..measured import read_forc

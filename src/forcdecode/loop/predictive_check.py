@@ -89,7 +89,8 @@ def make_reference(statistics, *, budget: int, round_size: int, prior: str, samp
         raise ConfigError(f"budget {budget} is not a multiple of the round size {round_size}")
     return {"statistic": EXTENSION_STATISTIC if extend else STATISTIC,
             "extend": {str(k): float(v) for k, v in (extend or {}).items()},
-            "budget": int(budget), "round_size": int(round_size), "prior": str(prior), "split": split, "sample_ids": [int(s) for s in sample_ids], "values": sorted(float(v) for v in values),
+            "budget": int(budget), "round_size": int(round_size), "prior": str(prior), "split": split,
+            "sample_ids": [int(s) for s in sample_ids], "values": sorted(float(v) for v in values),
             "alpha": float(alpha), "resolvable_p": 1.0 / (values.size + 1.0)}
 
 
@@ -148,16 +149,15 @@ def predictive_check(fit_result: dict, reference: dict, alpha: float | None = No
     alpha = float(reference.get("alpha", ALPHA) if alpha is None else alpha)
     t = predictive_statistic(fit_result, budget, extension)
     values = np.asarray(reference["values"], float)
+    out = {"check": "extension" if extension else "predictive", "budget": budget, "alpha": alpha,
+           "n_reference": int(values.size), "reference_median": float(np.median(values)),
+           "reference_max": float(values.max())}
     if np.isnan(t):  # Λ with no successful simulation among the first b: nothing to judge, nothing flagged
-        return {"check": "extension" if extension else "predictive", "statistic": None, "budget": budget,
-                "p_value": None, "alpha": alpha, "n_reference": int(values.size), "misspecified": False,
-                "reference_median": float(np.median(values)), "reference_max": float(values.max()),
+        return {**out, "statistic": None, "p_value": None, "misspecified": False,
                 "verdict": f"undetermined: none of the first {budget} simulations of the refinement succeeded"}
-    p = predictive_p_value(t, reference["values"])
+    p = predictive_p_value(t, values)
     flagged = p < alpha
-    out = {"check": "extension" if extension else "predictive", "statistic": t, "budget": budget, "p_value": p,
-           "alpha": alpha, "n_reference": int(values.size), "reference_median": float(np.median(values)),
-           "reference_max": float(values.max()), "misspecified": bool(flagged)}
+    out.update(statistic=t, p_value=p, misspecified=bool(flagged))
     if extension:
         names = ", ".join(sorted(reference["extend"]))
         out["verdict"] = (f"a film beyond the prior's bound of {names} reproduces this family better than any film "
