@@ -426,6 +426,7 @@ def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
 
     from ..core.io import write_json
     from ..loop.predictive_check import make_reference, predictive_check, predictive_statistic
+    from .fit import check_figure
 
     values = [predictive_statistic(r, budget, extension=True) for r in rows]
     out["log_likelihood_ratio"] = {str(s): v for s, v in zip(out["sample_ids"], values)}
@@ -446,6 +447,10 @@ def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
             say(f"sample {sid}: extension check: {c['verdict']}")
         say(f"extension check: {flagged} of {len(checks)} families flagged (α {checks[0]['alpha']:g}, "
             f"{checks[0]['n_reference']} reference families)")
+        check_figure(f"{args.fit_dir}/extension_check.png", reference,
+                     {f"sample {sid}": (c["statistic"], c["misspecified"]) for sid, c in zip(out["sample_ids"], checks)},
+                     title=f"extension check, {args.case or args.split} films: {flagged} of {len(checks)} flagged")
+        say(f"extension check: figure {args.fit_dir}/extension_check.png")
 
 
 def _case_observations(args, cfg, data, held_out, chosen) -> list:
