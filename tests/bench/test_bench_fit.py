@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from forcdecode.bench.fit import check_flag_threshold, families_to_resolve, fit_summary, summary_lines
+from forcdecode.bench.fit import families_to_resolve, fit_summary, summary_lines
 
 
 def row(truth, amortized, refined, lo_hi, Ms=8e5):
@@ -176,17 +176,3 @@ def test_an_extended_validation_bench_writes_the_reference_that_judges_other_fil
     assert said[-2].startswith("extension check: 1 of 3 families flagged")
     assert (tmp_path / "case" / "extension_check.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-
-@pytest.mark.parametrize("n, alpha", [(20, 0.05), (19, 0.05), (39, 0.05), (50, 0.1), (9, 0.2), (60, 0.05)])
-def test_check_flag_threshold_matches_the_conformal_p_value(n, alpha):
-    """The figure's flag line: a statistic just above it gets p < α, one at it does not (brute force with
-    the check's own p-value); None exactly when no statistic can reach p < α."""
-    from forcdecode.loop.predictive_check import predictive_p_value
-
-    values = np.random.default_rng(n).exponential(size=n)
-    threshold = check_flag_threshold({"values": values.tolist(), "alpha": alpha})
-    if threshold is None:
-        assert predictive_p_value(np.inf, values) >= alpha
-        return
-    assert predictive_p_value(threshold * (1 + 1e-9), values) < alpha
-    assert predictive_p_value(threshold, values) >= alpha

@@ -105,6 +105,8 @@ def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
     row = result["cases"]["pinning_beyond_prior"]["predictive"]
     assert row["flagged"] == 15 and row["n"] == 20 and row["median_statistic"] == 5.0
     assert row["flagged_by_either"] >= 15 and row["p_values"][0] == pytest.approx(1 / 21)
+    figure = tmp_path / "fits" / "pinning_beyond_prior" / "predictive_check.png"
+    assert figure.read_bytes()[:4] == b"\x89PNG"
     result["predictive_reference"] = reference
     assert any("posterior-predictive check" in line for line in ood_lines(result))
 

@@ -111,6 +111,7 @@ def test_fit_refines_one_measured_family_end_to_end(posterior, measured, tmp_pat
     result = json.loads((out / "fit.json").read_text())
     check = result["predictive_check"]
     assert not check["misspecified"] and check["p_value"] == 1.0 and check["budget"] == 3
+    assert (out / "predictive_check.png").read_bytes()[:4] == b"\x89PNG"  # the film among the reference's
     assert check["statistic"] == result["observation_rms"]["best_over_floor_by_budget"]["3"]
     assert set(result["observation_rms"]["best_over_floor_by_budget"]) == {"3", "6"}
     assert result["observation_rms"]["best_over_floor_by_budget"]["6"] <= check["statistic"]
@@ -230,6 +231,8 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
     check = json.loads((flagged / "report.json").read_text())["refined"]["predictive_check"]
     assert check["misspecified"] and check["p_value"] == pytest.approx(1 / 21)
     assert "**Misspecified: no film inside the prior" in (flagged / "report.md").read_text()
+    assert "predictive_check.png" in (flagged / "report.md").read_text()  # the figure, embedded in report.html
+    assert (flagged / "predictive_check.png").exists() and "data:image/png" in (flagged / "report.html").read_text()
     # a reference made with other rounds cannot judge this refinement: a clear error before any simulation
     assert main(["loop", str(path), "--out", str(tmp_path / "y"), "--config", str(cfg), "--estimator", "posterior",
                  "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",

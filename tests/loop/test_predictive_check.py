@@ -9,7 +9,7 @@ import pytest
 
 from forcdecode.core.errors import ConfigError
 from forcdecode.loop.fit import Refinement, difference_variance, observation_rms
-from forcdecode.loop.predictive_check import make_reference, predictive_check, predictive_p_value
+from forcdecode.loop.predictive_check import check_flag_threshold, make_reference, predictive_check, predictive_p_value
 
 from test_fit import K, SIGMA, forward, proposal
 
@@ -74,3 +74,16 @@ def test_p_value_is_conformal_and_settings_must_match(reference):
         predictive_check(result, short)
     with pytest.raises(ConfigError, match="finite"):
         make_reference([1.0, float("nan")], budget=100, round_size=25, prior="uniform", sample_ids=[0, 1])
+
+
+@pytest.mark.parametrize("n, alpha", [(20, 0.05), (19, 0.05), (39, 0.05), (50, 0.1), (9, 0.2), (60, 0.05)])
+def test_check_flag_threshold_matches_the_conformal_p_value(n, alpha):
+    """The figure's flag line: a statistic just above it gets p < α, one at it does not (brute force with
+    the check's own p-value); None exactly when no statistic can reach p < α."""
+    values = np.random.default_rng(n).exponential(size=n)
+    threshold = check_flag_threshold({"values": values.tolist(), "alpha": alpha})
+    if threshold is None:
+        assert predictive_p_value(np.inf, values) >= alpha
+        return
+    assert predictive_p_value(threshold * (1 + 1e-9), values) < alpha
+    assert predictive_p_value(threshold, values) >= alpha

@@ -426,7 +426,7 @@ def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
 
     from ..core.io import write_json
     from ..loop.predictive_check import make_reference, predictive_check, predictive_statistic
-    from .fit import check_figure
+    from ..loop.report_page import check_figure
 
     values = [predictive_statistic(r, budget, extension=True) for r in rows]
     out["log_likelihood_ratio"] = {str(s): v for s, v in zip(out["sample_ids"], values)}

@@ -226,8 +226,10 @@ def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: di
 
 
 def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
-    """The predictive check on one case's families against ``settings["reference"]`` (validation)."""
+    """The predictive check on one case's families against ``settings["reference"]`` (validation), with
+    its figure (``fit_dir``/predictive_check.png)."""
     from ..loop.predictive_check import predictive_check
+    from ..loop.report_page import check_figure
 
     results = predictive_statistics(est, cfg, images, curves, Ms, keys, settings, fit_dir, say)
     checks = [predictive_check(r, settings["reference"]) for r in results]
@@ -241,6 +243,9 @@ def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir,
            "flagged_by_either": int(sum(either)), "either_interval_90": [lo2, hi2]}
     say(f"  predictive check: {row['flagged']}/{row['n']} flagged [{low:.2f}, {high:.2f}], median T "
         f"{row['median_statistic']:.2f}; with the training-data check: {row['flagged_by_either']}/{row['n']}")
+    check_figure(Path(fit_dir) / "predictive_check.png", settings["reference"],
+                 {f"key {int(k)}": (c["statistic"], c["misspecified"]) for k, c in zip(keys, checks)},
+                 title=f"predictive check, {Path(fit_dir).name}: {row['flagged']} of {row['n']} flagged")
     return row
 
 

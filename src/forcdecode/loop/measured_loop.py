@@ -371,6 +371,12 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                                                 extend=extend)
             report["parameters"] = params
             resim = None  # re-simulate the refined Hamiltonian
+            check = report["refined"].get("predictive_check")
+            if check is not None:  # where this film lies among the reference's validation families
+                from .report_page import check_figure
+
+                check_figure(out / "predictive_check.png", reference, {Path(str(path)).name: (
+                    check["statistic"], check["misspecified"])}, title=f"{check.get('check', 'predictive')} check")
     if resim is None:
         resim, spread = resimulate_with_spread(cfg, params, n_profiles=profiles,
                                                progress=counter("re-simulation", "profiles"))
@@ -529,7 +535,8 @@ def _markdown(path, report, analysis) -> str:
                 lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
                                 else "**Misspecified: ") if check["misspecified"] else
                                ("Extension check: " if extension else "Posterior-predictive check: "))
-                          + check["verdict"] + (".**" if check["misspecified"] else ".")]
+                          + check["verdict"] + (".**" if check["misspecified"] else "."), "",
+                          "![the check against its validation reference](predictive_check.png)"]
         if report.get("ood"):
             lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:

@@ -136,6 +136,15 @@ def predictive_p_value(statistic: float, reference_values) -> float:
     return float((1.0 + (ref >= statistic).sum()) / (ref.size + 1.0))
 
 
+def check_flag_threshold(reference: dict) -> float | None:
+    """The statistic above which the conformal check flags a film at the reference's α: with p = (1 +
+    #{reference ≥ t}) / (n + 1), p < α iff fewer than k = ⌈α (n + 1)⌉ − 1 reference values reach t, i.e. t
+    above the k-th largest; None when k = 0 (too few reference families to flag anything at α)."""
+    values = np.sort(np.asarray(reference["values"], dtype=float))
+    k = int(np.ceil(float(reference.get("alpha", ALPHA)) * (values.size + 1))) - 1
+    return float(values[values.size - k]) if k >= 1 else None
+
+
 def predictive_check(fit_result: dict, reference: dict, alpha: float | None = None) -> dict:
     """Verdict of the check for one refined family (module docstring): the predictive check (T) or, for a
     reference made in an extended box, the extension check (Λ)."""
@@ -176,5 +185,5 @@ def predictive_check(fit_result: dict, reference: dict, alpha: float | None = No
                         f"(validation families: median {np.median(values):.2f}×; p = {p:.2f})")}
 
 
-__all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_reference", "is_extension", "make_reference",
-           "predictive_check", "predictive_p_value", "predictive_statistic"]
+__all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_flag_threshold", "check_reference", "is_extension",
+           "make_reference", "predictive_check", "predictive_p_value", "predictive_statistic"]
