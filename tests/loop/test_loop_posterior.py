@@ -294,6 +294,27 @@ def test_fit_one_round_per_job_equals_fit_in_one_process(posterior, measured, tm
     assert steps["extend"] == whole["extend"] == {"N_pin": 3.0}
     assert steps["beyond_prior"] == whole["beyond_prior"] and steps["betas"] == whole["betas"]
     assert steps["refined_by_budget"]["6"]["parameters"] == whole["refined_by_budget"]["6"]["parameters"]
+    # the report judges the film against a reference made in the same box (Λ), with its figure; one made
+    # in another box is refused, at init before any simulation and at report
+    from forcdecode.loop.predictive_check import make_reference
+
+    extension = tmp_path / "extension.json"
+    extension.write_text(json.dumps(make_reference([-1.0] * 20, budget=6, round_size=3, prior="draw",
+                                                   sample_ids=range(20), extend={"N_pin": 3.0})))
+    checked = tmp_path / "checked" / "fit.json"
+    assert main(["fit-step", "report", "--state", str(ext[2]), "--out", str(checked),
+                 "--predictive-reference", str(extension)]) == 0
+    check = json.loads(checked.read_text())["predictive_check"]
+    assert check["check"] == "extension" and check["misspecified"]
+    assert check["statistic"] == whole["beyond_prior"]["log_likelihood_ratio_by_budget"]["6"]
+    assert (checked.parent / "predictive_check.png").exists()
+    in_box = write_reference(tmp_path / "in_box.json", 1.0)
+    assert main(["fit-step", "report", "--state", str(ext[2]), "--out", str(tmp_path / "no.json"),
+                 "--predictive-reference", str(in_box)]) == 2
+    assert main(["fit-step", "init", str(path), "--Ms-kA-m", "600", *common, "--budget", "6", "--round-size", "3",
+                 "--extend-prior", "N_pin=3", "--predictive-reference", str(in_box),
+                 "--state", str(tmp_path / "never.npz")]) == 2
+    assert not (tmp_path / "no.json").exists() and not (tmp_path / "never.npz").exists()
 
 
 def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(posterior, measured, tmp_path, capsys):

@@ -136,11 +136,17 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert "screen_status" in (out / "tables" / "samples.html").read_text()
     assert "<td>K_u</td>" in (out / "tables" / "metrics.html").read_text()
     # the refinement of one family, one workflow job per round (workflow/rules/fit.smk; posterior tiny)
+    # judged by the extension check against a reference of the same box and rounds (every Λ −1: any film is
+    # flagged; fit.predictive_reference)
+    from forcdecode.loop.predictive_check import make_reference
+
+    (tmp_path / "extension.json").write_text(json.dumps(make_reference(
+        [-1.0] * 20, budget=4, round_size=2, prior="draw", sample_ids=range(20), extend={"N_pin": 3.0})))
     fit_config = tmp_path / "fit.yaml"
     fit_config.write_text(json.dumps({
         "posterior": {"epochs": 5, "patience": 2, "draws": 50, "width": 8, "hidden": 8, "transforms": 1, "ensemble": 2},
         "fit": {"input": "results/dataset.h5", "sample_id": sample, "budget": 4, "round_size": 2, "workers": 1,
-                "extend_prior": ["N_pin=3"]}}))
+                "extend_prior": ["N_pin=3"], "predictive_reference": "extension.json"}}))
     fit_run = snakemake(tmp_path, "--configfile", str(ROOT / "config" / "test.yaml"), str(fit_config), "--",
                         f"results/fit/dataset_sample{sample}/fit.json", timeout=600)
     assert fit_run.returncode == 0, fit_run.stdout[-3000:] + fit_run.stderr[-3000:]
@@ -151,6 +157,8 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert fitted["truth"]["Ms"] > 0  # a dataset sample: its truth travels with the state
     # the box reached 3 × N_pin's prior range (fit.extend_prior): the report says what lies beyond the bound
     assert fitted["extend"] == {"N_pin": 3.0} and set(fitted["beyond_prior"]["log_likelihood_ratio_by_budget"]) == {"2", "4"}
+    assert fitted["predictive_check"]["check"] == "extension" and fitted["predictive_check"]["misspecified"]
+    assert (out / "fit" / f"dataset_sample{sample}" / "predictive_check.png").exists()
     # the posterior on a fresh draw: 16 more samples of the same configuration (ids 40-55), then its check
     fresh_draw(tmp_path, "next", first_id=40, n=16)
     with_fit_posterior(tmp_path, fit_config, "results/posterior/fresh/next.json")

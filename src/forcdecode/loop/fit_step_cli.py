@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state-in", help="round: the state before the round")
     parser.add_argument("--state-out", help="round: the state after the round")
     parser.add_argument("--out", help="report: fit.json")
+    parser.add_argument("--predictive-reference", metavar="JSON",
+                        help="init: refuse now a reference that cannot judge this refinement; report: the calibrated "
+                             "check of forcdecode fit --predictive-reference (T in the prior's box, Λ in an extended "
+                             "one) in fit.json, and its figure (predictive_check.png beside it)")
 
 
 def run(args) -> int:
@@ -60,6 +64,17 @@ def run(args) -> int:
             raise ConfigError(f"{args.state}: {len(state.rounds)} of {state.n_rounds} rounds run; run the rest first")
         result = finish_fit(state)
         result["truth"] = state.context.get("truth")
+        if args.predictive_reference:
+            from .predictive_check import predictive_check
+            from .report_page import check_figure
+
+            reference = _reference(args.predictive_reference, state.round_size, result["prior"], state.budget,
+                                   result.get("extend"))
+            result["predictive_check"] = check = predictive_check(result, reference)
+            check_figure(Path(args.out).with_name("predictive_check.png"), reference,
+                         {Path(args.out).parent.name or "film": (check["statistic"], check["misspecified"])},
+                         title=f"{check['check']} check")
+            print(("warning: " if check["misspecified"] else "") + check["verdict"])
         write_json(args.out, result)
         return 0
     from ..learn.posterior import PosteriorEstimator
@@ -76,6 +91,8 @@ def run(args) -> int:
         if args.budget < args.round_size or args.round_size < 2:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
         extend = parse_extension(args.extend_prior, tuple(est.names))
+        if args.predictive_reference:
+            _reference(args.predictive_reference, args.round_size, "draw", args.budget, extend)
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
@@ -96,3 +113,14 @@ def run(args) -> int:
     print(f"round {len(state.rounds)}/{state.n_rounds}: beta {state.beta:.3g}, ESS {state.ess[-1]:.1f}, "
           f"{time.perf_counter() - started:.0f} s")
     return 0
+
+
+def _reference(path, round_size: int, prior: str, budget: int, extend) -> dict:
+    """The check's reference at ``path``, refused (ConfigError) unless it can judge a refinement with
+    these settings (``loop.predictive_check.check_reference``)."""
+    from ..core.io import read_json
+    from .predictive_check import check_reference
+
+    reference = read_json(path, what="predictive-check reference")
+    check_reference(reference, round_size=round_size, prior=prior, budget_run=budget, extend=extend)
+    return reference
