@@ -448,7 +448,7 @@ def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
         say(f"extension check: {flagged} of {len(checks)} families flagged (α {checks[0]['alpha']:g}, "
             f"{checks[0]['n_reference']} reference families)")
         check_figure(f"{args.fit_dir}/extension_check.png", reference,
-                     {f"sample {sid}": (c["statistic"], c["misspecified"]) for sid, c in zip(out["sample_ids"], checks)},
+                     {f"sample {sid}": c for sid, c in zip(out["sample_ids"], checks)},
                      title=f"extension check, {args.case or args.split} films: {flagged} of {len(checks)} flagged")
         say(f"extension check: figure {args.fit_dir}/extension_check.png")
 

@@ -244,7 +244,7 @@ def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir,
     say(f"  predictive check: {row['flagged']}/{row['n']} flagged [{low:.2f}, {high:.2f}], median T "
         f"{row['median_statistic']:.2f}; with the training-data check: {row['flagged_by_either']}/{row['n']}")
     check_figure(Path(fit_dir) / "predictive_check.png", settings["reference"],
-                 {f"key {int(k)}": (c["statistic"], c["misspecified"]) for k, c in zip(keys, checks)},
+                 {f"key {int(k)}": c for k, c in zip(keys, checks)},
                  title=f"predictive check, {Path(fit_dir).name}: {row['flagged']} of {row['n']} flagged")
     return row
 

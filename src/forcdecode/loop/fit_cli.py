@@ -595,13 +595,12 @@ def run(args) -> int:
     result["truth"] = truth
     if reference is not None:
         from .predictive_check import predictive_check
-
         from .report_page import check_figure
 
         result["predictive_check"] = check = predictive_check(result, reference)
-        check_figure(Path(args.out) / "predictive_check.png", reference,
-                     {Path(args.input).name + ("" if args.sample_id is None else f":{args.sample_id}"):
-                      (check["statistic"], check["misspecified"])}, title=f"{check['check']} check")
+        label = Path(args.input).name + ("" if args.sample_id is None else f":{args.sample_id}")
+        check_figure(Path(args.out) / "predictive_check.png", reference, {label: check},
+                     title=f"{check['check']} check")
     write_json(Path(args.out) / "fit.json", result)
     print_summary(result, args.budget)
     if reference is not None:

@@ -72,8 +72,7 @@ def run(args) -> int:
                                    result.get("extend"))
             result["predictive_check"] = check = predictive_check(result, reference)
             check_figure(Path(args.out).with_name("predictive_check.png"), reference,
-                         {Path(args.out).parent.name or "film": (check["statistic"], check["misspecified"])},
-                         title=f"{check['check']} check")
+                         {Path(args.out).parent.name or "film": check}, title=f"{check['check']} check")
             print(("warning: " if check["misspecified"] else "") + check["verdict"])
         write_json(args.out, result)
         return 0

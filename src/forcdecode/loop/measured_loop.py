@@ -375,8 +375,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
             if check is not None:  # where this film lies among the reference's validation families
                 from .report_page import check_figure
 
-                check_figure(out / "predictive_check.png", reference, {Path(str(path)).name: (
-                    check["statistic"], check["misspecified"])}, title=f"{check.get('check', 'predictive')} check")
+                check_figure(out / "predictive_check.png", reference, {Path(str(path)).name: check},
+                             title=f"{check['check']} check")
     if resim is None:
         resim, spread = resimulate_with_spread(cfg, params, n_profiles=profiles,
                                                progress=counter("re-simulation", "profiles"))

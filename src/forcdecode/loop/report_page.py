@@ -126,9 +126,9 @@ def write_report_page(out, report: dict, markdown_text: str, figures=("diagrams.
 
 def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
     """The conformal check on one axis: the reference families' statistic (T or Λ, grey), the value above
-    which a film is flagged at the reference's α (the dashed line), and each judged film (label → (value,
-    flagged); red if flagged, blue if not, hollow if undetermined). A symmetric-log axis, since Λ is 0 for
-    most in-distribution films and hundreds for a clearly beyond-prior one."""
+    which a film is flagged at the reference's α (the dashed line), and each judged film (label → its
+    ``predictive_check`` verdict; red if flagged, blue if not, hollow if undetermined). A symmetric-log
+    axis, since Λ is 0 for most in-distribution films and hundreds for a clearly beyond-prior one."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -145,7 +145,8 @@ def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
     if (values == 0).sum() > 1:  # Λ = 0 (the best fit inside the prior) is common: say how many lie there
         ax.annotate(f"{int((values == 0).sum())} at 0", (0.0, 0.0), xytext=(6, 5), textcoords="offset points",
                     fontsize=7, color="0.4")
-    for i, (label, (value, flagged)) in enumerate(judged.items(), start=1):
+    for i, (label, check) in enumerate(judged.items(), start=1):
+        value, flagged = check["statistic"], check["misspecified"]
         if value is None or not np.isfinite(value):
             ax.scatter([0.0], [i], facecolors="none", edgecolors="k", s=30)
             ax.annotate("undetermined", (0.0, i), xytext=(6, -3), textcoords="offset points", fontsize=7)
@@ -156,7 +157,8 @@ def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
     ax.set_yticks(range(len(judged) + 1), ["reference"] + [str(label) for label in judged], fontsize=7)
     ax.set_ylim(-0.7, len(judged) + 0.7)
     ax.set_xscale("symlog", linthresh=1e-2)
-    shown = [v for v, _ in judged.values() if v is not None and np.isfinite(v)] + values.tolist()
+    shown = [c["statistic"] for c in judged.values() if c["statistic"] is not None and np.isfinite(c["statistic"])]
+    shown += values.tolist()
     ax.set_xlim(-5e-3, 3.0 * max(max(shown), threshold or 0.0, 1e-2))
     name = "Λ (log-likelihood ratio, extended box)" if reference.get("extend") else "T (best RMS / floor)"
     ax.set_xlabel(f"{name} at {reference['budget']} simulations")
