@@ -88,4 +88,4 @@ FIT_WHICH = (
 # the box beyond the prior's bound (fit.extend_prior: NAME[=FACTOR] items, checked by the schema's pattern)
 FIT_EXTEND = f"--extend-prior {' '.join(FIT['extend_prior'])}" if FIT["extend_prior"] else ""
 # the calibrated check of the refined film against a reference of validation families (fit.predictive_reference)
-FIT_CHECK = f"--predictive-reference {FIT['predictive_reference']}" if FIT["predictive_reference"] else ""
+FIT_CHECK = f"--predictive-reference {shlex.quote(FIT['predictive_reference'])}" if FIT["predictive_reference"] else ""
