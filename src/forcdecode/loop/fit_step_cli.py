@@ -16,6 +16,8 @@ import argparse
 import time
 from pathlib import Path
 
+PRIOR = "draw"  # the refinement's prior (forcdecode fit --prior's default): the dataset's draw law given M_s
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("step", choices=("init", "round", "report"), help="init: amortized draws and the disorder floor; "
@@ -91,11 +93,11 @@ def run(args) -> int:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
         extend = parse_extension(args.extend_prior, tuple(est.names))
         if args.predictive_reference:
-            _reference(args.predictive_reference, args.round_size, "draw", args.budget, extend)
+            _reference(args.predictive_reference, args.round_size, PRIOR, args.budget, extend)
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                          workers=args.workers, seed=args.seed, key=key,
+                          workers=args.workers, seed=args.seed, key=key, prior=PRIOR,
                           checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), extend=extend)
         state.context["truth"] = truth
         state.save(args.state)
