@@ -175,4 +175,3 @@ def test_an_extended_validation_bench_writes_the_reference_that_judges_other_fil
     assert not (tmp_path / "case" / "extension_reference.json").exists()  # a case run writes no reference
     assert said[-2].startswith("extension check: 1 of 3 families flagged")
     assert (tmp_path / "case" / "extension_check.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-

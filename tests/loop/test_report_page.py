@@ -1,5 +1,5 @@
-"""The report page's figures (``loop.report_page``): the check figure draws every kind of verdict, and
-its flag line is where the check's own p-value crosses α."""
+"""The report page's figures (``loop.report_page``): the check figure draws every kind of verdict (its
+flag line, ``check_flag_threshold``, is tested against the p-value in ``test_predictive_check.py``)."""
 
 import numpy as np
 import pytest

@@ -350,10 +350,10 @@ def _bench_fit(args, say) -> int:
     extend = parse_extension(args.extend_prior, tuple(est.names))
     reference = None
     if args.extension_reference:
-        from ..loop.predictive_check import check_reference
+        from ..loop.predictive_check import read_reference
 
-        reference = read_json(args.extension_reference, what="extension-check reference")
-        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=budgets[-1], extend=extend)
+        reference = read_reference(args.extension_reference, round_size=args.round_size, prior=args.prior,
+                                   budget_run=budgets[-1], extend=extend, what="extension-check reference")
     observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
     rows = []
     import h5py

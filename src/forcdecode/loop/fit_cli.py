@@ -580,11 +580,10 @@ def run(args) -> int:
     est = PosteriorEstimator.load(args.posterior)
     extend = parse_extension(args.extend_prior, tuple(est.names))
     if args.predictive_reference:
-        from ..core.io import read_json
-        from .predictive_check import check_reference
+        from .predictive_check import read_reference
 
-        reference = read_json(args.predictive_reference, what="predictive-check reference")
-        check_reference(reference, round_size=args.round_size, prior=args.prior, budget_run=args.budget, extend=extend)
+        reference = read_reference(args.predictive_reference, round_size=args.round_size, prior=args.prior,
+                                   budget_run=args.budget, extend=extend)
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731

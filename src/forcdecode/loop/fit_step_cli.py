@@ -67,11 +67,11 @@ def run(args) -> int:
         result = finish_fit(state)
         result["truth"] = state.context.get("truth")
         if args.predictive_reference:
-            from .predictive_check import predictive_check
+            from .predictive_check import predictive_check, read_reference
             from .report_page import check_figure
 
-            reference = _reference(args.predictive_reference, state.round_size, result["prior"], state.budget,
-                                   result.get("extend"))
+            reference = read_reference(args.predictive_reference, round_size=state.round_size,
+                                       prior=result["prior"], budget_run=state.budget, extend=result.get("extend"))
             result["predictive_check"] = check = predictive_check(result, reference)
             check_figure(Path(args.out).with_name("predictive_check.png"), reference,
                          {Path(args.out).parent.name or "film": check}, title=f"{check['check']} check")
@@ -93,7 +93,10 @@ def run(args) -> int:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
         extend = parse_extension(args.extend_prior, tuple(est.names))
         if args.predictive_reference:
-            _reference(args.predictive_reference, args.round_size, PRIOR, args.budget, extend)
+            from .predictive_check import read_reference
+
+            read_reference(args.predictive_reference, round_size=args.round_size, prior=PRIOR, budget_run=args.budget,
+                           extend=extend)
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
@@ -115,13 +118,3 @@ def run(args) -> int:
           f"{time.perf_counter() - started:.0f} s")
     return 0
 
-
-def _reference(path, round_size: int, prior: str, budget: int, extend) -> dict:
-    """The check's reference at ``path``, refused (ConfigError) unless it can judge a refinement with
-    these settings (``loop.predictive_check.check_reference``)."""
-    from ..core.io import read_json
-    from .predictive_check import check_reference
-
-    reference = read_json(path, what="predictive-check reference")
-    check_reference(reference, round_size=round_size, prior=prior, budget_run=budget, extend=extend)
-    return reference

@@ -289,11 +289,10 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if predictive_reference is not None:
         if not refine_budget:
             raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
-        from ..core.io import read_json
-        from .predictive_check import check_reference
+        from .predictive_check import read_reference
 
-        reference = read_json(predictive_reference, what="predictive-check reference")
-        check_reference(reference, round_size=refine_round_size, prior="draw", budget_run=refine_budget, extend=extend)
+        reference = read_reference(predictive_reference, round_size=refine_round_size, prior="draw",
+                                   budget_run=refine_budget, extend=extend)
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
                           "networks, not a given Hamiltonian (--params)")

@@ -129,6 +129,17 @@ def check_reference(reference: dict, *, round_size: int, prior: str, budget_run:
                           f"(its reference's budget); this one ran {budget_run}")
 
 
+def read_reference(path, *, round_size: int, prior: str, budget_run: int, extend: dict | None = None,
+                   what: str = "predictive-check reference") -> dict:
+    """The reference JSON at ``path``, refused (ConfigError, InputFileError) unless it can judge a refinement
+    with these settings (``check_reference``): every entry point calls this before any simulation."""
+    from ..core.io import read_json
+
+    reference = read_json(path, what=what)
+    check_reference(reference, round_size=round_size, prior=prior, budget_run=budget_run, extend=extend)
+    return reference
+
+
 def predictive_p_value(statistic: float, reference_values) -> float:
     """Conformal p-value of the statistic (T or Λ) against the reference families' (large = the films inside
     the prior fit worse)."""
@@ -186,4 +197,4 @@ def predictive_check(fit_result: dict, reference: dict, alpha: float | None = No
 
 
 __all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_flag_threshold", "check_reference", "is_extension",
-           "make_reference", "predictive_check", "predictive_p_value", "predictive_statistic"]
+           "make_reference", "predictive_check", "predictive_p_value", "predictive_statistic", "read_reference"]
