@@ -204,7 +204,7 @@ def test_the_loop_refines_in_an_extended_box_and_reports_the_mass_beyond_the_bou
         assert main([*common, "--out", str(tmp_path / "x"), *extra]) == 2
 
 
-def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured, tmp_path):
+def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured, tmp_path, capsys):
     """`loop --estimator posterior --refine N`: the refined medians (not the amortized ones) are the
     Hamiltonian re-simulated and analysed; the report carries both."""
     path, cfg = measured
@@ -237,6 +237,17 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
     assert main(["loop", str(path), "--out", str(tmp_path / "y"), "--config", str(cfg), "--estimator", "posterior",
                  "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
                  "--refine-round-size", "2", "--predictive-reference", str(reference)]) == 2
+    # nor one made with the other prior: the loop refines with fit_cli.DEFAULT_PRIOR, and says so
+    from forcdecode.loop.fit_cli import DEFAULT_PRIOR, PRIORS
+    from forcdecode.loop.predictive_check import make_reference
+
+    other = tmp_path / "other_prior.json"
+    other.write_text(json.dumps(make_reference([1e-6] * 20, budget=3, round_size=3, sample_ids=range(20),
+                                               prior=next(p for p in PRIORS if p != DEFAULT_PRIOR))))
+    assert main(["loop", str(path), "--out", str(tmp_path / "z"), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
+                 "--refine-round-size", "3", "--predictive-reference", str(other)]) == 2
+    assert f"the {DEFAULT_PRIOR} prior" in capsys.readouterr().err and not (tmp_path / "z").exists()
     # refinement starts from the joint posterior: Alice, or a given Hamiltonian, is refused with exit 2
     assert main(["loop", str(path), "--out", str(tmp_path / "x"), "--config", str(cfg), "--Ms-kA-m", "600",
                  "--refine", "6"]) == 2

@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..loop.fit_cli import METHODS, PRIORS
+    from ..loop.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
@@ -79,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--method", choices=METHODS, default="pmc",
                      help="fit: pmc (tempered population Monte Carlo, common random numbers) or adjusted (the "
                           "amortized draws simulated on their own realisations, regression-adjusted)")
-    fit.add_argument("--prior", choices=PRIORS, default="draw",
+    fit.add_argument("--prior", choices=PRIORS, default=DEFAULT_PRIOR,
                      help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
     fit.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
                      help="fit, pmc: refine in a box extended beyond the prior's bound (forcdecode fit --extend-prior); "

@@ -22,6 +22,10 @@ import numpy as np
 PRIORS = ("draw", "uniform")
 """The refinement's priors: the dataset's draw prior given M_s, or the uniform box."""
 
+DEFAULT_PRIOR = "draw"
+"""The refinement's prior unless one is asked for (``fit``, ``fit-step``, ``loop --refine``, ``bench fit``):
+the dataset's draw law given M_s, the law the amortized networks and the check's references were made on."""
+
 EXTENSION_FACTOR = 4.0
 """Default factor of ``--extend-prior NAME``: the box of NAME reaches 4 × its prior's range (for N_pin,
 four times the densest pinning the dataset was drawn with)."""
@@ -72,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=METHODS, default="pmc",
                         help="pmc: tempered population Monte Carlo on one disorder realisation (default); adjusted: "
                              "the amortized draws simulated on their own realisations and regression-adjusted")
-    parser.add_argument("--prior", choices=PRIORS, default="draw",
+    parser.add_argument("--prior", choices=PRIORS, default=DEFAULT_PRIOR,
                         help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
     parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
                         help="pmc: let these parameters go beyond the prior's upper bound, to FACTOR times its range "
@@ -123,8 +127,8 @@ def family_key(label: str) -> int:
     return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
 
 
-def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), prior="draw",
-              extend=None):
+def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(),
+              prior=DEFAULT_PRIOR, extend=None):
     """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
     σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
     realisations. The state carries what later rounds
@@ -244,7 +248,7 @@ def _flow_logpdf(est, image, ms_norm: float):
 
 
 def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
-            state_path=None, prior="draw", extend=None) -> dict:
+            state_path=None, prior=DEFAULT_PRIOR, extend=None) -> dict:
     """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
     The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
     ``state_path``: the state (every particle) is saved there after each round; a run that stops
@@ -344,7 +348,7 @@ def network_summaries(est, images, ms_norm: float, seed: int) -> np.ndarray:
 
 
 def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, checkpoints=(), log=None,
-                 state_path=None, prior="draw", round_size: int = 25, extend=None) -> dict:
+                 state_path=None, prior=DEFAULT_PRIOR, round_size: int = 25, extend=None) -> dict:
     """The amortized posterior corrected by simulation of this film, by regression adjustment.
 
     ``budget`` draws of the amortized posterior q₀ (the flow) are simulated, each on its own disorder

@@ -16,7 +16,6 @@ import argparse
 import time
 from pathlib import Path
 
-PRIOR = "draw"  # the refinement's prior (forcdecode fit --prior's default): the dataset's draw law given M_s
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +49,7 @@ def run(args) -> int:
     from ..core.errors import ConfigError
     from ..core.io import write_json
     from .fit import Refinement
-    from .fit_cli import family_key, finish_fit, fit_round, observation, parse_extension, start_fit
+    from .fit_cli import DEFAULT_PRIOR, family_key, finish_fit, fit_round, observation, parse_extension, start_fit
 
     def need(*names):
         missing = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) in (None, "")]
@@ -95,12 +94,12 @@ def run(args) -> int:
         if args.predictive_reference:
             from .predictive_check import read_reference
 
-            read_reference(args.predictive_reference, round_size=args.round_size, prior=PRIOR, budget_run=args.budget,
-                           extend=extend)
+            read_reference(args.predictive_reference, round_size=args.round_size, prior=DEFAULT_PRIOR,
+                           budget_run=args.budget, extend=extend)
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
         state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                          workers=args.workers, seed=args.seed, key=key, prior=PRIOR,
+                          workers=args.workers, seed=args.seed, key=key, prior=DEFAULT_PRIOR,
                           checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), extend=extend)
         state.context["truth"] = truth
         state.save(args.state)

@@ -94,12 +94,13 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
     beyond the prior's bound (``fit_cli.parse_extension``); the entry then carries ``beyond_prior``
     (``loop.fit.beyond_prior``) and the medians may lie past the bound."""
     from ..core.parameters import denormalize
-    from .fit_cli import beyond_prior_lines, family_key, fit_function
+    from .fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
     from .posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                                  seed=int(cfg.get("seed", 0)), key=key, log=log, extend=extend)
+                                  seed=int(cfg.get("seed", 0)), key=key, log=log, prior=DEFAULT_PRIOR,
+                                  extend=extend)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
@@ -276,7 +277,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
     from ..core.parameters import TARGETS
-    from .fit_cli import fit_function, parse_extension
+    from .fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
 
     fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
@@ -291,7 +292,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
             raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
         from .predictive_check import read_reference
 
-        reference = read_reference(predictive_reference, round_size=refine_round_size, prior="draw",
+        reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
                                    budget_run=refine_budget, extend=extend)
     if fixed_point and params is not None:
         raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
