@@ -17,7 +17,6 @@ import time
 from pathlib import Path
 
 
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("step", choices=("init", "round", "report"), help="init: amortized draws and the disorder floor; "
                         "round: one round of simulations; report: fit.json from the last state")
@@ -116,4 +115,3 @@ def run(args) -> int:
     print(f"round {len(state.rounds)}/{state.n_rounds}: beta {state.beta:.3g}, ESS {state.ess[-1]:.1f}, "
           f"{time.perf_counter() - started:.0f} s")
     return 0
-
