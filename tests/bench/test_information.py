@@ -1,0 +1,95 @@
+"""bench information (issue 43): the Fisher core against a case known in closed form, a
+non-interacting ensemble of square hysterons through the FORC protocol (bench/information_check.py)."""
+
+import numpy as np
+import pytest
+
+from forcdecode.bench import information_check as check
+from forcdecode.bench.information import (QUANT_STEP, crb, fisher_by_simulation, fisher_from_families, ledoit_wolf,
+                                          principal_angle_deg, stencil, upper_triangle)
+
+U = np.array([0.4, 0.5, 0.5])  # h0 = 0.35 T, s = 0.3; the third parameter does not enter
+N_PARTICLES, NOISE_SD, N_FIELDS, R, DELTA = 200, 0.02, 12, 1000, 0.05
+TOLERANCE = 0.10
+"""Bench vs analytic Cramér–Rao bound, relative. At R = 1000 realisations of p = 78 points the
+sample-covariance bias (≈ n/(n − p), Hartlap) alone is ≈ 4 % on a bound; a factor-2 error in the
+step or a lost common-random-number pairing moves a bound by ≥ 2× or the inert bound below 1."""
+
+
+@pytest.fixture(scope="module")
+def bench():
+    f = check.simulator(N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)
+    return f, fisher_by_simulation(f, U, check.NAMES, DELTA, range(R))
+
+
+@pytest.fixture(scope="module")
+def analytic_crb():
+    F = check.analytic_fisher(U, N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)
+    assert np.allclose(F[2], 0) and np.allclose(F[:, 2], 0)  # the inert parameter carries nothing
+    return crb(F[:2, :2])
+
+
+def test_bench_fisher_matches_closed_form(bench, analytic_crb):
+    _, res = bench
+    ratio = res.crb_single[:2] / analytic_crb
+    assert np.all(np.abs(ratio - 1) < TOLERANCE), (ratio, res.crb_single, analytic_crb)
+    assert np.allclose(res.crb_mean_R[:2], res.crb_single[:2] / np.sqrt(R))
+    assert np.all(res.noise_fraction[:2] < 0.05)
+
+
+def test_parameter_that_does_not_enter_gets_at_least_the_prior_width(bench):
+    _, res = bench
+    assert res.crb_single[2] >= 1.0  # ∞ here: F is singular along it (CRN: the differences are exactly 0)
+    assert res.crb_mean_R[2] >= 1.0
+
+
+def test_the_check_fails_on_a_wrong_step(bench, analytic_crb):
+    """The same realisations with the step scale wrong by 2: the bounds move by 2, out of tolerance."""
+    f, res = bench
+    # rebuild the families of the bench run and analyse them with the stencil widths halved
+    center = np.stack([f(U, r) for r in range(200)])
+    plus, minus, steps = [], [], []
+    for i in range(3):
+        lo, hi = stencil(U[i], DELTA)
+        up, um = U.copy(), U.copy()
+        up[i], um[i] = hi, lo
+        plus.append(np.stack([f(up, r) for r in range(200)]))
+        minus.append(np.stack([f(um, r) for r in range(200)]))
+        steps.append(hi - lo)
+    wrong = fisher_from_families(center, np.stack(plus), np.stack(minus), np.array(steps) / 2, check.NAMES, U)
+    assert np.all(np.abs(wrong.crb_single[:2] / analytic_crb - 1) > TOLERANCE)
+
+
+def test_the_check_fails_without_common_random_numbers():
+    """u − δ on other realisations than u + δ: the inert parameter's bound drops below the prior's width."""
+    f = check.simulator(N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)
+    res = fisher_by_simulation(f, U, check.NAMES, DELTA, range(300), crn=False)
+    assert res.crb_single[2] < 1.0
+
+
+def test_ledoit_wolf_formula():
+    """Against the textbook expression written densely (scikit-learn is not installed here)."""
+    rng = np.random.default_rng(0)
+    Y = rng.normal(size=(7, 30)) @ np.diag(np.linspace(0.5, 2, 30))
+    s = ledoit_wolf(Y, floor=QUANT_STEP**2 / 12)
+    X = Y - Y.mean(0)
+    n, p = X.shape
+    S = X.T @ X / n
+    mu = np.trace(S) / p
+    d2 = np.sum((S - mu * np.eye(p)) ** 2) / p
+    b2 = sum(np.sum((np.outer(x, x) - S) ** 2) for x in X) / (n**2 * p)
+    rho = min(b2, d2) / d2
+    dense = rho * mu * np.eye(p) + (1 - rho) * S + QUANT_STEP**2 / 12 * np.eye(p)
+    assert np.isclose(s.rho, rho)
+    assert np.allclose(s.dense(), dense)
+    V = rng.normal(size=(p, 3))
+    assert np.allclose(s.solve(V), np.linalg.solve(dense, V))
+
+
+def test_helpers():
+    c = np.arange(16.0).reshape(4, 4)
+    assert upper_triangle(c).tolist() == [0, 1, 2, 3, 5, 6, 7, 10, 11, 15]
+    assert stencil(0.02, 0.05) == (pytest.approx(1e-4), pytest.approx(0.07))
+    assert principal_angle_deg([1, 0], [-1, 0]) == 0.0
+    assert np.isclose(principal_angle_deg([1, 0], [1, 1]), 45.0)
+    assert np.isinf(crb(np.diag([4.0, 0.0]))[1]) and np.isclose(crb(np.diag([4.0, 0.0]))[0], 0.5)
