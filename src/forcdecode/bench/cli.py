@@ -11,7 +11,7 @@ import os
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..loop.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood", "information"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -100,6 +100,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "every case asked for)")
     ood.add_argument("--calibration-families", type=int, default=20,
                      help="ood: validation families the predictive check is calibrated on (>= 20 for alpha 0.05)")
+    info = parser.add_argument_group("information (Fisher map of the FORC family; --films FILM[:NxR], "
+                                     "--config, --workers, --summarize-only shared with films)")
+    info.add_argument("--fiducials", type=int, default=16, help="information: fiducial Hamiltonians per film")
+    info.add_argument("--realisations", type=int, default=8, help="information: disorder realisations R per point")
+    info.add_argument("--delta", type=float, nargs="+", default=[0.1, 0.05],
+                      help="information: half-steps in normalized units (the first for the map; all of them at the "
+                           "first --stability-fiducials fiducials)")
+    info.add_argument("--stability-fiducials", type=int, default=2, help="information: fiducials run at every --delta")
+    info.add_argument("--pool", type=int, default=200, help="information: draws screened for the regimes' mass")
+    info.add_argument("--info-dir", default="results/bench/information", help="information: families, "
+                      "fiducials.json, one JSON per fiducial, summary.json (resumable)")
+    info.add_argument("--stop-at", default=None, help="information: start no fiducial after this UTC time (HH:MM)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
@@ -131,6 +143,10 @@ def run(args) -> int:
         return _bench_fit(args, say)
     if args.target == "ood":
         return _bench_ood(args, say)
+    if args.target == "information":
+        from .information_cli import bench_information
+
+        return bench_information(args, say)
     from . import engine
 
     if args.target == "effects" and args.independent:

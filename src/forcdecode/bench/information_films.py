@@ -1,0 +1,572 @@
+"""``forcdecode bench information`` (issue 43): the Fisher map of the FORC family over films, at
+fiducial Hamiltonians of the prior, with the micromagnetic engine as the simulator.
+
+Fiducials. A pool of dataset draws (``draw_parameters``, ids 0..pool−1) is screened on the laptop
+film (``dataset.simulate.screen`` with the shipped config); the passing draws give the prior's
+screened mass in three regimes (K_eff = K_u − μ0M_s²/2, σ_w = 4√(A_ex K_eff) − π|D|):
+
+* ``K_eff<0``  (in-plane shape anisotropy wins: K_eff < 0),
+* ``spirals``  (K_eff > 0, σ_w ≤ 0: chiral spirals),
+* ``domains``  (σ_w > 0: perpendicular domains).
+
+The fiducials are allotted to the regimes by that mass (largest remainders, at least one for a
+regime with any mass), spread over N_pin within each (evenly spaced N_pin quantiles), and ordered
+round-robin over the regimes so a stopped run leaves a stratified subset. The list is written to
+``OUT/fiducials.json`` before any family is simulated, and reused from there on a rerun.
+
+Per fiducial and film: the families at u and at u ± δ e_i (normalized units, six parameters, M_s
+fixed) for the realisations r = 0..R−1, each realisation's disorder from the ``bench_film`` stream
+("information", film, sample id, r): the same at every stencil point (common random numbers; N_pin
+changes the number of pinning cells, which re-draws their positions: its differences carry that
+noise). One file per family, ``OUT/<film>/s<id>/<point>_r<r>.npz`` (resumable); the fiducial's
+whole set is simulated in one process (its peak RSS and CPU time read with ``wait4``). The first
+``stability`` fiducials are simulated at every δ asked for (the stability check in R and δ);
+the others at the first δ only.
+
+Analysis per fiducial (``analyse_fiducial``): two channels, the float ⟨m_z⟩ (a solver floor of 1e-8, ``FLOAT_FLOOR``) and
+the 8-bit image (grey levels back in m_z units, the quantization variance Δ²/12 added to Σ), both
+on the 2080 points the family visits; for every R' ∈ {R/2, R} (the first R' realisations) and δ:
+F, CRBs, eigen-decomposition, the angle between the best-identified (A_ex, D) direction (top
+eigenvector of F's A_ex–D block) and ∇σ_w in normalized coordinates.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.parameters import TARGETS, denormalize, normalize
+from .information import QUANT_STEP, best_direction, fisher_from_families, principal_angle_deg, stencil, upper_triangle
+
+MU0 = 4e-7 * np.pi
+
+NAMES = ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")
+"""The parameters differentiated (normalized units; M_s is given)."""
+
+FILMS: dict[str, dict] = {
+    "laptop": dict(nx=64, ny=64, nz=1, n_grains=16, protocol="quasistatic", names=NAMES),
+    "laptop_8nm": dict(nx=64, ny=64, nz=2, n_grains=16, protocol="quasistatic", names=NAMES),
+    "box128_8nm": dict(nx=128, ny=128, nz=2, n_grains=64, protocol="quasistatic",
+                       names=("K_u", "A_ex", "D", "N_pin")),
+    "paper": dict(nx=256, ny=256, nz=2, n_grains=255, protocol="quasistatic", names=("K_u", "A_ex", "D", "N_pin")),
+    "laptop_llg": dict(nx=64, ny=64, nz=1, n_grains=16, protocol="llg", names=NAMES),
+}
+"""Films of the issue (cells 2 × 2 × 4 nm, grains ≈ 32 nm). ``paper`` (256²×2) and ``laptop_llg``
+are listed so the summary can say they were not measured."""
+
+NOT_MEASURED = {
+    "paper": "256x256x2: a family costs ~100x the laptop's; >= 2 fiducials x 9 points x R >= 4 is days of "
+             "2 shared cores",
+    "laptop_llg": "the LLG sweep-rate protocol is ~200x dearer than quasi-static (config/README.md): not in "
+                  "this session's budget",
+    "period_box": "a box of >= 2 stripe/spiral periods (250-770 nm at 4 nm, 130-225 nm at 8 nm) is >= 128^2-384^2 "
+                  "cells: not in this session's budget",
+}
+
+REGIMES = ("K_eff<0", "spirals", "domains")
+
+FLOAT_FLOOR = 1e-8
+"""Variance (m_z²) added to Σ of the float channel: the minimizer's own scatter (torque tolerance
+1 mT against fields of ~1 T: |Δm| ~ 1e-4), so that Σ stays invertible where every realisation agrees."""
+
+
+def k_eff(p: dict) -> float:
+    """K_eff = K_u − μ0 M_s²/2 (J/m³)."""
+    return p["K_u"] - MU0 * p["Ms"] ** 2 / 2
+
+
+def sigma_w(p: dict) -> float:
+    """Wall energy 4√(A_ex K_eff) − π|D| (J/m²); NaN where K_eff ≤ 0."""
+    k = k_eff(p)
+    return float(4 * np.sqrt(p["A_ex"] * k) - np.pi * abs(p["D"])) if k > 0 else float("nan")
+
+
+def wall_width(p: dict) -> float:
+    k = k_eff(p)
+    return float(np.sqrt(p["A_ex"] / k)) if k > 0 else float("nan")
+
+
+def regime(p: dict) -> str:
+    if k_eff(p) < 0:
+        return "K_eff<0"
+    return "spirals" if sigma_w(p) <= 0 else "domains"
+
+
+def to_unit(p: dict, names=NAMES) -> np.ndarray:
+    return np.array([float(normalize(n, p[n])) for n in names])
+
+
+def from_unit(u: np.ndarray, base: dict, names=NAMES) -> dict:
+    """SI parameters with ``names`` set from u (N_pin stays a real number: ``pinning_cells`` rounds)."""
+    out = dict(base)
+    for n, v in zip(names, u):
+        out[n] = float(denormalize(n, v))
+    return out
+
+
+def gradient(fn, p: dict, names, h: float = 1e-5) -> np.ndarray:
+    """∂fn/∂u for ``names`` (central differences in normalized units)."""
+    u = to_unit(p, names)
+    g = np.zeros(len(names))
+    for i in range(len(names)):
+        up, um = u.copy(), u.copy()
+        up[i] += h
+        um[i] -= h
+        g[i] = (fn(from_unit(up, p, names)) - fn(from_unit(um, p, names))) / (2 * h)
+    return g
+
+
+# --- fiducials -------------------------------------------------------------------------------------------
+
+def screened_pool(cfg: dict, pool: int, say=print) -> list[dict]:
+    """The draws 0..pool−1 that pass the screening of ``cfg`` (the laptop film), with their regime."""
+    from ..dataset.params import draw_parameters
+    from ..dataset.simulate import screen
+
+    out = []
+    for sid in range(pool):
+        p = draw_parameters(cfg["seed"], sid)
+        if screen(cfg, p, sid)["screen_status"] == "passed":
+            out.append({"sample_id": sid, **p, "regime": regime(p), "K_eff": k_eff(p), "sigma_w": sigma_w(p)})
+        if (sid + 1) % 25 == 0:
+            say(f"screened {sid + 1}/{pool} draws, {len(out)} pass")
+    return out
+
+
+def allot(masses: dict[str, int], n: int) -> dict[str, int]:
+    """Fiducials per regime proportional to ``masses`` (largest remainders; ≥ 1 where mass > 0)."""
+    total = sum(masses.values())
+    present = [r for r in REGIMES if masses.get(r, 0) > 0]
+    counts = {r: 1 for r in present}
+    left = n - len(present)
+    share = {r: max(n * masses[r] / total - 1, 0.0) for r in present}
+    scale = left / sum(share.values()) if sum(share.values()) > 0 else 0.0
+    for r in present:
+        counts[r] += int(np.floor(share[r] * scale))
+    rest = sorted(present, key=lambda r: -(share[r] * scale - np.floor(share[r] * scale)))
+    for r in rest[: n - sum(counts.values())]:
+        counts[r] += 1
+    return counts
+
+
+def choose_fiducials(pool_rows: list[dict], n: int) -> dict:
+    """Stratified fiducials (module docstring) from the screened pool."""
+    masses = {r: sum(1 for p in pool_rows if p["regime"] == r) for r in REGIMES}
+    counts = allot(masses, n)
+    picked = {}
+    for r, k in counts.items():
+        members = sorted((p for p in pool_rows if p["regime"] == r), key=lambda p: (p["N_pin"], p["sample_id"]))
+        k = min(k, len(members))
+        idx = sorted({int(round((j + 0.5) * len(members) / k - 0.5)) for j in range(k)})
+        picked[r] = [members[i] for i in idx]
+    order = []
+    for j in range(max((len(v) for v in picked.values()), default=0)):
+        for r in sorted(picked, key=lambda r: -masses[r]):
+            if j < len(picked[r]):
+                order.append(picked[r][j])
+    return {"pool": len(pool_rows), "screened_mass": masses,
+            "mass_fraction": {r: masses[r] / max(len(pool_rows), 1) for r in REGIMES}, "allotted": counts,
+            "fiducials": order}
+
+
+# --- simulation -------------------------------------------------------------------------------------------
+
+def film_cfg(base: dict, film: str) -> dict:
+    import copy
+
+    spec = FILMS[film]
+    cfg = copy.deepcopy(base)
+    cfg["mesh"].update(nx=spec["nx"], ny=spec["ny"], nz=spec["nz"])
+    cfg["n_grains"] = spec["n_grains"]
+    return cfg
+
+
+def points(u: np.ndarray, names, deltas) -> list[tuple[str, np.ndarray, float]]:
+    """(label, u at the point, δ) of the stencil: the centre, then u ∓ δ e_i per parameter and δ."""
+    out = [("c", u.copy(), 0.0)]
+    for d in deltas:
+        for i, n in enumerate(names):
+            lo, hi = stencil(u[i], d)
+            um, up = u.copy(), u.copy()
+            um[i], up[i] = lo, hi
+            out += [(f"{n}-{d:g}", um, d), (f"{n}+{d:g}", up, d)]
+    return out
+
+
+def family_path(out_dir, film: str, sid: int, label: str, r: int) -> Path:
+    return Path(out_dir) / film / f"s{sid:05d}" / f"{label}_r{r}.npz"
+
+
+def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dict:
+    """One family of realisation r: float curves (64×64, NaN below the diagonal), the uint8 image,
+    CPU seconds of this process."""
+    from ..core.streams import stream_rng
+    from ..forc.protocol import quasistatic_family
+    from ..forc.raster import rasterize_grid_family
+    from ..micromag.build import build_film, sweep_options
+
+    fcfg = film_cfg(cfg, film)
+    if FILMS[film]["protocol"] != "quasistatic":
+        raise NotImplementedError(f"film {film}: protocol {FILMS[film]['protocol']} not implemented here")
+    cpu = time.process_time()
+    rng = stream_rng(cfg["seed"], "bench_film", "information", film, int(sid), int(r))
+    f, m0, _ = build_film(fcfg, params, rng=rng)
+    fam = quasistatic_family(f, m0, n_fields=fcfg["field"]["n_fields"], B_max_T=fcfg["field"]["B_max_T"],
+                             **sweep_options(fcfg))
+    return {"curves": fam.curves_mz.astype(np.float32), "image": rasterize_grid_family(fam.curves_mz),
+            "cpu_s": time.process_time() - cpu, "unconverged": int(fam.stats["unconverged"])}
+
+
+def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> None:
+    """Every family of one fiducial not yet on disk (this process)."""
+    from ..core.io import atomic_path
+
+    names = FILMS[film]["names"]
+    sid = int(fid["sample_id"])
+    base = {k: fid[k] for k in ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")}
+    u = to_unit(base, names)
+    for label, up, _ in points(u, names, deltas):
+        params = from_unit(up, base, names)
+        for r in range(R):
+            path = family_path(out_dir, film, sid, label, r)
+            if path.exists():
+                continue
+            try:
+                fam = simulate_family(cfg, film, params, sid, r)
+            except Exception as error:  # recorded, the analysis drops the point
+                fam = {"curves": np.full((64, 64), np.nan, np.float32), "image": np.zeros((64, 64), np.uint8),
+                       "cpu_s": float("nan"), "unconverged": -1, "error": f"{type(error).__name__}: {error}"}
+            fam["rss_MiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+            with atomic_path(path) as tmp:
+                with open(tmp, "wb") as fh:
+                    np.savez(fh, u=up, **fam)
+
+
+def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stability: int, out_dir, say=print,
+                  stop_at: float | None = None) -> None:
+    """Each fiducial in its own process, one at a time (``costs.jsonl``: its CPU time and peak RSS)."""
+    out_dir = Path(out_dir)
+    cfg_path = out_dir / "config.json"
+    cfg_path.parent.mkdir(parents=True, exist_ok=True)
+    cfg_path.write_text(json.dumps(cfg))
+    for k, fid in enumerate(fids):
+        if stop_at is not None and time.time() > stop_at:
+            say(f"{film}: stop time reached before fiducial {fid['sample_id']}")
+            return
+        ds = list(deltas) if k < stability else list(deltas)[:1]
+        result = out_dir / film / f"s{int(fid['sample_id']):05d}.json"
+        if result.exists():
+            continue
+        spec = json.dumps({"config": str(cfg_path), "film": film, "film_spec": FILMS[film], "fiducial": fid,
+                           "R": R, "deltas": ds, "out": str(out_dir)})
+        start = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "forcdecode.bench.information_films", spec],
+                                env={**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+        _, status, usage = os.wait4(proc.pid, 0)
+        row = {"film": film, "sample_id": int(fid["sample_id"]), "exit": os.waitstatus_to_exitcode(status),
+               "wall_s": time.perf_counter() - start, "cpu_s": usage.ru_utime + usage.ru_stime,
+               "peak_rss_MiB": usage.ru_maxrss / 1024, "deltas": ds, "R": R}
+        with open(out_dir / "costs.jsonl", "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+        if row["exit"] == 0:
+            analysis = analyse_fiducial(out_dir, film, fid, R, ds)
+            analysis["process"] = row
+            from ..core.io import write_json
+
+            write_json(result, analysis)
+            say(fiducial_line(analysis))
+        else:
+            say(f"{film} fiducial {fid['sample_id']}: exit {row['exit']}")
+
+
+# --- analysis ---------------------------------------------------------------------------------------------
+
+def _load(out_dir, film, sid, label, R):
+    rows = [np.load(family_path(out_dir, film, sid, label, r)) for r in range(R)]
+    curves = np.stack([upper_triangle(x["curves"]) for x in rows])
+    images = np.stack([upper_triangle(x["image"].astype(float) / 127.5 - 1.0) for x in rows])
+    cpu = [float(x["cpu_s"]) for x in rows]
+    rss = [float(x["rss_MiB"]) for x in rows]
+    return curves, images, cpu, rss
+
+
+def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
+    """Fisher analysis of one fiducial from the families on disk (module docstring)."""
+    names = FILMS[film]["names"]
+    sid = int(fid["sample_id"])
+    base = {k: fid[k] for k in ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")}
+    u = to_unit(base, names)
+    pts = {label: (up, d) for label, up, d in points(u, names, deltas)}
+    loaded = {label: _load(out_dir, film, sid, label, R) for label in pts}
+    cpu = [c for v in loaded.values() for c in v[2]]
+    out = {"film": film, "sample_id": sid, "params": base, "regime": regime(base), "K_eff": k_eff(base),
+           "sigma_w": sigma_w(base), "wall_width_nm": wall_width(base) * 1e9, "u": u.tolist(), "names": list(names),
+           "R": R, "deltas": list(deltas), "families": len(cpu),
+           "cpu_s_per_family_median": float(np.nanmedian(cpu)), "cpu_s_per_family_mean": float(np.nanmean(cpu)),
+           "failed_families": int(sum(not np.all(np.isfinite(v[0])) for v in loaded.values())),
+           "channels": {}}
+    has_aD = "A_ex" in names and "D" in names and np.isfinite(out["sigma_w"])
+    g_sw = gradient(sigma_w, base, names) if has_aD else None
+    g_ww = gradient(wall_width, base, names) if has_aD else None
+    for channel, col, floor in (("float", 0, FLOAT_FLOOR), ("image", 1, QUANT_STEP**2 / 12)):
+        res_ch = {}
+        for d in deltas:
+            for Rs in sorted({max(R // 2, 2), R}):
+                center = loaded["c"][col][:Rs]
+                plus = np.stack([loaded[f"{n}+{d:g}"][col][:Rs] for n in names])
+                minus = np.stack([loaded[f"{n}-{d:g}"][col][:Rs] for n in names])
+                steps = np.array([pts[f"{n}+{d:g}"][0][i] - pts[f"{n}-{d:g}"][0][i] for i, n in enumerate(names)])
+                ok = np.all(np.isfinite(center), axis=0) & np.all(np.isfinite(plus), axis=(0, 1)) & \
+                    np.all(np.isfinite(minus), axis=(0, 1))
+                res = fisher_from_families(center[:, ok], plus[:, :, ok], minus[:, :, ok], steps, names, u, floor)
+                row = res.to_json()
+                row["points_used"] = int(ok.sum())
+                if has_aD:
+                    i, j = names.index("A_ex"), names.index("D")
+                    lam, V = best_direction(res.F, names, ("A_ex", "D"))
+                    row["AD_block_eigenvalues"] = lam.tolist()
+                    row["AD_best_direction"] = V[:, 0].tolist()
+                    row["sigma_w_alignment_deg"] = principal_angle_deg(V[:, 0], g_sw[[i, j]])
+                    row["wall_width_alignment_deg"] = principal_angle_deg(V[:, 0], g_ww[[i, j]])
+                    k3 = [names.index(n) for n in ("K_u", "A_ex", "D")]
+                    lam3, V3 = best_direction(res.F, names, ("K_u", "A_ex", "D"))
+                    row["KAD_best_direction"] = V3[:, 0].tolist()
+                    row["sigma_w_alignment_KAD_deg"] = principal_angle_deg(V3[:, 0], g_sw[k3])
+                res_ch[f"R{Rs}_d{d:g}"] = row
+        out["channels"][channel] = res_ch
+    if has_aD:
+        out["grad_sigma_w_u"] = g_sw.tolist()
+        out["grad_wall_width_u"] = g_ww.tolist()
+    return out
+
+
+def fiducial_line(a: dict) -> str:
+    key = f"R{a['R']}_d{a['deltas'][0]:g}"
+    row = a["channels"]["float"][key]
+    crbs = " ".join(f"{n}={'inf' if c is None else f'{c:.3g}'}" for n, c in zip(a["names"], row["crb_single"]))
+    return (f"{a['film']} s{a['sample_id']} [{a['regime']}] {key}: CRB(single) {crbs}; rho {row['rho']:.2f}; "
+            f"sigma_w angle {row.get('sigma_w_alignment_deg', float('nan')):.0f} deg; "
+            f"{a['cpu_s_per_family_median']:.1f} CPU-s/family")
+
+
+# --- summary ----------------------------------------------------------------------------------------------
+
+def _nan(v):
+    return float("inf") if v is None else float(v)
+
+
+def _stats(values) -> dict:
+    v = np.array([_nan(x) for x in values], float)
+    if len(v) == 0:
+        return {"median": None, "iqr": None, "n": 0}
+    q1, med, q3 = np.percentile(v, [25, 50, 75]) if np.all(np.isfinite(v)) else (
+        np.nanpercentile(np.where(np.isfinite(v), v, 1e300), [25, 50, 75]))
+    fix = lambda x: None if not np.isfinite(x) or x >= 1e299 else float(x)  # noqa: E731
+    return {"median": fix(med), "iqr": [fix(q1), fix(q3)], "n": int(len(v)), "n_unidentified": int(np.sum(~np.isfinite(v)))}
+
+
+def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
+    rows = [(a, a["channels"][channel].get(key_of(a))) for a in analyses]
+    rows = [(a, r) for a, r in rows if r is not None]
+    per = {}
+    for i, n in enumerate(names):
+        single = _stats([r["crb_single"][i] for _, r in rows])
+        meanR = _stats([r["crb_mean_R"][i] for _, r in rows])
+        noise = [r["noise_fraction"][i] for _, r in rows if r["noise_fraction"][i] is not None]
+        per[n] = {"crb_single_median": single["median"], "crb_single_iqr": single["iqr"],
+                  "crb_mean_R_median": meanR["median"], "n_unidentified": single.get("n_unidentified", 0),
+                  "derivative_noise_fraction_median": float(np.nanmedian(noise)) if noise else None}
+    angles = [r["sigma_w_alignment_deg"] for _, r in rows if r.get("sigma_w_alignment_deg") is not None
+              and np.isfinite(r["sigma_w_alignment_deg"])]
+    return {"n_fiducials": len(rows), "per_parameter": per,
+            "sigma_w_alignment_deg_median": float(np.median(angles)) if angles else None,
+            "sigma_w_alignment_n": len(angles),
+            "rho_median": float(np.median([r["rho"] for _, r in rows])) if rows else None}
+
+
+def stability(analyses: list[dict], names) -> list[dict]:
+    """Per fiducial simulated at several δ: the single-realisation CRBs at every (R, δ) (float
+    channel) and their ratios to the (R, δ₀) ones."""
+    out = []
+    for a in analyses:
+        if len(a["deltas"]) < 2:
+            continue
+        ref = a["channels"]["float"][f"R{a['R']}_d{a['deltas'][0]:g}"]["crb_single"]
+        row = {"sample_id": a["sample_id"], "regime": a["regime"], "crb_single": {}, "ratio_to_reference": {}}
+        for key, r in a["channels"]["float"].items():
+            row["crb_single"][key] = dict(zip(names, r["crb_single"]))
+            row["ratio_to_reference"][key] = {n: (None if c is None or c0 is None else c / c0)
+                                              for n, c, c0 in zip(names, r["crb_single"], ref)}
+        out.append(row)
+    return out
+
+
+MAIN_JOB_PASSING = 404
+SCREEN_FRACTION, PASS_RATE = 0.19, 0.40
+"""The laptop main job: 1000 draws, 404 passing families (config/config.yaml); a screen costs ~0.19
+of a family (bench/films.py ``cost_table``)."""
+
+
+def summarize(out_dir, films=None) -> dict:
+    """summary.json from whatever is on disk (films or fiducials not yet measured are marked)."""
+    out_dir = Path(out_dir)
+    fid_file = out_dir / "fiducials.json"
+    fiducials = json.loads(fid_file.read_text()) if fid_file.exists() else None
+    costs = {}
+    if (out_dir / "costs.jsonl").exists():
+        for line in (out_dir / "costs.jsonl").read_text().splitlines():
+            row = json.loads(line)
+            costs.setdefault(row["film"], []).append(row)
+    summary = {"fiducials": fiducials, "films": {}, "not_measured": {}}
+    for film, spec in FILMS.items():
+        analyses = [json.loads(p.read_text()) for p in sorted((out_dir / film).glob("s*.json"))] \
+            if (out_dir / film).exists() else []
+        if not analyses:
+            summary["not_measured"][film] = NOT_MEASURED.get(film, "no fiducial measured yet")
+            continue
+        names = spec["names"]
+        R = max(a["R"] for a in analyses)
+        d0 = analyses[0]["deltas"][0]
+        primary = lambda a: f"R{a['R']}_d{d0:g}"  # noqa: E731
+        cpu = float(np.median([a["cpu_s_per_family_median"] for a in analyses]))
+        film_row = {"mesh": [spec["nx"], spec["ny"], spec["nz"]], "thickness_nm": 4 * spec["nz"],
+                    "box_nm": [2 * spec["nx"], 2 * spec["ny"], 4 * spec["nz"]], "protocol": spec["protocol"],
+                    "n_grains": spec["n_grains"], "cost_core_s_per_family": cpu,
+                    "peak_rss_MiB": float(max(r["peak_rss_MiB"] for r in costs.get(film, [{"peak_rss_MiB": np.nan}]))),
+                    "R": R, "delta": d0, "parameters": list(names),
+                    "fiducials_measured": [a["sample_id"] for a in analyses],
+                    "fiducials_not_yet": [f["sample_id"] for f in (fiducials or {}).get("fiducials", [])
+                                          if f["sample_id"] not in {a["sample_id"] for a in analyses}]}
+        main = _block(analyses, names, "float", primary)
+        film_row.update(n_fiducials=main["n_fiducials"], per_parameter=main["per_parameter"],
+                        sigma_w_alignment_deg_median=main["sigma_w_alignment_deg_median"],
+                        rho_median=main["rho_median"])
+        film_row["image"] = _block(analyses, names, "image", primary)
+        film_row["per_regime"] = {r: {"float": _block([a for a in analyses if a["regime"] == r], names, "float", primary),
+                                      "image": _block([a for a in analyses if a["regime"] == r], names, "image", primary)}
+                                  for r in REGIMES}
+        film_row["stability"] = stability(analyses, names)
+        film_row["main_job_core_hours"] = MAIN_JOB_PASSING * cpu * (1 + SCREEN_FRACTION / PASS_RATE) / 3600
+        film_row["main_job_wall_hours_2_cores"] = film_row["main_job_core_hours"] / 2
+        film_row["bound_at_one_core_hour"] = {
+            n: (None if film_row["per_parameter"][n]["crb_single_median"] is None else
+                film_row["per_parameter"][n]["crb_single_median"] * np.sqrt(cpu / 3600.0)) for n in names}
+        summary["films"][film] = film_row
+    for film, why in NOT_MEASURED.items():
+        if film not in summary["films"]:
+            summary["not_measured"][film] = why
+    summary["chosen_film"] = choose_film(summary["films"])
+    return summary
+
+
+def choose_film(films: dict) -> dict:
+    """Lowest bound per core-hour for A_ex, D, N_pin among films whose main job stays within 2 h on 2
+    cores. Bound per core-hour: the single-family CRB × √(CPU-h per family), i.e. the bound of the
+    mean of the families one core-hour buys; the score is its geometric mean over A_ex, D, N_pin
+    (∞ if one is unidentified)."""
+    rule = ("lowest geometric mean over A_ex, D, N_pin of crb_single_median * sqrt(cost_core_s_per_family / 3600) "
+            "(the bound of the mean of the families one core-hour buys) among films with main_job_wall_hours_2_cores "
+            "<= 2")
+    scores = {}
+    for film, row in films.items():
+        if row["main_job_wall_hours_2_cores"] > 2:
+            continue
+        b = [row["bound_at_one_core_hour"].get(n) for n in ("A_ex", "D", "N_pin")]
+        scores[film] = float("inf") if any(v is None for v in b) else float(np.exp(np.mean(np.log(b))))
+    if not scores:
+        return {"film": None, "rule": rule, "scores": {}}
+    best = min(scores, key=scores.get)
+    return {"film": best, "rule": rule, "scores": {k: (None if not np.isfinite(v) else v) for k, v in scores.items()},
+            "note": "only the films measured compete" + ("" if len(scores) > 1 else ": one film measured, chosen by default")}
+
+
+def summary_lines(summary: dict) -> list[str]:
+    lines = []
+    fids = summary.get("fiducials") or {}
+    if fids:
+        lines.append(f"fiducials: pool of {fids['pool']} screened draws, mass {fids['screened_mass']}, "
+                     f"allotted {fids['allotted']}")
+    for film, row in summary["films"].items():
+        lines.append(f"{film} ({'x'.join(map(str, row['mesh']))}, {row['protocol']}): {row['n_fiducials']} fiducials, "
+                     f"R={row['R']}, delta={row['delta']}, {row['cost_core_s_per_family']:.1f} CPU-s/family, "
+                     f"peak {row['peak_rss_MiB']:.0f} MiB, LW rho {row['rho_median']:.2f}")
+        lines.append("  parameter        CRB single median [IQR]        CRB mean-of-R   unidentified  J-noise")
+        for n, p in row["per_parameter"].items():
+            fmt = lambda v: "inf" if v is None else f"{v:.3g}"  # noqa: E731
+            iqr = p["crb_single_iqr"] or [None, None]
+            lines.append(f"  {n:16s} {fmt(p['crb_single_median']):>8s} [{fmt(iqr[0])}, {fmt(iqr[1])}]"
+                         f"{fmt(p['crb_mean_R_median']):>18s} {p['n_unidentified']:10d}  "
+                         f"{fmt(p['derivative_noise_fraction_median'])}")
+        lines.append(f"  sigma_w alignment (A_ex-D best direction vs grad sigma_w), median: "
+                     f"{row['sigma_w_alignment_deg_median']}")
+        for r, blk in row["per_regime"].items():
+            b = blk["float"]
+            if b["n_fiducials"]:
+                crbs = ", ".join(f"{n} {('inf' if p['crb_single_median'] is None else format(p['crb_single_median'], '.3g'))}"
+                                 for n, p in b["per_parameter"].items())
+                lines.append(f"  [{r}] n={b['n_fiducials']}: {crbs}; sigma_w angle {b['sigma_w_alignment_deg_median']}")
+    for film, why in summary["not_measured"].items():
+        lines.append(f"not measured: {film}: {why}")
+    ch = summary["chosen_film"]
+    lines.append(f"chosen film: {ch['film']} ({ch['rule']})")
+    return lines
+
+
+def figure(summary: dict, path) -> None:
+    """CRB (single family, median with IQR) per parameter against the CPU cost of a family, one
+    marker per film."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..core.io import atomic_path
+
+    names = list(TARGETS)
+    fig, axes = plt.subplots(2, 3, figsize=(10, 6), sharex=True)
+    for ax, n in zip(axes.flat, ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")):
+        for film, row in summary["films"].items():
+            p = row["per_parameter"].get(n)
+            if p is None:
+                continue
+            med = p["crb_single_median"]
+            iqr = p["crb_single_iqr"] or [None, None]
+            y = med if med is not None else 10.0
+            lo = y - (iqr[0] if iqr[0] is not None else y)
+            hi = (iqr[1] if iqr[1] is not None else 10.0) - y
+            ax.errorbar([row["cost_core_s_per_family"]], [y], yerr=[[max(lo, 0)], [max(hi, 0)]], fmt="o", capsize=3,
+                        label=film, mfc="none" if med is None else None)
+        ax.axhline(1.0, color="k", lw=0.8, ls=":")
+        ax.set_yscale("log")
+        ax.set_xscale("log")
+        ax.set_title(n, fontsize=9)
+    for ax in axes[1]:
+        ax.set_xlabel("CPU-s per family")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("CRB, one family (normalized)")
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle("Cramér–Rao bound per parameter vs cost (dotted: the prior's width)", fontsize=10)
+    fig.tight_layout()
+    del names
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+
+
+def _main(spec_json: str) -> int:
+    spec = json.loads(spec_json)
+    cfg = json.loads(Path(spec["config"]).read_text())
+    FILMS.setdefault(spec["film"], {**spec["film_spec"], "names": tuple(spec["film_spec"]["names"])})
+    run_fiducial(cfg, spec["film"], spec["fiducial"], int(spec["R"]), spec["deltas"], spec["out"])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1]))
