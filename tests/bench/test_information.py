@@ -93,3 +93,24 @@ def test_helpers():
     assert principal_angle_deg([1, 0], [-1, 0]) == 0.0
     assert np.isclose(principal_angle_deg([1, 0], [1, 1]), 45.0)
     assert np.isinf(crb(np.diag([4.0, 0.0]))[1]) and np.isclose(crb(np.diag([4.0, 0.0]))[0], 0.5)
+
+
+def test_regimes_and_stratified_fiducials():
+    from forcdecode.bench import information_films as info
+
+    base = {"Ms": 4e5, "A_ex": 1e-11, "K_u": 3e5, "D": 1e-3, "N_pin": 10, "sigma_theta_deg": 1.0, "sigma_K": 0.1}
+    assert info.regime(base) == "domains" and info.sigma_w(base) > 0
+    assert info.regime({**base, "D": 5e-3}) == "spirals"  # 4√(A K_eff) ≈ 3.5 mJ/m² < π·5
+    assert info.regime({**base, "Ms": 1e6}) == "K_eff<0" and np.isnan(info.sigma_w({**base, "Ms": 1e6}))
+    g = info.gradient(info.sigma_w, base, info.NAMES)
+    assert np.isclose(g[info.NAMES.index("D")], -np.pi * 5e-3, rtol=1e-6)  # ∂σ_w/∂u_D = −π (D_hi − D_lo)
+    assert g[info.NAMES.index("N_pin")] == 0
+    assert np.allclose(info.to_unit(info.from_unit(info.to_unit(base), base)), info.to_unit(base))
+    assert info.allot({"K_eff<0": 50, "spirals": 3, "domains": 47}, 16) == {"K_eff<0": 8, "spirals": 1, "domains": 7}
+    pool = [{"sample_id": i, "N_pin": (37 * i) % 256, "regime": ("K_eff<0", "domains")[i % 2]} for i in range(40)]
+    chosen = info.choose_fiducials(pool, 6)
+    assert chosen["allotted"] == {"K_eff<0": 3, "domains": 3}
+    picked = chosen["fiducials"]
+    assert [p["regime"] for p in picked] == ["K_eff<0", "domains"] * 3  # round-robin: a stopped run stays stratified
+    lows = sorted(p["N_pin"] for p in picked if p["regime"] == "domains")
+    assert lows[0] < 64 and lows[-1] > 160  # spread over N_pin (the 1/6, 1/2, 5/6 quantiles)

@@ -65,6 +65,8 @@ def bench_information(args, say) -> int:
         for film, n, R in plan:
             info.run_fiducials(cfg, film, fiducials["fiducials"][:n], R, args.delta, args.stability_fiducials, out,
                                say=say, stop_at=_stop_time(args.stop_at))
+    if args.summarize_only:
+        info.reanalyse(out, say=say)
     summary = info.summarize(out)
     write_json(out / "summary.json", summary)
     if summary["films"]:
