@@ -19,9 +19,10 @@ Estimator, for a simulator ``f(u, r) -> family`` with realisation index r (disor
 * Fisher information of one realisation F = Jᵀ Σ⁻¹ J (Σ⁻¹ applied through Woodbury: Σ is a
   scaled identity plus a rank-(R−1) scatter); of the mean of R realisations, R·F (covariance Σ/R).
 * Cramér–Rao bound √(F⁻¹)_ii (∞ where F is singular along a direction touching parameter i).
-* The noise in Ĵ inflates F by tr(Σ⁻¹ Cov Ĵ_i) on the diagonal; ``noise_fraction`` estimates that
-  share from the per-realisation differences (near 1: the derivative is not resolved, the bound is
-  optimistic and not to be trusted).
+* The noise in Ĵ inflates F by N_ij = tr(Σ⁻¹ Cov(Ĵ_i, Ĵ_j)); ``noise_fraction`` = N_ii/F_ii
+  estimates that share from the per-realisation differences (near 1: the derivative is not resolved,
+  the bound is optimistic and not to be trusted); ``crb_single_noise_corrected`` is the bound from
+  F − N (negative eigenvalues clipped to 0).
 """
 
 from __future__ import annotations
@@ -169,14 +170,22 @@ def fisher_from_families(center: np.ndarray, plus: np.ndarray, minus: np.ndarray
     sigma = ledoit_wolf(center, floor=floor)
     SiJ = sigma.solve(J)
     F = J.T @ SiJ
-    noise = np.zeros(len(names))
+    k = len(names)
+    N = np.zeros((k, k))
     if R > 1:
-        for i in range(len(names)):
-            res = (d[i] - J[:, i]).T  # p × R
-            noise[i] = np.sum(res * sigma.solve(res)) / (R * (R - 1))
+        res = [(d[i] - J[:, i]).T for i in range(k)]  # p × R each
+        solved = [sigma.solve(x) for x in res]
+        for i in range(k):
+            for j in range(i, k):
+                N[i, j] = N[j, i] = np.sum(res[i] * solved[j]) / (R * (R - 1))
+    noise = np.diag(N)
     frac = np.where(np.diag(F) > 0, noise / np.maximum(np.diag(F), 1e-300), np.nan)
+    # F − N: the noise of Ĵ taken out (E[ĴᵀΣ⁻¹Ĵ] = JᵀΣ⁻¹J + N), negative eigenvalues clipped to 0
+    lam, V = np.linalg.eigh(0.5 * (F + F.T) - N)
+    corrected = (V * np.clip(lam, 0.0, None)) @ V.T
     return FisherResult(names=list(names), u=np.asarray(u, float), steps=np.asarray(steps, float), J=J,
-                        F=0.5 * (F + F.T), R=R, rho=sigma.rho, noise_fraction=frac)
+                        F=0.5 * (F + F.T), R=R, rho=sigma.rho, noise_fraction=frac,
+                        extra={"crb_single_noise_corrected": _finite_list(crb(corrected))})
 
 
 def fisher_by_simulation(simulate: Callable[[np.ndarray, int], np.ndarray], u: np.ndarray, names: Sequence[str],

@@ -401,7 +401,9 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
         single = _stats([r["crb_single"][i] for _, r in rows])
         meanR = _stats([r["crb_mean_R"][i] for _, r in rows])
         noise = [r["noise_fraction"][i] for _, r in rows if r["noise_fraction"][i] is not None]
+        corrected = _stats([r.get("crb_single_noise_corrected", [None] * len(names))[i] for _, r in rows])
         per[n] = {"crb_single_median": single["median"], "crb_single_iqr": single["iqr"],
+                  "crb_single_noise_corrected_median": corrected["median"],
                   "crb_mean_R_median": meanR["median"], "n_unidentified": single.get("n_unidentified", 0),
                   "derivative_noise_fraction_median": float(np.nanmedian(noise)) if noise else None}
     angles = [r["sigma_w_alignment_deg"] for _, r in rows if r.get("sigma_w_alignment_deg") is not None
