@@ -81,9 +81,12 @@ def analytic_fisher(u, n_particles: int, noise_sd: float, n_fields: int = 16, B_
     return J.T @ np.linalg.solve(S, J)
 
 
-def simulator(n_particles: int, noise_sd: float, n_fields: int = 16, B_max_T: float = 1.0, seed: int = 20261122):
+def simulator(n_particles: int, noise_sd: float, n_fields: int = 16, B_max_T: float = 1.0, seed: int = 20261122,
+              h_shift_T: float = 0.0):
     """f(u, r) → one realisation's family vector (the protocol's outcome per particle, averaged).
-    Realisation r's particles and noise come from the ``bench_film`` stream ("information_check", r)."""
+    Realisation r's particles and noise come from the ``bench_film`` stream ("information_check", r).
+    ``h_shift_T`` moves every switching field (to mark the points a particle within that of a grid
+    field decides)."""
     Hr, H = _grid(n_fields, B_max_T)
 
     def f(u, r: int) -> np.ndarray:
@@ -91,11 +94,49 @@ def simulator(n_particles: int, noise_sd: float, n_fields: int = 16, B_max_T: fl
         z = rng.standard_normal(n_particles)
         noise = rng.standard_normal(len(H)) * noise_sd
         h0, s = _params(u)
-        hk = h0 * np.exp(s * z)
+        hk = h0 * np.exp(s * z) + h_shift_T
         down = (H[None, :] < hk[:, None]) & (hk[:, None] <= -Hr[None, :])
         return 1.0 - 2.0 * down.mean(axis=0) + noise
 
     return f
 
 
-__all__ = ["NAMES", "flip_probability", "analytic_mean", "analytic_covariance", "analytic_fisher", "simulator"]
+def protocol_simulator(n_particles: int, noise_sd: float, n_fields: int = 16, B_max_T: float = 1.0,
+                       seed: int = 20261122, tilt_deg: float = 0.5, Ms: float = 5e5):
+    """The same realisations run through the project's FORC protocol (``forc.protocol.quasistatic_family``)
+    on a film of ``n_particles`` non-interacting cells (energy terms anisotropy + Zeeman only): cell k
+    is a Stoner–Wohlfarth particle with its easy axis tilted by ``tilt_deg`` (random azimuth, so the
+    minimizer leaves the unstable pole) and K_k = h_k M_s / (2 h_SW(ψ)), so that it switches at h_k
+    (astroid: h_SW = (cos^{2/3}ψ + sin^{2/3}ψ)^{−3/2} of the anisotropy field 2K/M_s). The particles
+    (z_k) and the noise are those of :func:`simulator`; the azimuths come after them in the stream."""
+    from ..config import load_config, shipped_config
+    from ..forc.protocol import quasistatic_family
+    from ..micromag.build import sweep_options
+    from ..micromag.film import Film
+    from ..micromag.mesh import Mesh
+
+    psi = np.radians(tilt_deg)
+    h_sw = (np.cos(psi) ** (2 / 3) + np.sin(psi) ** (2 / 3)) ** -1.5
+    i, j = np.triu_indices(n_fields)
+    options = sweep_options(load_config(shipped_config("config")))  # the laptop's minimizer and shortcuts
+    mesh = Mesh(n_particles, 1, 1, 2e-9, 2e-9, 4e-9)
+
+    def f(u, r: int) -> np.ndarray:
+        rng = stream_rng(seed, "bench_film", "information_check", int(r))
+        z = rng.standard_normal(n_particles)
+        noise = rng.standard_normal(len(i)) * noise_sd
+        phi = rng.uniform(0.0, 2 * np.pi, n_particles)
+        h0, s = _params(u)
+        K = h0 * np.exp(s * z) * Ms / (2 * h_sw)
+        axis = np.stack([np.sin(psi) * np.cos(phi), np.sin(psi) * np.sin(phi), np.full(n_particles, np.cos(psi))])
+        film = Film(mesh, Ms, 1e-11, K[None, None, :], axis[:, None, None, :], 0.0, terms=("anisotropy", "zeeman"))
+        m0 = np.zeros(mesh.vector_shape)
+        m0[2] = 1.0
+        fam = quasistatic_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, **options)
+        return fam.curves_mz[i, j] + noise
+
+    return f
+
+
+__all__ = ["NAMES", "flip_probability", "analytic_mean", "analytic_covariance", "analytic_fisher", "simulator",
+           "protocol_simulator"]
