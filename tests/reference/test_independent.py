@@ -98,11 +98,14 @@ def test_unknown_distribution_is_refused():
         independent_disorder(IndependentFilm(anisotropy_distribution="lognormal"), 0.1, 5.0, np.random.default_rng(0))
 
 
-magnumnp = pytest.importorskip("magnumnp", reason="magnum.np not installed: pip install -e .[reference]")
+@pytest.fixture
+def magnumnp():
+    """magnum.np, or a skip of the test that asks for it (the tests above need numpy only and run without it)."""
+    return pytest.importorskip("magnumnp", reason="magnum.np not installed: pip install -e .[reference]")
 
 
 @pytest.mark.reference
-def test_uniform_film_switches_at_the_stoner_wohlfarth_field(tmp_path):
+def test_uniform_film_switches_at_the_stoner_wohlfarth_field(magnumnp, tmp_path):
     """No disorder, the field 10° from the normal: the periodic film stays uniform and switches at
     h_sw·B_K,eff, h_sw = (cos^{2/3}ψ + sin^{2/3}ψ)^{-3/2}, B_K,eff = 2K_u/M_s − μ0 M_s (N_zz − N_xx)."""
     from forcdecode.reference.independent import magnumnp_family
@@ -125,7 +128,7 @@ def test_uniform_film_switches_at_the_stoner_wohlfarth_field(tmp_path):
 
 
 @pytest.mark.reference
-def test_remainder_shortcut_equals_the_fully_relaxed_family(tmp_path):
+def test_remainder_shortcut_equals_the_fully_relaxed_family(magnumnp, tmp_path):
     from forcdecode.reference.independent import magnumnp_family
 
     params = {"Ms": 6e5, "A_ex": 2e-12, "K_u": 4e5, "D": 1e-3, "sigma_K": 0.3, "sigma_theta_deg": 15.0}
@@ -141,7 +144,7 @@ def test_remainder_shortcut_equals_the_fully_relaxed_family(tmp_path):
 
 
 @pytest.mark.reference
-def test_same_film_in_both_codes_gives_the_same_family(tmp_path):
+def test_same_film_in_both_codes_gives_the_same_family(magnumnp, tmp_path):
     """The generator's whole path (magnum.np minimizer, protocol, recording) against our engine's
     measured protocol on the *same* film (grid, anisotropy map, axes): two codes, one answer; what
     differs in the bench is the film, not the code. Measured: mean |Δm| 0.034 on 20 × 20 cells, the
@@ -171,7 +174,7 @@ def test_same_film_in_both_codes_gives_the_same_family(tmp_path):
 
 
 @pytest.mark.reference
-def test_a_ramped_sweep_keeps_the_loop_inversion_symmetric(tmp_path):
+def test_a_ramped_sweep_keeps_the_loop_inversion_symmetric(magnumnp, tmp_path):
     """A film without a bias has a Hamiltonian symmetric under (m, B) → (−m, −B), so its ascending major
     branch is the mirror of its descending one, a(−B_r) = −d(B_r), wherever the instrument samples.
     The reversal fields here are shifted 0.37 of their spacing off zero and the ascending branch is
