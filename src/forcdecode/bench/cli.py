@@ -16,10 +16,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
                         help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
-                             "the Hamiltonian refitted (needs the reference extra)")
+                             "each run through `forcdecode loop` as a user runs it (needs the reference extra and "
+                             "the trained estimator)")
+    parser.add_argument("--set", dest="case_set", choices=["dev", "eval"], default="eval",
+                        help="effects --independent: the committed cases run (bench/effects_cases.yaml): dev for "
+                             "choices, eval only reported (default eval)")
+    parser.add_argument("--loop-args", default=None,
+                        help="effects --independent: the `forcdecode loop` options measured, one string (default: "
+                             "the README's first loop command, bench.effects_independent.USER_LOOP_ARGS); the "
+                             "bench adds --out and --Ms-kA-m")
+    parser.add_argument("--without-estimator", choices=["population-median"], default=None,
+                        help="effects --independent: no trained estimator: hand the loop (--params) the median "
+                             "film of the screened prior at the given M_s, what a user without one can do "
+                             "(reported as such; default: refuse when the estimator is missing)")
+    parser.add_argument("--oracle", action="store_true",
+                        help="effects --independent: the earlier bench (true moment scale and noise, a start "
+                             "near the truth, refit on; oracle_inputs true), kept for comparison")
     parser.add_argument("--effects-out", default="results/bench/effects_independent",
                         help="effects --independent: cases.jsonl (resumable), summary.json and the instrument files")
-    parser.add_argument("--cases", nargs="+", help="effects --independent: run only these cases (names as in the table)")
+    parser.add_argument("--cases", nargs="+", help="effects --independent: run only these cases (names as in the "
+                        "case file; with --oracle as in the table)")
     parser.add_argument("--signatures", action="store_true",
                         help="effects --independent: validate the model-free field-shift test instead, on magnum.np "
                              "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
@@ -204,6 +220,8 @@ def _bench_effects_independent(args, say) -> int:
         return _finish(out, result, signature_lines(result), args.json, say, omit="films")
     if args.patches < 1 or args.model_profiles < 1:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
+    if not (args.oracle or args.validation):
+        return _bench_effects_user(args, say)
     rows = validation_plan() if args.validation else plan()
     analysis = {**({"cross_fit": True} if args.cross_fit else {}),
                 **({"evidence_suffices": False} if args.evidence_needs_bootstrap else {})}
@@ -223,6 +241,44 @@ def _bench_effects_independent(args, say) -> int:
                                        files_dir=out / "files", patches=args.patches, profiles=args.model_profiles,
                                        sample_curves=curves, samples_dir=out / "samples", analysis=analysis)
     return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
+
+
+def _bench_effects_user(args, say) -> int:
+    """``bench effects --independent``: the committed cases through `forcdecode loop` as a user runs it."""
+    import shlex
+    from pathlib import Path
+
+    from ..core.errors import ConfigError
+    from ..core.progress import progress
+    from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
+                                      user_summary_lines)
+
+    legacy = [flag for flag, on in (("--cross-fit", args.cross_fit), ("--evidence-needs-bootstrap",
+                                    args.evidence_needs_bootstrap), ("--patches", args.patches != 1),
+                                    ("--model-profiles", args.model_profiles != 1),
+                                    ("--sample-curves", args.sample_curves is not None)) if on]
+    if legacy:
+        raise ConfigError(f"{', '.join(legacy)}: options of the earlier bench (--oracle); the user path runs the "
+                          "loop's own options (--loop-args)")
+    loop_args = tuple(USER_LOOP_ARGS if args.loop_args is None else shlex.split(args.loop_args))
+    check_loop_args(loop_args)
+    cases = load_cases(args.case_set)
+    if args.cases:
+        unknown = set(args.cases) - {c["name"] for c in cases}
+        if unknown:
+            raise ConfigError(f"--cases: unknown {sorted(unknown)} in the {args.case_set} set")
+        cases = [c for c in cases if c["name"] in args.cases]
+    check_estimator(loop_args, args.without_estimator)  # refuses before any simulation
+    out = Path(args.effects_out) / "user" / args.case_set
+    with progress(total=len(cases), desc=f"{args.case_set} cases", unit="cases") as bar:
+        def done(row):
+            say(f"{row['case']} ({row['class']}): {row['verdict']} [{row['scores']['loop']}] "
+                f"({row['sample_s']:.0f} s magnum.np, {row['loop_s']:.0f} s loop)")
+            bar.update()
+
+        result = user_confusion(cases, out, loop_args=loop_args, fallback=args.without_estimator,
+                                cache_dir=args.cache_dir, out_jsonl=out / "cases.jsonl", progress=done)
+    return _finish(out, result, user_summary_lines(result), args.json, say, omit="cases")
 
 
 def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:

@@ -48,7 +48,13 @@ at each calibration and reversal, ``sweep_rate_T_per_s`` between points):
 with gain(t) = scale·(1 + g·(1 − e^{−t/t_g})/(1 − e^{−T/t_g})) (an exponential warm-up, not the loop's linear
 clock), drift_add(t) = d·(t/T)^{1.5} and the Langevin L(x) = coth x − 1/x; optionally a first-order
 lag of the recorded moment (a lock-in time constant ``lag_points`` in averaging times, outside the
-library). Calibration points (at the top field before each curve) do not see the drift by default (an
+library); an exchange bias that trains away (``training_bias_T`` b_0: a curve measured after n curves
+whose reversal point had the film reversed (⟨m⟩·ĥ < 0 there: the curves that cycle the film) responds
+as in a field B + b_0·e^{−n/n_0}, n_0 = ``training_curves``; the response is the
+unbiased curve's read at the shifted field, its reversal state the unbiased descent's: an
+approximation, outside the library's constant bias); and noise correlated along each curve (an AR(1)
+of stationary amplitude ``correlated_noise`` and correlation length ``correlation_points``, on top of
+the white σ; outside the loop's white-noise model). Calibration points (at the top field before each curve) do not see the drift by default (an
 undeclared drift, e.g. of the sample's temperature: the reader's calibration-based correction cannot
 remove it); with ``calibration_sees_drift`` they carry the same gain and drift as the data, and the
 reader's drift correction removes a gain drift. Noise σ in units of the film moment.
@@ -314,6 +320,10 @@ class InstrumentModel:
     langevin_amplitude: float = 0.0
     langevin_field_T: float = 0.1
     lag_points: float = 0.0
+    training_bias_T: float = 0.0
+    training_curves: float = 4.0
+    correlated_noise: float = 0.0
+    correlation_points: float = 5.0
     averaging_s: float = 0.1
     pause_s: float = 1.0
     sweep_rate_T_per_s: float = 0.05
@@ -355,9 +365,14 @@ def record(family: SampleFamily, moment_Am2: float, instrument: InstrumentModel,
 
     reported_reversal = family.reversal_fields_T + ins.field_offset_T
     curves, calibration = [None] * len(order), [None] * len(order)
+    reversals = 0.0  # curves measured so far whose reversal point had the film reversed (⟨m⟩·ĥ < 0)
     for k in order:
         cal_time, time_s = times[k]
         true_m = family.curves[k]
+        if ins.training_bias_T:  # an exchange bias that trains away with each reversal of the film
+            b = ins.training_bias_T * math.exp(-reversals / ins.training_curves)
+            true_m = np.interp(family.curve_fields_T[k] + b, family.curve_fields_T[k], true_m)
+            reversals += float(family.curves[k][0] < 0)
         reported = family.curve_fields_T[k] + ins.field_offset_T
         value = gain(time_s) * true_m + ins.chi_per_T * reported + drift(time_s)
         if ins.langevin_amplitude:
@@ -369,7 +384,16 @@ def record(family: SampleFamily, moment_Am2: float, instrument: InstrumentModel,
             for i in range(1, value.size):
                 lagged[i] = a * lagged[i - 1] + (1 - a) * value[i]
             value = lagged
-        curves[k] = (reported, moment_Am2 * (value + ins.noise * rng.normal(size=value.size)))
+        value = value + ins.noise * rng.normal(size=value.size)
+        if ins.correlated_noise:  # AR(1) noise along the curve (1/f-like drift of the detector), stationary
+            a = math.exp(-1.0 / ins.correlation_points)
+            e = rng.normal(size=value.size) * ins.correlated_noise * math.sqrt(1 - a * a)
+            ar = np.empty_like(e)
+            ar[0] = ins.correlated_noise * rng.normal()
+            for i in range(1, e.size):
+                ar[i] = a * ar[i - 1] + e[i]
+            value = value + ar
+        curves[k] = (reported, moment_Am2 * value)
         reported_top = top + ins.field_offset_T
         cal_at = cal_time if ins.calibration_sees_drift else 0.0  # a saturated film at the top field
         m_cal = float(gain(cal_at)) + ins.chi_per_T * reported_top + float(drift(cal_at))
