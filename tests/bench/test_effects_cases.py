@@ -377,3 +377,26 @@ def test_correlated_noise_is_correlated_and_off_by_default():
     r = np.concatenate([n[1] - b[1] for n, b in zip(noisy, base) if len(b[1]) > 10])
     lag1 = np.corrcoef(r[:-1], r[1:])[0, 1]
     assert lag1 > 0.5 and 0.003 < r.std() < 0.03
+
+
+def test_a_resumed_run_keeps_only_rows_of_its_own_loop_options(tmp_path, monkeypatch):
+    cases = yaml.safe_load(CASES_FILE.read_text())["dev"][:3]
+    ran = []
+
+    def fake_case(case, work, loop_args=(), fallback=None, cache_dir=None, samples_dir=None):
+        ran.append((case["name"], tuple(loop_args)))
+        argv = ["F", "--out", "O", *loop_args, "--params", "p.json"]
+        return user_row(case, _report("none", "none", {"scale": 0.01}), argv=argv, estimator="fallback: population-median",
+                        sample_s=1.0, loop_s=2.0)
+
+    monkeypatch.setattr(bench, "run_user_case", fake_case)
+    out = tmp_path / "cases.jsonl"
+    first = bench.user_confusion(cases[:2], tmp_path, fallback="population-median", out_jsonl=out)
+    assert [r["case"] for r in first["cases"]] == [c["name"] for c in cases[:2]]
+    again = bench.user_confusion(cases, tmp_path, fallback="population-median", out_jsonl=out)
+    assert ran[2:] == [(cases[2]["name"], bench.USER_LOOP_ARGS)]  # the first two read back, not re-run
+    assert again["n_cases"] == 3 and again["median_case_s"] == 3.0 and again["oracle_inputs"] is False
+    other = ("--refit", "K_u")
+    bench.user_confusion(cases[:1], tmp_path, loop_args=other, fallback="population-median", out_jsonl=out)
+    assert ran[-1] == (cases[0]["name"], other)  # other loop options: another measurement
+    assert any("loop as a user runs it" in line for line in bench.user_summary_lines(again))

@@ -1075,7 +1075,7 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "n_outside": sum(r["kind"] == "outside" for r in rows),
             "oracle_inputs": any(r.get("oracle_inputs", True) for r in rows) if rows else False,
             "splits": sorted({r["split"] for r in rows}), "estimators": sorted({r["estimator"] for r in rows}),
-            "loop_argv": sorted({" ".join(r["loop_argv"][3:]) for r in rows}),
+            "loop_options": sorted({" ".join(_argv_options(r["loop_argv"])) for r in rows}),
             "n_refused": sum(r["answers"]["loop"]["refused"] is not None for r in rows),
             **loop, "trivial": trivial, "targets": target_verdicts(loop, trivial), "intervals": INTERVALS,
             "detection": detection_by_size(rows), "median_case_s": float(np.median(costs)) if costs else None,
@@ -1092,8 +1092,8 @@ def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallba
     estimator = check_estimator(loop_args, fallback)
     if out_jsonl is not None and Path(out_jsonl).exists():
         earlier = [json.loads(line) for line in Path(out_jsonl).read_text().splitlines() if line.strip()]
-        finished = [r for r in earlier if r.get("loop_argv", [None] * 4)[3:] and
-                    _argv_options(r["loop_argv"]) == list(loop_args) and r.get("estimator") == estimator]
+        finished = [r for r in earlier if _argv_options(r.get("loop_argv", [])) == list(loop_args)
+                    and r.get("estimator") == estimator]
     seen = {r["case"] for r in finished}
     wanted = {c["name"] for c in cases}
     finished = [r for r in finished if r["case"] in wanted]
@@ -1133,7 +1133,7 @@ def user_summary_lines(result: dict) -> list[str]:
         v, ci = m.get(key), m.get(f"{key}_ci90")
         return "—" if v is None else f"{v:.2f} [{ci[0]:.2f}, {ci[1]:.2f}] ({m[f'{key}_k']})"
 
-    lines = [f"the loop as a user runs it ({', '.join(result['estimators'])}; options {result['loop_argv']}), "
+    lines = [f"the loop as a user runs it ({', '.join(result['estimators'])}; options {result['loop_options']}), "
              f"{result['n_cases']} cases: {result['n_controls']} controls, {result['n_library']} in-library, "
              f"{result['n_outside']} outside; oracle inputs: {result['oracle_inputs']}; intervals {result['intervals']}",
              "", "rule".ljust(22) + "correct".ljust(26) + "partial".ljust(26) + "false (controls)".ljust(26)
