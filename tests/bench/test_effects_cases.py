@@ -400,3 +400,32 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_loop_options(tmp_path, monkeyp
     bench.user_confusion(cases[:1], tmp_path, loop_args=other, fallback="population-median", out_jsonl=out)
     assert ran[-1] == (cases[0]["name"], other)  # other loop options: another measurement
     assert any("loop as a user runs it" in line for line in bench.user_summary_lines(again))
+
+
+def test_a_failed_sample_is_counted_apart_and_a_loop_error_names_nothing(tmp_path, monkeypatch):
+    from forcdecode.core.errors import InputFileError
+
+    cases = yaml.safe_load(CASES_FILE.read_text())["dev"]
+    control, library = cases[0], next(c for c in cases if c["kind"] == "library")
+
+    def no_convergence(*args, **kwargs):
+        raise RuntimeError("magnum.np relaxation did not converge")
+
+    monkeypatch.setattr(bench, "case_file", no_convergence)
+    failed = bench.run_user_case(library, tmp_path)
+    assert failed["status"] == "sample failed"
+
+    class Refuses:
+        from forcdecode.loop.cli import add_arguments
+
+        @staticmethod
+        def run(args):
+            raise InputFileError("unreadable")
+
+    monkeypatch.setattr(bench, "case_file", lambda case, work, **kw: (Path(work) / "x.frc", 0.0))
+    monkeypatch.setattr(bench, "_loop_module", lambda: Refuses)
+    errored = [bench.run_user_case(c, tmp_path, fallback="population-median") for c in (control, library)]
+    assert [r["scores"]["loop"] for r in errored] == ["correct", "wrong"]
+    s = summarize_user([failed, *errored])
+    assert s["n_cases"] == 2 and s["samples_failed"][0]["case"] == library["name"] and s["n_refused"] == 2
+    assert len(s["cases"]) == 3 and bench.user_summary_lines(s)

@@ -832,8 +832,15 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
     Nothing else of the truth reaches the loop. Returns the JSON-ready row (``user_row``)."""
     from ..core.io import read_json, write_json
 
+    from ..core.errors import ForcdecodeError
+
     work = Path(work_dir)
-    path, sample_s = case_file(case, work / "files", cache_dir=cache_dir, samples_dir=samples_dir)
+    try:
+        path, sample_s = case_file(case, work / "files", cache_dir=cache_dir, samples_dir=samples_dir)
+    except RuntimeError as error:  # magnum.np did not converge: no file, no case (counted apart, not scored)
+        return {"case": case["name"], "split": case["split"], "kind": case["kind"], "class": case["class"],
+                "status": "sample failed", "error": str(error), "loop_argv": [], "estimator": None,
+                "oracle_inputs": False}
     out = work / "loop" / case["name"]
     Ms_given = case["hamiltonian"]["Ms"] * case["Ms_error_factor"]
     argv = [str(path), "--out", str(out), *loop_args]
@@ -844,8 +851,11 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
         argv += ["--params", str(out / "fallback_params.json")]
     start = time.perf_counter()
     module = _loop_module()
-    module.run(loop_namespace(argv))
-    report = read_json(out / "report.json", what="loop report")
+    try:
+        module.run(loop_namespace(argv))
+        report = read_json(out / "report.json", what="loop report")
+    except ForcdecodeError as error:  # what the user would see as `error: ...`: an answer naming nothing
+        report = {"status": f"error: {error}"}
     return user_row(case, report, argv=argv, estimator=f"fallback: {fallback}" if fallback else
                     loop_namespace(argv).estimator, sample_s=sample_s, loop_s=time.perf_counter() - start)
 
@@ -1067,6 +1077,8 @@ INTERVALS = "Clopper-Pearson (exact binomial), two-sided 90 %"
 def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
     """The issue's summary of the user-path rows: the loop's keys at the top level, the trivial rules'
     under ``trivial``, the target verdicts, detection against size per class, and the rows (``cases``)."""
+    failed = [r for r in rows if r.get("status") == "sample failed"]
+    rows = [r for r in rows if r.get("status") != "sample failed"]
     loop = rule_metrics(rows, "loop")
     trivial = {rule: rule_metrics(rows, rule) for rule in ("always_none", "always_largest_gain")}
     costs = [r["sample_s"] + r["loop_s"] for r in rows if np.isfinite(r.get("sample_s", np.nan) + r.get("loop_s", np.nan))]
@@ -1077,9 +1089,10 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "splits": sorted({r["split"] for r in rows}), "estimators": sorted({r["estimator"] for r in rows}),
             "loop_options": sorted({" ".join(_argv_options(r["loop_argv"])) for r in rows}),
             "n_refused": sum(r["answers"]["loop"]["refused"] is not None for r in rows),
+            "samples_failed": [{"case": r["case"], "error": r["error"]} for r in failed],
             **loop, "trivial": trivial, "targets": target_verdicts(loop, trivial), "intervals": INTERVALS,
             "detection": detection_by_size(rows), "median_case_s": float(np.median(costs)) if costs else None,
-            "wall_s": wall_s, "cases": rows}
+            "wall_s": wall_s, "cases": rows + failed}
 
 
 def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallback: str | None = None,
@@ -1151,6 +1164,9 @@ def user_summary_lines(result: dict) -> list[str]:
                                  for b in d["bins"]))
     lines += ["", "case".ljust(34) + "class".ljust(32) + "verdict".ljust(34) + "score   largest gain"]
     for r in result["cases"]:
+        if r.get("status") == "sample failed":
+            lines.append(r["case"][:33].ljust(34) + r["class"][:31].ljust(32) + "(magnum.np sample failed: not scored)")
+            continue
         lines.append(r["case"][:33].ljust(34) + r["class"][:31].ljust(32) + str(r["verdict"])[:33].ljust(34)
                      + r["scores"]["loop"].ljust(8) + ",".join(r["answers"]["always_largest_gain"]["named"] or ["none"]))
     return lines
