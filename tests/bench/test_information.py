@@ -37,6 +37,17 @@ def test_bench_fisher_matches_closed_form(bench, analytic_crb):
     assert np.all(res.noise_fraction[:2] < 0.05)
 
 
+def test_matched_filter_bound_is_conservative(bench):
+    """The matched-filter conditional bound needs no Σ⁻¹ and is never below the true conditional CRB."""
+    _, res = bench
+    F = check.analytic_fisher(U, N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)
+    conditional = 1 / np.sqrt(np.diag(F)[:2])
+    matched = np.array(res.extra["crb_conditional_matched"][:2], float)
+    assert np.all(matched >= 0.95 * conditional), (matched, conditional)
+    assert np.allclose(res.extra["crb_conditional"][:2], conditional, rtol=TOLERANCE)
+    assert res.extra["crb_conditional_matched"][2] is None  # ∞: the inert parameter's J is exactly 0
+
+
 def test_parameter_that_does_not_enter_gets_at_least_the_prior_width(bench):
     _, res = bench
     assert res.crb_single[2] >= 1.0  # ∞ here: F is singular along it (CRN: the differences are exactly 0)

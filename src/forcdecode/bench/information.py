@@ -21,8 +21,10 @@ Estimator, for a simulator ``f(u, r) -> family`` with realisation index r (disor
 * Cramér–Rao bound √(F⁻¹)_ii (∞ where F is singular along a direction touching parameter i).
 * The noise in Ĵ inflates F by N_ij = tr(Σ⁻¹ Cov(Ĵ_i, Ĵ_j)); ``noise_fraction`` = N_ii/F_ii
   estimates that share from the per-realisation differences (near 1: the derivative is not resolved,
-  the bound is optimistic and not to be trusted); ``crb_single_noise_corrected`` is the bound from
-  F − N (negative eigenvalues clipped to 0).
+  the bound is optimistic and not to be trusted).
+* Conditional bounds (the other parameters known): 1/√F_ii, 1/√(F_ii − N_ii), and the
+  matched-filter bound (``matched_filter_crb``), which needs no Σ⁻¹ and is ≥ the true conditional
+  CRB: the conservative figure when R ≪ p makes Σ⁻¹ (and the marginal bounds) unstable in R.
 """
 
 from __future__ import annotations
@@ -180,12 +182,36 @@ def fisher_from_families(center: np.ndarray, plus: np.ndarray, minus: np.ndarray
                 N[i, j] = N[j, i] = np.sum(res[i] * solved[j]) / (R * (R - 1))
     noise = np.diag(N)
     frac = np.where(np.diag(F) > 0, noise / np.maximum(np.diag(F), 1e-300), np.nan)
-    # F − N: the noise of Ĵ taken out (E[ĴᵀΣ⁻¹Ĵ] = JᵀΣ⁻¹J + N), negative eigenvalues clipped to 0
-    lam, V = np.linalg.eigh(0.5 * (F + F.T) - N)
-    corrected = (V * np.clip(lam, 0.0, None)) @ V.T
+    Fii = np.diag(F)
+    conditional = np.where(Fii > 0, 1.0 / np.sqrt(np.maximum(Fii, 1e-300)), np.inf)
+    corrected = np.where(Fii - noise > 0, 1.0 / np.sqrt(np.maximum(Fii - noise, 1e-300)), np.inf)
+    extra = {"crb_conditional": _finite_list(conditional),
+             "crb_conditional_noise_corrected": _finite_list(corrected),
+             "crb_conditional_matched": _finite_list(matched_filter_crb(center, d, floor))}
     return FisherResult(names=list(names), u=np.asarray(u, float), steps=np.asarray(steps, float), J=J,
-                        F=0.5 * (F + F.T), R=R, rho=sigma.rho, noise_fraction=frac,
-                        extra={"crb_single_noise_corrected": _finite_list(crb(corrected))})
+                        F=0.5 * (F + F.T), R=R, rho=sigma.rho, noise_fraction=frac, extra=extra)
+
+
+def matched_filter_crb(center: np.ndarray, d: np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """Conservative conditional bound per parameter (the others known): the Fisher information of
+    the one projection t_i = J_iᵀx, (J_iᵀJ_i)² / (J_iᵀ S J_i) ≤ J_iᵀΣ⁻¹J_i (Cauchy–Schwarz), so
+    its bound is ≥ the conditional CRB of the whole family. S: the unbiased sample covariance of
+    ``center`` (R × p) plus ``floor``·I, a scalar variance per parameter (R − 1 degrees of freedom:
+    stable at small R, unlike Σ⁻¹ in p ≫ R dimensions); ‖J_i‖² with the noise of Ĵ_i taken out,
+    tr Cov(d_i)/R (``d``: k × R × p per-realisation differences). ∞ where ‖J_i‖² is not above it."""
+    center, d = np.asarray(center, float), np.asarray(d, float)
+    R = center.shape[0]
+    X = center - center.mean(axis=0)
+    out = np.full(d.shape[0], np.inf)
+    for i in range(d.shape[0]):
+        J = d[i].mean(axis=0)
+        norm2 = float(J @ J)
+        if R > 1:
+            norm2 -= float(np.sum(d[i].var(axis=0, ddof=1))) / R
+        var = float(np.sum((X @ J) ** 2)) / max(R - 1, 1) + floor * float(J @ J)
+        if norm2 > 0 and var > 0:
+            out[i] = np.sqrt(var) / norm2
+    return out
 
 
 def fisher_by_simulation(simulate: Callable[[np.ndarray, int], np.ndarray], u: np.ndarray, names: Sequence[str],
@@ -230,4 +256,4 @@ def best_direction(F: np.ndarray, names: Sequence[str], which: Sequence[str]) ->
 
 
 __all__ = ["EPS_U", "QUANT_STEP", "upper_triangle", "Shrunk", "ledoit_wolf", "stencil", "crb", "FisherResult",
-           "fisher_from_families", "fisher_by_simulation", "principal_angle_deg", "best_direction"]
+           "fisher_from_families", "fisher_by_simulation", "matched_filter_crb", "principal_angle_deg", "best_direction"]

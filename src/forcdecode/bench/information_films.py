@@ -335,6 +335,9 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                     row["AD_best_direction"] = V[:, 0].tolist()
                     row["sigma_w_alignment_deg"] = principal_angle_deg(V[:, 0], g_sw[[i, j]])
                     row["wall_width_alignment_deg"] = principal_angle_deg(V[:, 0], g_ww[[i, j]])
+                    row["sigma_w_alignment_matched_deg"] = _matched_plane_angle(center[:, ok], plus[:, :, ok],
+                                                                                minus[:, :, ok], steps, (i, j),
+                                                                                g_sw[[i, j]], floor)
                     k3 = [names.index(n) for n in ("K_u", "A_ex", "D")]
                     lam3, V3 = best_direction(res.F, names, ("K_u", "A_ex", "D"))
                     row["KAD_best_direction"] = V3[:, 0].tolist()
@@ -345,6 +348,24 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
         out["grad_sigma_w_u"] = g_sw.tolist()
         out["grad_wall_width_u"] = g_ww.tolist()
     return out
+
+
+def _matched_plane_angle(center, plus, minus, steps, idx, grad, floor) -> float:
+    """Angle between ∇σ_w and the best-identified direction in the (A_ex, D) plane from the two
+    projections t = [J_A, J_D]ᵀx alone (their 2 × 2 sample covariance, R − 1 dof; no Σ⁻¹ in p
+    dimensions): F₂ = (J₂ᵀJ₂)(J₂ᵀSJ₂)⁻¹(J₂ᵀJ₂)."""
+    d = (plus - minus) / np.asarray(steps, float)[:, None, None]
+    J2 = d[list(idx)].mean(axis=1).T  # p × 2
+    X = center - center.mean(axis=0)
+    T = X @ J2
+    St = T.T @ T / max(len(center) - 1, 1) + floor * (J2.T @ J2)
+    G = J2.T @ J2
+    try:
+        F2 = G @ np.linalg.solve(St, G)
+    except np.linalg.LinAlgError:
+        return float("nan")
+    lam, V = np.linalg.eigh(0.5 * (F2 + F2.T))
+    return principal_angle_deg(V[:, np.argmax(lam)], grad)
 
 
 def fiducial_line(a: dict) -> str:
@@ -401,16 +422,21 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
         single = _stats([r["crb_single"][i] for _, r in rows])
         meanR = _stats([r["crb_mean_R"][i] for _, r in rows])
         noise = [r["noise_fraction"][i] for _, r in rows if r["noise_fraction"][i] is not None]
-        corrected = _stats([r.get("crb_single_noise_corrected", [None] * len(names))[i] for _, r in rows])
+        cond = {key: _stats([r.get(key, [None] * len(names))[i] for _, r in rows])
+                for key in ("crb_conditional", "crb_conditional_noise_corrected", "crb_conditional_matched")}
         per[n] = {"crb_single_median": single["median"], "crb_single_iqr": single["iqr"],
-                  "crb_single_noise_corrected_median": corrected["median"],
+                  **{f"{key}_median": c["median"] for key, c in cond.items()},
+                  "crb_conditional_matched_iqr": cond["crb_conditional_matched"]["iqr"],
                   "crb_mean_R_median": meanR["median"], "n_unidentified": single.get("n_unidentified", 0),
                   "derivative_noise_fraction_median": float(np.nanmedian(noise)) if noise else None}
     angles = [r["sigma_w_alignment_deg"] for _, r in rows if r.get("sigma_w_alignment_deg") is not None
               and np.isfinite(r["sigma_w_alignment_deg"])]
+    matched = [r["sigma_w_alignment_matched_deg"] for _, r in rows
+               if r.get("sigma_w_alignment_matched_deg") is not None and np.isfinite(r["sigma_w_alignment_matched_deg"])]
     return {"n_fiducials": len(rows), "per_parameter": per,
             "sigma_w_alignment_deg_median": float(np.median(angles)) if angles else None,
             "sigma_w_alignment_n": len(angles),
+            "sigma_w_alignment_matched_deg_median": float(np.median(matched)) if matched else None,
             "rho_median": float(np.median([r["rho"] for _, r in rows])) if rows else None}
 
 
@@ -520,13 +546,15 @@ def summary_lines(summary: dict) -> list[str]:
         lines.append(f"{film} ({'x'.join(map(str, row['mesh']))}, {row['protocol']}): {row['n_fiducials']} fiducials, "
                      f"R={row['R']}, delta={row['delta']}, {row['cost_core_s_per_family']:.1f} CPU-s/family, "
                      f"peak {row['peak_rss_MiB']:.0f} MiB, LW rho {row['rho_median']:.2f}")
-        lines.append("  parameter        CRB single median [IQR]        CRB mean-of-R   unidentified  J-noise  CRB(F-N)")
+        lines.append("  parameter        CRB single median [IQR]        CRB mean-of-R   unidentified  J-noise  "
+                     "conditional: LW  matched-filter")
         for n, p in row["per_parameter"].items():
             fmt = lambda v: "inf" if v is None else f"{v:.3g}"  # noqa: E731
             iqr = p["crb_single_iqr"] or [None, None]
             lines.append(f"  {n:16s} {fmt(p['crb_single_median']):>8s} [{fmt(iqr[0])}, {fmt(iqr[1])}]"
                          f"{fmt(p['crb_mean_R_median']):>18s} {p['n_unidentified']:10d}  "
-                         f"{fmt(p['derivative_noise_fraction_median']):>7s}  {fmt(p['crb_single_noise_corrected_median'])}")
+                         f"{fmt(p['derivative_noise_fraction_median']):>7s}  {fmt(p['crb_conditional_median']):>15s}  "
+                         f"{fmt(p['crb_conditional_matched_median'])}")
         lines.append(f"  sigma_w alignment (A_ex-D best direction vs grad sigma_w), median: "
                      f"{row['sigma_w_alignment_deg_median']}")
         for r, blk in row["per_regime"].items():
