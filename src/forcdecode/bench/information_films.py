@@ -440,21 +440,35 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
             "rho_median": float(np.median([r["rho"] for _, r in rows])) if rows else None}
 
 
-def stability(analyses: list[dict], names) -> list[dict]:
-    """Per fiducial simulated at several δ: the single-realisation CRBs at every (R, δ) (float
-    channel) and their ratios to the (R, δ₀) ones."""
-    out = []
+def stability(analyses: list[dict], names) -> dict:
+    """Per fiducial simulated at several δ (float channel): every (R, δ)'s single-family marginal CRB
+    (Ledoit–Wolf) and conditional matched-filter bound, as ratios to those at (R, δ₀); and their
+    medians over those fiducials (1: stable)."""
+    rows = []
     for a in analyses:
         if len(a["deltas"]) < 2:
             continue
-        ref = a["channels"]["float"][f"R{a['R']}_d{a['deltas'][0]:g}"]["crb_single"]
-        row = {"sample_id": a["sample_id"], "regime": a["regime"], "crb_single": {}, "ratio_to_reference": {}}
+        ref = a["channels"]["float"][f"R{a['R']}_d{a['deltas'][0]:g}"]
+        row = {"sample_id": a["sample_id"], "regime": a["regime"], "crb_single": {}, "crb_conditional_matched": {},
+               "ratio_single": {}, "ratio_matched": {}}
         for key, r in a["channels"]["float"].items():
-            row["crb_single"][key] = dict(zip(names, r["crb_single"]))
-            row["ratio_to_reference"][key] = {n: (None if c is None or c0 is None else c / c0)
-                                              for n, c, c0 in zip(names, r["crb_single"], ref)}
-        out.append(row)
-    return out
+            for what, ratio in (("crb_single", "ratio_single"), ("crb_conditional_matched", "ratio_matched")):
+                row[what][key] = dict(zip(names, r[what]))
+                row[ratio][key] = {n: (None if c is None or c0 is None else c / c0)
+                                   for n, c, c0 in zip(names, r[what], ref[what])}
+        rows.append(row)
+    medians = {}
+    for ratio in ("ratio_single", "ratio_matched"):
+        keys = sorted({k for r in rows for k in r[ratio]})
+        medians[ratio] = {k: {n: _median_or_none([r[ratio][k][n] for r in rows if k in r[ratio]]) for n in names}
+                          for k in keys}
+    return {"fiducials": rows, "median_ratio_to_reference": medians,
+            "reference": f"R{analyses[0]['R']}_d{analyses[0]['deltas'][0]:g}" if analyses else None}
+
+
+def _median_or_none(values):
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return float(np.median(v)) if v else None
 
 
 MAIN_JOB_PASSING = 404
