@@ -586,9 +586,11 @@ def summary_lines(summary: dict) -> list[str]:
 
 def figure(summary: dict, path) -> None:
     """CRB (single family, median with IQR over the fiducials) per parameter against the CPU cost of
-    a family, one colour per film; filled: float ⟨m_z⟩, open squares: the 8-bit image; a marker at
+    a family, one colour per film; circles: float ⟨m_z⟩ (Ledoit–Wolf, marginal), open squares: the
+    8-bit image, triangles: the conservative conditional matched-filter bound (float); a marker at
     the top edge: unidentified (∞) at the median. Dotted: the prior's width (1)."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -601,12 +603,13 @@ def figure(summary: dict, path) -> None:
     lowest = 1.0
     for ax, n in zip(axes.flat, ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")):
         for k, (film, row) in enumerate(summary["films"].items()):
-            for blk, fmt, shift in ((row, "o", 1.0), (row["image"], "s", 1.08)):
+            for blk, fmt, shift, what in ((row, "o", 1.0, "crb_single"), (row["image"], "s", 1.08, "crb_single"),
+                                          (row, "^", 0.93, "crb_conditional_matched")):
                 p = blk["per_parameter"].get(n)
                 if p is None:
                     continue
-                med = p["crb_single_median"]
-                iqr = p["crb_single_iqr"] or [None, None]
+                med = p[f"{what}_median"]
+                iqr = p[f"{what}_iqr"] or [None, None]
                 y = med if med is not None else top
                 lo = iqr[0] if iqr[0] is not None else top
                 hi = iqr[1] if iqr[1] is not None else top
@@ -614,10 +617,11 @@ def figure(summary: dict, path) -> None:
                 ax.errorbar([row["cost_core_s_per_family"] * shift], [y], yerr=[[max(y - lo, 0)], [max(hi - y, 0)]],
                             fmt=fmt, capsize=3, color=colours[k % len(colours)],
                             mfc="none" if fmt == "s" or med is None else None,
-                            label=f"{film} ({'float' if fmt == 'o' else 'image'})")
+                            label=f"{film} ({ {'o': 'float', 's': 'image', '^': 'float, matched-filter, conditional'}[fmt]})")
         ax.axhline(1.0, color="k", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(n, fontsize=9)
     axes.flat[0].set_ylim(max(lowest / 3, 1e-6), top * 1.5)
     costs = [row["cost_core_s_per_family"] for row in summary["films"].values()]
