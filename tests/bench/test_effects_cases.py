@@ -429,3 +429,27 @@ def test_a_failed_sample_is_counted_apart_and_a_loop_error_names_nothing(tmp_pat
     s = summarize_user([failed, *errored])
     assert s["n_cases"] == 2 and s["samples_failed"][0]["case"] == library["name"] and s["n_refused"] == 2
     assert len(s["cases"]) == 3 and bench.user_summary_lines(s)
+
+
+@pytest.mark.slow
+@pytest.mark.reference
+def test_one_dev_case_end_to_end_on_a_small_film(tmp_path):
+    """The whole user path on one dev case made small (a 20 × 20 magnum.np film, 16 curves; the loop
+    on the shipped test config, 2 profiles): magnum.np → instrument file → `forcdecode loop` through
+    its parser → report → scored row and summary. No trained model here: the population-median
+    fallback, as a user without one. Wiring only, not a measurement."""
+    pytest.importorskip("magnumnp")
+    case = yaml.safe_load(CASES_FILE.read_text())["dev"][6]
+    assert case["class"] == "background"
+    case = {**case, "sample": {**case["sample"], "nx": 20, "ny": 20, "cell_nm": 2.5, "n_grains": 8},
+            "protocol": {**case["protocol"], "curves": 16}}
+    args = ("--refit", "K_u,A_ex,D", "--config", str(ROOT / "config" / "test.yaml"), "--profiles", "2",
+            "--refit-budget", "6", "--null-realisations", "2", "--max-measured-points", "400")
+    row = bench.run_user_case(case, tmp_path, loop_args=args, fallback="population-median",
+                              cache_dir=tmp_path / "kernels")
+    assert row["oracle_inputs"] is False and row["status"] in ("analysed", "out of domain")
+    assert (tmp_path / "loop" / case["name"] / "report.json").exists()
+    assert bench._argv_options(row["loop_argv"]) == list(args)
+    s = summarize_user([row])
+    assert s["n_library"] == 1 and s["oracle_inputs"] is False
+    print(json.dumps({k: row[k] for k in ("status", "verdict", "scores", "sample_s", "loop_s")}))

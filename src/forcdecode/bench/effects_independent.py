@@ -1086,6 +1086,7 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "n_library": sum(r["kind"] == "library" for r in rows),
             "n_outside": sum(r["kind"] == "outside" for r in rows),
             "oracle_inputs": any(r.get("oracle_inputs", True) for r in rows) if rows else False,
+            "Ms_error_max": MS_ERROR, "noise": "estimated by the loop from the file",
             "splits": sorted({r["split"] for r in rows}), "estimators": sorted({r["estimator"] for r in rows}),
             "loop_options": sorted({" ".join(_argv_options(r["loop_argv"])) for r in rows}),
             "n_refused": sum(r["answers"]["loop"]["refused"] is not None for r in rows),
