@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from forcdecode.bench import information_check as check
-from forcdecode.bench.information import (QUANT_STEP, crb, fisher_by_simulation, fisher_from_families, ledoit_wolf,
-                                          principal_angle_deg, stencil, upper_triangle)
+from forcdecode.bench.information import (QUANT_STEP, compressed_fisher, crb, fisher_by_simulation,
+                                          fisher_from_families, ledoit_wolf, principal_angle_deg, stencil,
+                                          upper_triangle)
 
 U = np.array([0.4, 0.5, 0.5])  # h0 = 0.35 T, s = 0.3; the third parameter does not enter
 N_PARTICLES, NOISE_SD, N_FIELDS, R, DELTA = 200, 0.02, 12, 1000, 0.05
@@ -69,6 +70,10 @@ def test_the_check_fails_on_a_wrong_step(bench, analytic_crb):
         steps.append(hi - lo)
     wrong = fisher_from_families(center, np.stack(plus), np.stack(minus), np.array(steps) / 2, check.NAMES, U)
     assert np.all(np.abs(wrong.crb_single[:2] / analytic_crb - 1) > TOLERANCE)
+    # the compressed (projection) Fisher of the same 200 families, right step: marginal bounds close to exact
+    d = (np.stack(plus) - np.stack(minus)) / np.array(steps)[:, None, None]
+    compressed = crb(compressed_fisher(center, d, (0, 1)))
+    assert np.all(np.abs(compressed / analytic_crb - 1) < 0.15), compressed / analytic_crb
 
 
 def test_the_check_fails_without_common_random_numbers():

@@ -235,6 +235,29 @@ def fisher_by_simulation(simulate: Callable[[np.ndarray, int], np.ndarray], u: n
     return fisher_from_families(center, np.stack(plus), np.stack(minus), np.array(steps), names, u, floor)
 
 
+def compressed_fisher(center: np.ndarray, d: np.ndarray, idx: Sequence[int], floor: float = 0.0) -> np.ndarray:
+    """Fisher matrix of the k projections t = J_Sᵀx (S = ``idx``, k ≪ R): (J_SᵀJ_S) C⁻¹ (J_SᵀJ_S),
+    C the unbiased k × k sample covariance of t over the R families at u (+ ``floor``·J_SᵀJ_S),
+    its inverse debiased by the Hartlap factor (R − k − 2)/(R − 1) (zero matrix when R ≤ k + 2).
+    A compression can only lose information, so its marginal bounds are conservative for the
+    parameters in S given the others; no inverse covariance in p dimensions is needed.
+    ``d``: k_all × R × p per-realisation differences."""
+    center, d = np.asarray(center, float), np.asarray(d, float)
+    R, k = center.shape[0], len(idx)
+    if R <= k + 2:
+        return np.zeros((k, k))
+    J = d[list(idx)].mean(axis=1).T  # p × k
+    X = center - center.mean(axis=0)
+    T = X @ J
+    G = J.T @ J
+    C = T.T @ T / (R - 1) + floor * G
+    try:
+        F = G @ np.linalg.solve(C, G)
+    except np.linalg.LinAlgError:
+        return np.zeros((k, k))
+    return 0.5 * (F + F.T) * (R - k - 2) / (R - 1)
+
+
 def principal_angle_deg(v: np.ndarray, g: np.ndarray) -> float:
     """Angle (degrees, 0..90) between the lines spanned by ``v`` and ``g``."""
     v, g = np.asarray(v, float), np.asarray(g, float)
@@ -256,4 +279,4 @@ def best_direction(F: np.ndarray, names: Sequence[str], which: Sequence[str]) ->
 
 
 __all__ = ["EPS_U", "QUANT_STEP", "upper_triangle", "Shrunk", "ledoit_wolf", "stencil", "crb", "FisherResult",
-           "fisher_from_families", "fisher_by_simulation", "matched_filter_crb", "principal_angle_deg", "best_direction"]
+           "fisher_from_families", "fisher_by_simulation", "matched_filter_crb", "compressed_fisher", "principal_angle_deg", "best_direction"]

@@ -43,7 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.parameters import denormalize, normalize
-from .information import QUANT_STEP, best_direction, fisher_from_families, principal_angle_deg, stencil, upper_triangle
+from .information import (QUANT_STEP, _finite_list, best_direction, compressed_fisher, crb, fisher_from_families,
+                          principal_angle_deg, stencil, upper_triangle)
 
 MU0 = 4e-7 * np.pi
 
@@ -328,6 +329,12 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                 res = fisher_from_families(center[:, ok], plus[:, :, ok], minus[:, :, ok], steps, names, u, floor)
                 row = res.to_json()
                 row["points_used"] = int(ok.sum())
+                if "A_ex" in names and "D" in names and "K_u" in names:
+                    dd = (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None]
+                    sub2 = [names.index("A_ex"), names.index("D")]
+                    sub3 = [names.index("K_u")] + sub2
+                    row["crb_AD_compressed"] = _finite_list(crb(compressed_fisher(center[:, ok], dd, sub2, floor)))
+                    row["crb_KAD_compressed"] = _finite_list(crb(compressed_fisher(center[:, ok], dd, sub3, floor)))
                 if has_aD:
                     i, j = names.index("A_ex"), names.index("D")
                     lam, V = best_direction(res.F, names, ("A_ex", "D"))
@@ -433,7 +440,12 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
               and np.isfinite(r["sigma_w_alignment_deg"])]
     matched = [r["sigma_w_alignment_matched_deg"] for _, r in rows
                if r.get("sigma_w_alignment_matched_deg") is not None and np.isfinite(r["sigma_w_alignment_matched_deg"])]
-    return {"n_fiducials": len(rows), "per_parameter": per,
+    compressed = {}
+    for key, sub in (("crb_AD_compressed", ("A_ex", "D")), ("crb_KAD_compressed", ("K_u", "A_ex", "D"))):
+        vals = [r[key] for _, r in rows if key in r]
+        if vals:
+            compressed[key] = {n: _stats([v[m] for v in vals])["median"] for m, n in enumerate(sub)}
+    return {"n_fiducials": len(rows), "per_parameter": per, "compressed_median": compressed,
             "sigma_w_alignment_deg_median": float(np.median(angles)) if angles else None,
             "sigma_w_alignment_n": len(angles),
             "sigma_w_alignment_matched_deg_median": float(np.median(matched)) if matched else None,
@@ -543,6 +555,9 @@ ESTIMATORS = {
     "crb_conditional_matched": "conservative conditional bound from the projection J_i^T x alone: sqrt(J_i^T S J_i) / "
                                "|J_i|^2 (S the unbiased sample covariance; |J_i|^2 noise-corrected); >= the true "
                                "conditional CRB, needs no inverse covariance in p = 2080 dimensions, stable at R = 8",
+    "crb_AD_compressed": "marginal bounds of A_ex and D (the other four known) from the 2 projections [J_A, J_D]^T x "
+                         "with their 2x2 sample covariance, Hartlap-debiased ((R-4)/(R-1)); crb_KAD_compressed: the "
+                         "same for (K_u, A_ex, D) ((R-5)/(R-1)); conservative",
     "sigma_w_alignment_deg": "angle between the top eigenvector of F's (A_ex, D) block and grad sigma_w (normalized u)",
     "sigma_w_alignment_matched_deg": "the same from the 2x2 Fisher of the projections [J_A, J_D]^T x",
 }
