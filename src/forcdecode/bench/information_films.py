@@ -616,7 +616,15 @@ def summary_lines(summary: dict) -> list[str]:
             if b["n_fiducials"]:
                 crbs = ", ".join(f"{n} {('inf' if p['crb_single_median'] is None else format(p['crb_single_median'], '.3g'))}"
                                  for n, p in b["per_parameter"].items())
-                lines.append(f"  [{r}] n={b['n_fiducials']}: {crbs}; sigma_w angle {b['sigma_w_alignment_deg_median']}")
+                lines.append(f"  [{r}] n={b['n_fiducials']}: LW marginal {crbs}; sigma_w angle "
+                             f"{b['sigma_w_alignment_deg_median']} (matched {b['sigma_w_alignment_matched_deg_median']})")
+                matched = ", ".join(f"{n} {('inf' if p['crb_conditional_matched_median'] is None else format(p['crb_conditional_matched_median'], '.3g'))}"
+                                    for n, p in b["per_parameter"].items())
+                comp = "; ".join(f"{k.replace('crb_', '')}: " + ", ".join(
+                    f"{n} {'inf' if v is None else format(v, '.3g')}" for n, v in c.items())
+                    for k, c in b["compressed_median"].items())
+                lines.append(f"      matched-filter conditional {matched}")
+                lines.append(f"      {comp}")
     for film, why in summary["not_measured"].items():
         lines.append(f"not measured: {film}: {why}")
     ch = summary["chosen_film"]
