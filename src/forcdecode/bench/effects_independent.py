@@ -1043,7 +1043,9 @@ def detection_by_size(rows: list[dict], rule: str = "loop", bins: int = 3) -> di
     equal-count size bins with Clopper–Pearson 90 % intervals, and ``size_50``: the smallest size
     named half the time, read off the isotonic (non-decreasing) fit of named-or-not against size,
     interpolated linearly between the sizes where it crosses 0.5 (None when it never reaches 0.5;
-    the smallest size when it is ≥ 0.5 there)."""
+    the smallest size when it is ≥ 0.5 there); beside it the median realisation floor the true
+    candidate met (relative gain of effect-free films) and the loop's ``--null-realisations``: whether
+    the floor was estimated on enough realisations for the sizes read."""
     out = {}
     for name in sorted({r["class"] for r in rows if r["kind"] == "library"}):
         points = sorted((float(r["size"]), r["scores"][rule] == "correct") for r in rows
@@ -1067,7 +1069,13 @@ def detection_by_size(rows: list[dict], rule: str = "loop", bins: int = 3) -> di
             k, n = int(y[part].sum()), len(part)
             table.append({"size_range": [float(x[part[0]]), float(x[part[-1]])], "named": k, "n": n,
                           "rate": k / n, "rate_ci90": clopper_pearson(k, n)})
-        out[name] = {"points": [[float(a), bool(b)] for a, b in points], "bins": table, "size_50": size_50}
+        floors = [((r.get("candidates") or {}).get(name) or {}).get("null_gain") for r in rows if r["class"] == name]
+        floors = [f["relative"] for f in floors if isinstance(f, dict) and f.get("relative") is not None]
+        out[name] = {"points": [[float(a), bool(b)] for a, b in points], "bins": table, "size_50": size_50,
+                     # the realisation floor the true candidate was judged against (loop --null-realisations)
+                     "floor_relative_gain_median": float(np.median(floors)) if floors else None,
+                     "null_realisations": sorted({r.get("null_realisations") for r in rows if r["class"] == name
+                                                  and r.get("null_realisations") is not None})}
     return out
 
 
