@@ -1,5 +1,5 @@
 """The closed loop: re-simulate a predicted Hamiltonian and compare it with the input family."""
 
-from .resimulate import observation_error, resimulate
+from ..infer.resimulate import observation_error, resimulate
 
 __all__ = ["observation_error", "resimulate"]

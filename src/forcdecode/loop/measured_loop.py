@@ -67,7 +67,7 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
     from ..learn.predictor import predict_parameters
-    from .resimulate import observation_error, resimulate_with_spread
+    from ..infer.resimulate import observation_error, resimulate_with_spread
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
@@ -85,17 +85,17 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
 
 def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
             method: str = "pmc", extend=None):
-    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
+    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``infer.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
-    ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check.
+    ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
     ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
     particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
     beyond the prior's bound (``fit_cli.parse_extension``); the entry then carries ``beyond_prior``
-    (``loop.fit.beyond_prior``) and the medians may lie past the bound."""
+    (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
     from ..core.parameters import denormalize
-    from .fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
-    from .posterior_predictive import draws_as_hamiltonians
+    from ..infer.fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
+    from ..infer.posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
@@ -124,7 +124,7 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         for line in beyond_prior_lines(result["beyond_prior"]):
             log(line)
     if predictive_reference is not None:
-        from .predictive_check import predictive_check
+        from ..infer.predictive_check import predictive_check
 
         entry["predictive_check"] = predictive_check(result, predictive_reference)
         log(f"{entry['predictive_check'].get('check', 'predictive')} check: {entry['predictive_check']['verdict']}")
@@ -186,7 +186,7 @@ def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max
     its saturated branches) and m_sat, m_0 of the simulated ⟨m⟩·ĥ by the same rule at the same points
     (explicit normalization of both, no fitted scale), measured moments after the drift
     correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²)."""
-    from .resimulate import resimulate_measured
+    from ..infer.resimulate import resimulate_measured
 
     curves, points = thin_protocol(data, max_points)
     reversal = [data.curves[i].reversal_field_T for i in curves]
@@ -252,11 +252,11 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     disorder realisations of the refitted Hamiltonian whose gains a candidate must beat (the
     realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
     posterior estimator): refine the amortized posterior of this family by that many simulations of
-    the film at the chosen M_s (``loop.fit``, rounds of ``refine_round_size``, ``refine_workers``
-    processes; ``refine_method`` "pmc" or "adjusted", ``loop.fit_cli.METHODS``); the refined medians
+    the film at the chosen M_s (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers``
+    processes; ``refine_method`` "pmc" or "adjusted", ``infer.fit_cli.METHODS``); the refined medians
     are the Hamiltonian re-simulated, so the residual analysis runs on the refined re-simulation;
     report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
-    method): the calibrated posterior-predictive check (``loop.predictive_check``) of the
+    method): the calibrated posterior-predictive check (``infer.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
     ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
     the pmc method): refine in a box extended beyond the prior's bound and report the posterior mass past
@@ -277,7 +277,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
     from ..core.parameters import TARGETS
-    from .fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
+    from ..infer.fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
 
     fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
@@ -290,7 +290,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     if predictive_reference is not None:
         if not refine_budget:
             raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
-        from .predictive_check import read_reference
+        from ..infer.predictive_check import read_reference
 
         reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
                                    budget_run=refine_budget, extend=extend)
@@ -320,7 +320,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         write_report_page(out, _json_ready(report), text, figures=())
         return report
     from .physics_effects import analyse_residual, physics_candidate_families
-    from .resimulate import observation_error, protocol_name, resimulate_with_spread
+    from ..infer.resimulate import observation_error, protocol_name, resimulate_with_spread
 
     fields = np.linspace(-B_max, B_max, n)
     resim = None  # the final re-simulation, unless the prediction step already made it
@@ -373,7 +373,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
             resim = None  # re-simulate the refined Hamiltonian
             check = report["refined"].get("predictive_check")
             if check is not None:  # where this film lies among the reference's validation families
-                from .report_page import check_figure
+                from ..infer.predictive_check import check_figure
 
                 check_figure(out / "predictive_check.png", reference, {Path(str(path)).name: check},
                              title=f"{check['check']} check")
@@ -526,7 +526,7 @@ def _markdown(path, report, analysis) -> str:
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
             if refined.get("beyond_prior"):
-                from .fit_cli import beyond_prior_lines
+                from ..infer.fit_cli import beyond_prior_lines
 
                 lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")

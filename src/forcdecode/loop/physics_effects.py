@@ -94,9 +94,9 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
     "soft_phase_families": {K_u_soft: family}, "hamiltonian_families": {c: family},
     "physics_reference_family": family without an effect}, ready for ``analyse_residual(..., **this)``."""
-    from .resimulate import resimulate
+    from ..infer.resimulate import resimulate
 
-    from .resimulate import protocol_name
+    from ..infer.resimulate import protocol_name
 
     tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
     total = (1 + len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())
