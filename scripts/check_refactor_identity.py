@@ -128,6 +128,25 @@ def case_loop(tmp: Path) -> dict:
     return {"exit": code, "outputs": describe_dir(out)}
 
 
+def case_refit(tmp: Path) -> dict:
+    """``refit.analyse_with_refit`` (as ``forcdecode loop --refit K_u`` runs it): a film of its own disorder
+    realisation with K_u 10 % above the prediction, the effects judged against the Hamiltonian refitted
+    without them, with a realisation floor of two other disorder realisations."""
+    from forcdecode.loop.refit import analyse_with_refit
+
+    cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
+    cfg["field"]["n_fields"] = N_FIELDS
+    prediction = {"Ms": 6e5, "A_ex": 5e-12, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 5.0, "sigma_K": 0.05}
+    fields = np.linspace(-1, 1, N_FIELDS)
+    film = _resimulate()(cfg, {**prediction, "K_u": 1.1 * prediction["K_u"]}, key="sample")
+    film = film + 0.002 * np.random.default_rng(0).normal(size=film.shape)
+    result = analyse_with_refit(cfg, prediction, film, fields, names=("K_u",), n_profiles=1, budget=6,
+                                physics_grids=dict(K_2_ratios=(-0.1, 0.3), bias_fields_T=(0.02,), soft_K_u_ratios=(0.2,),
+                                                   tilts_deg=(6.0,)),
+                                noise_sigma=0.002, seed=1, null_realisations=2)
+    return {"film": sha(film), "result": _clean(result)}
+
+
 def train_bar_posterior(tmp: Path) -> Path:
     """The posterior of tests/loop/test_loop_posterior.py: trained on bar images, all six parameters."""
     import torch
@@ -217,6 +236,19 @@ def case_inference(tmp: Path) -> dict:
     return result
 
 
+def _clean(value):
+    """Arrays hashed, numpy scalars as Python numbers, keys as strings."""
+    if isinstance(value, np.ndarray):
+        return sha(value)
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
 def case_analyse(tmp: Path) -> dict:
     """``analyse_residual`` on a fixed residual: a re-simulated film plus a background and noise, with a
     small physics-side candidate grid."""
@@ -233,22 +265,10 @@ def case_analyse(tmp: Path) -> dict:
     measured = base + 0.08 * fields[None, :] + 0.002 * rng.normal(size=base.shape)
     measured = np.where(np.isnan(base), np.nan, measured)
     result = analyse_residual(measured, base, fields, seed=3, **candidates)
-
-    def clean(value):
-        if isinstance(value, np.ndarray):
-            return sha(value)
-        if isinstance(value, dict):
-            return {str(k): clean(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [clean(v) for v in value]
-        if isinstance(value, np.generic):
-            return value.item()
-        return value
-
-    return {"base": sha(base), "candidates": clean(candidates), "result": clean(result)}
+    return {"base": sha(base), "candidates": _clean(candidates), "result": _clean(result)}
 
 
-CASES = {"loop": case_loop, "analyse": case_analyse, "inference": case_inference}
+CASES = {"loop": case_loop, "analyse": case_analyse, "inference": case_inference, "refit": case_refit}
 
 
 def main() -> int:
