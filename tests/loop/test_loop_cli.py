@@ -10,7 +10,7 @@ import yaml
 
 from forcdecode.cli import main
 from forcdecode.micromag.build import mesh_from_config
-from forcdecode.loop import resimulate
+from forcdecode.infer.resimulate import resimulate
 from forcdecode.measured.writers import write_micromag_0015
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,7 +77,7 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
     window, and the file's own protocol re-simulated on the same disorder as the truth, so that the
     residual at the measured points, in A m², is the instrument noise."""
     from forcdecode.core.streams import stream_rng
-    from forcdecode.loop.resimulate import DISORDER_STREAM, simulate_measured
+    from forcdecode.infer.resimulate import DISORDER_STREAM, simulate_measured
 
     cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
     cfg["field"]["n_fields"] = 32

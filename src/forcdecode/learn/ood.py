@@ -24,7 +24,7 @@ not. On the laptop film, pinning three times denser than the prior allows change
 the realisation floor and is flagged in 0 of 12 families (the image moves along the training
 manifold, as a harder film's would); 8 nm grains and magnum.np's discretization change it by no more
 than the floor, so no check of the image can tell them. The posterior-predictive check of
-``loop.predictive_check`` asks the question in observation space instead: does any simulated in-prior
+``infer.predictive_check`` asks the question in observation space instead: does any simulated in-prior
 Hamiltonian reproduce the family to within the realisation floor, judged against validation families.
 """
 

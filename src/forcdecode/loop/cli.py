@@ -10,7 +10,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .fit_cli import METHODS
+    from ..infer.fit_cli import METHODS
     from .physics_effects import NULL_REALISATIONS
 
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
