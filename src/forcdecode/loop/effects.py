@@ -28,6 +28,7 @@ best simpler candidate; a single effect stays named as the single effect.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,6 +228,16 @@ def _per_curve_mse(measured, model, rows):
     return out
 
 
+def resample_curves(rng, n_boot: int, n_curves: int) -> np.ndarray:
+    """Bootstrap resamples of ``n_curves`` held-out curves, (n_boot, n_curves) indices, drawn from a
+    copy of ``rng``: common random numbers. Every comparison made with one generator resamples the same
+    curves, so its outcome depends on the two candidates' errors alone, never on which comparisons ran
+    before it. (With the generator consumed call by call, a last-bit tie between two candidates' mean
+    errors reordered the comparisons, reshuffled every later resample and could flip a verdict from
+    one CPU to another.)"""
+    return copy.deepcopy(rng).integers(0, n_curves, size=(n_boot, n_curves))
+
+
 def _bootstrap_gain(base_mse, mse, rng, n_boot):
     """Paired bootstrap over the curves both can score (resampled as whole curves). Returns
     (mean gain base − candidate, [5 %, 95 %] of the mean gain, [5 %, 95 %] of the relative gain
@@ -236,7 +247,7 @@ def _bootstrap_gain(base_mse, mse, rng, n_boot):
     base, candidate = base_mse[both], mse[both]
     if base.size == 0:
         return float("nan"), [float("-inf")] * 2, [float("-inf")] * 2
-    pick = rng.integers(0, base.size, size=(n_boot, base.size))
+    pick = resample_curves(rng, n_boot, base.size)
     base_sum, candidate_sum = base[pick].sum(axis=1), candidate[pick].sum(axis=1)
     gain = (base_sum - candidate_sum) / base.size
     relative = np.where(base_sum > 0, 1 - candidate_sum / np.where(base_sum > 0, base_sum, 1.0), 0.0)
