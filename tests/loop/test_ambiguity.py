@@ -4,7 +4,7 @@ held-out residual equally are reported together, on per-curve errors made by han
 import numpy as np
 
 from forcdecode.core.streams import stream_rng
-from forcdecode.loop.effects import (HAMILTONIAN_CHANGE, equivalent_candidates, nested, resample_curves,
+from forcdecode.loop.effects import (HAMILTONIAN_CHANGE, bootstrap_resamples, equivalent_candidates, nested,
                                      separating_measurements)
 
 
@@ -48,9 +48,9 @@ def test_comparisons_use_common_random_numbers_whatever_ran_before():
     """The resample depends on the generator's state alone, not on how often it was used: a
     comparison's outcome cannot change with the order of the comparisons (issue 45 item 6)."""
     rng = stream_rng(3, "bootstrap", "test")
-    first = resample_curves(rng, 50, 12)
+    first = bootstrap_resamples(rng, 50, 12)
     for _ in range(5):
-        resample_curves(rng, 50, 7)
-    assert np.array_equal(first, resample_curves(rng, 50, 12))
+        bootstrap_resamples(rng, 50, 7)
+    assert np.array_equal(first, bootstrap_resamples(rng, 50, 12))
     assert first.shape == (50, 12) and first.min() >= 0 and first.max() < 12
-    assert not np.array_equal(first, resample_curves(stream_rng(4, "bootstrap", "test"), 50, 12))
+    assert not np.array_equal(first, bootstrap_resamples(stream_rng(4, "bootstrap", "test"), 50, 12))

@@ -228,7 +228,7 @@ def _per_curve_mse(measured, model, rows):
     return out
 
 
-def resample_curves(rng, n_boot: int, n_curves: int) -> np.ndarray:
+def bootstrap_resamples(rng, n_boot: int, n_curves: int) -> np.ndarray:
     """Bootstrap resamples of ``n_curves`` held-out curves, (n_boot, n_curves) indices, drawn from a
     copy of ``rng``: common random numbers. Every comparison made with one generator resamples the same
     curves, so its outcome depends on the two candidates' errors alone, never on which comparisons ran
@@ -247,7 +247,7 @@ def _bootstrap_gain(base_mse, mse, rng, n_boot):
     base, candidate = base_mse[both], mse[both]
     if base.size == 0:
         return float("nan"), [float("-inf")] * 2, [float("-inf")] * 2
-    pick = resample_curves(rng, n_boot, base.size)
+    pick = bootstrap_resamples(rng, n_boot, base.size)
     base_sum, candidate_sum = base[pick].sum(axis=1), candidate[pick].sum(axis=1)
     gain = (base_sum - candidate_sum) / base.size
     relative = np.where(base_sum > 0, 1 - candidate_sum / np.where(base_sum > 0, base_sum, 1.0), 0.0)
@@ -389,7 +389,7 @@ def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 200
     own neighbourhood). A candidate c is equivalent to ``chosen`` when c alone beats ``none`` and
     neither of the two beats the other (``_beats``: a held-out error lower by more than
     ``equivalence`` and a paired-bootstrap 5 % bound of the relative reduction above
-    ``min_relative_gain``; common random numbers, ``resample_curves``). Nested candidates (one a
+    ``min_relative_gain``; common random numbers, ``bootstrap_resamples``). Nested candidates (one a
     combination containing the other) and candidates that are one observable with ``chosen``
     (``same_observable``: groups of names) are not counted: the first are told apart by parsimony,
     the second by no FORC measurement at all. Returns the sorted names (empty: ``chosen`` stands
