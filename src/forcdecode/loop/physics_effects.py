@@ -44,7 +44,7 @@ from ..core.streams import stream_rng
 from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
-                      measurement_clock)
+                      measurement_clock, bootstrap_resamples)
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -282,7 +282,7 @@ def _reduction_ci(before, after, rng, n_boot):
     before, after = before[both], after[both]
     if before.size == 0 or before.sum() == 0:
         return float("nan"), [float("nan"), float("nan")]
-    pick = rng.integers(0, before.size, size=(n_boot, before.size))
+    pick = bootstrap_resamples(rng, n_boot, before.size)
     boots = 1 - np.sqrt(after[pick].sum(axis=1) / np.maximum(before[pick].sum(axis=1), 1e-300))
     return float(1 - np.sqrt(after.sum() / before.sum())), [float(np.quantile(boots, 0.05)),
                                                                float(np.quantile(boots, 0.95))]
