@@ -36,7 +36,7 @@ chosen one and lists the other under ``same_observable_as``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,6 +45,7 @@ from .signatures import (candidate_shift, drift_agreement, saturation_gated, sat
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
                       measurement_clock, bootstrap_resamples)
+from .effects import HAMILTONIAN_CHANGE, equivalent_candidates, separating_measurements
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -388,6 +389,8 @@ class Verdict:
     verdict_text: str
     structure: dict
     saturation: dict | None
+    ambiguous: list = field(default_factory=list)
+    separating_measurements: dict = field(default_factory=dict)
 
 
 def residual_problem(measured, base_family, fields, order, every_k: int, cross_fit: bool) -> ResidualProblem:
@@ -639,6 +642,41 @@ def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, 
     return Verdict(verdict, verdict_text, structure, saturation)
 
 
+def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: str, verdict: Verdict, *, seed: int,
+              n_boot: int, min_relative_gain: float, equivalence: float) -> Verdict:
+    """Ambiguity as an answer: the candidates that explain the held-out residual as well as the chosen
+    one (``effects.equivalent_candidates``: each beats "none", neither beats the other; nested ones and
+    one observable excluded), K_u moved along its neighbourhood included as ``effects.HAMILTONIAN_CHANGE``
+    where it was given. Where nothing is chosen, a physics candidate that beats "none" but was withheld
+    only because K_u's neighbourhood explains the residual as well (and no better) is ambiguous with
+    that K_u change (a field tilt, K_2 or thermal activation against the decoded K_u). The verdict is
+    then "ambiguous", with the set and, for each member, the measurement that would separate it.
+    Draws on its own bootstrap stream (``ambiguity``), after the choice: the choice is unchanged."""
+    rng = stream_rng(seed, "bootstrap", "ambiguity")
+    pool = dict(offered.mse)
+    if base.knob_mse is not None:
+        pool[HAMILTONIAN_CHANGE] = base.knob_mse
+    options = dict(n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence)
+    if chosen != "none":
+        members = equivalent_candidates(pool, chosen, rng, same_observable=SAME_OBSERVABLE, **options)
+        members = sorted(set(members) | {chosen}) if members else []
+    elif base.knob_mse is not None and HAMILTONIAN_CHANGE in pool:
+        withheld = {name: fits.mse[name] for name, record in fits.records.items()
+                    if record.get("beats_hamiltonian") is False and name not in offered.mse}
+        equal = equivalent_candidates({**withheld, "none": fits.mse["none"], HAMILTONIAN_CHANGE: base.knob_mse},
+                                      HAMILTONIAN_CHANGE, rng, same_observable=SAME_OBSERVABLE, **options)
+        beats_none = _beats(base.knob_mse, fits.mse["none"], rng, **options)
+        members = sorted(set(equal) | {HAMILTONIAN_CHANGE}) if equal and beats_none else []
+    else:
+        members = []
+    if not members:
+        return verdict
+    separating = separating_measurements(members)
+    text = (f"ambiguous: {', '.join(members)} explain the held-out residual equally (neither beats the other "
+            "beyond its noise); to tell them apart: " + "; ".join(f"{k}: {v}" for k, v in separating.items()))
+    return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
+
+
 def residual_report(p: ResidualProblem, fits: CandidateFits, base: Baselines, choice: Choice, verdict: Verdict,
                     field_shift: dict | None, drift: dict | None) -> dict:
     """The result of ``analyse_residual`` (see there)."""
@@ -649,6 +687,7 @@ def residual_report(p: ResidualProblem, fits: CandidateFits, base: Baselines, ch
     residual_after = measured - models[chosen]
     same = [k for group in SAME_OBSERVABLE if chosen in group for k in sorted(group - {chosen}) if k in candidates]
     return {"verdict": verdict.verdict, "verdict_text": verdict.verdict_text, "structure": verdict.structure,
+            "ambiguous": list(verdict.ambiguous), "separating_measurements": dict(verdict.separating_measurements),
             "field_shift": field_shift,
             "saturation": verdict.saturation,
             "hamiltonian_neighbourhood": base.hamiltonian,
@@ -788,4 +827,6 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
                     n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,
                     moment_tolerance=moment_tolerance)
+    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
+                        min_relative_gain=min_relative_gain, equivalence=equivalence)
     return residual_report(p, fits, base, choice, verdict, field_shift, drift)
