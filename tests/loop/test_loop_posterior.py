@@ -83,6 +83,16 @@ def test_a_family_unlike_the_training_data_is_not_decoded(posterior, measured, t
     assert report["status"] == "out of distribution", report.get("ood")
     assert report["ood"]["out_of_distribution"] and "not decoded" in capsys.readouterr().out
     assert "Not decoded" in (out / "report.md").read_text() and (out / "report.html").exists()
+    # M_s given: checked at that M_s alone; the reference (validation + calibration) can flag at alpha
+    assert report["ood"]["Ms_mode"] == "given" and report["ood"]["Ms_A_per_m"] == 600e3 and "p_by_Ms" not in report["ood"]
+    assert report["ood"]["can_flag"] and "warning" not in report["ood"]
+    # M_s unknown: the sweep's most favourable p, and the report says so
+    assert main(["loop", str(path), "--out", str(out), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-sweep-kA-m", "470", "1400", "3", "--profiles", "1"]) == 0
+    swept = json.loads((out / "report.json").read_text())["ood"]
+    assert swept["Ms_mode"] == "swept" and len(swept["p_by_Ms"]) == 3
+    assert swept["p_value"] == max(r["p_value"] for r in swept["p_by_Ms"])
+    assert "M_s unknown: the most favourable p over the sweep" in (out / "report.md").read_text()
 
 
 def test_forced_the_report_carries_the_posterior(posterior, measured, tmp_path):

@@ -245,6 +245,7 @@ class LoopSettings:
     predictive_reference: object
     refine_extend: object
     moment_tolerance: float
+    training_dataset: object = None
 
 
 @dataclass
@@ -374,39 +375,97 @@ def stop(out: Path, path, report: dict, status: str, note: str) -> dict:
     return report
 
 
+OOD_SWEPT_NOTE = "M_s unknown: the most favourable p over the sweep"
+"""How the report names the posterior's check when M_s is swept: the M_s of the largest p is kept."""
+
+
+def posterior_ood(est, image, ms_values) -> dict:
+    """The posterior's training-data check (``learn.ood.ood_check``): at the given M_s alone (one value),
+    or, M_s unknown (several), at each M_s of the sweep keeping the most favourable p, and saying so."""
+    from ..core.parameters import normalize
+    from ..learn.ood import ood_check
+
+    checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
+    if not checks[0].get("available"):
+        return dict(checks[0])
+    if len(ms_values) == 1:
+        ood = dict(checks[0])
+        ood.update(Ms_A_per_m=float(ms_values[0]), Ms_mode="given",
+                   Ms_note=f"at the given M_s ({ms_values[0] / 1e3:.0f} kA/m) alone")
+        return ood
+    k = int(np.argmax([c["p_value"] for c in checks]))
+    ood = dict(checks[k])
+    ood.update(Ms_A_per_m=float(ms_values[k]), Ms_mode="swept",
+               Ms_note=(f"{OOD_SWEPT_NOTE} (at {ms_values[k] / 1e3:.0f} kA/m, of {len(ms_values)} values from "
+                        f"{min(ms_values) / 1e3:.0f} to {max(ms_values) / 1e3:.0f} kA/m)"),
+               p_by_Ms=[{"Ms": float(ms), "p_value": c["p_value"]} for ms, c in zip(ms_values, checks)])
+    return ood
+
+
+def alice_ood(models_dir, models, image, dataset=None, log=_progress) -> dict:
+    """Alice's training-data check: the image-only conformal check (``learn.ood.image_ood_check``) against
+    the train split of the networks' own dataset (``training_image_reference``); M_s plays no part. Not
+    available, with the reason, when that dataset cannot be found or is another configuration's."""
+    from ..core.errors import ModelFileError
+    from ..learn.ood import image_ood_check, training_image_reference
+
+    check = "image only (no posterior)"
+    hashes = ([str(m.payload["config_hash"]) for m in models.values()
+               if getattr(m, "payload", {}).get("config_hash") is not None] if isinstance(models, dict) else None)
+    reference, note = training_image_reference(models_dir, dataset, hashes, log=log)
+    if reference is None:
+        return {"available": False, "check": check, "verdict": f"could not run: {note}"}
+    try:
+        ood = image_ood_check(reference, image)
+    except (ValueError, ModelFileError) as error:
+        return {"available": False, "check": check, "verdict": f"could not run: {error}"}
+    ood.update(reference=note, Ms_mode="not used", Ms_note="image only: M_s plays no part in it")
+    return ood
+
+
+def _log_ood(ood: dict, log) -> None:
+    log(f"training-data check ({ood.get('check', 'posterior')}): {ood['verdict']}"
+        + (f"; {ood['Ms_note']}" if ood.get("Ms_note") else ""))
+    if ood.get("warning"):
+        log(f"WARNING training-data check: {ood['warning']}")
+
+
 def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, report: dict, out: Path, path,
              log) -> Estimate | None:
     """The Hamiltonian: given, or predicted (Alice or the posterior) at each M_s and the M_s whose
     re-simulation is closest kept, then optionally refined by simulation (``_refine``); its report
-    entries. None when the posterior's training-data check stops the file (its report written)."""
+    entries. First, whatever the estimator, the training-data check (report key ``ood``: the posterior's
+    ``posterior_ood``, Alice's image-only ``alice_ood``); None when it stops the file (its report
+    written; ``force`` decodes it anyway)."""
     if s.params is not None:
-        report.update(parameters=s.params, Ms_source="given (--params)")
+        report.update(parameters=s.params, Ms_source="given (--params)",
+                      ood={"available": False, "verdict": "not run: the Hamiltonian is given (--params), nothing is decoded"})
         return Estimate(s.params)
     profiles = s.profiles
     ms_values = list(s.ms_values_A_per_m if s.ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
     est = None
     if s.estimator == "posterior":
-        from ..core.parameters import normalize
-        from ..learn.ood import ood_check
         from ..learn.posterior import PosteriorEstimator, posterior_prediction
 
         est = PosteriorEstimator.load(s.posterior_path)
-        checks = [ood_check(est, m.image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
-        ood = max(checks, key=lambda c: c.get("p_value", 1.0))  # the most favourable M_s
-        report["ood"] = ood
-        log(f"training-data check: {ood['verdict']}")
-        if ood.get("out_of_distribution") and not s.force:
-            stop(out, path, report, "out of distribution",
-                 f"\n**Not decoded**: {ood['verdict']}. The posterior was "
-                 "trained on families that do not look like this one (`--force` decodes it anyway).\n")
-            return None
+        ood = posterior_ood(est, m.image, ms_values)
         models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
+        trained = "The posterior was trained on"
     elif s.estimator == "alice":
         from ..learn.predictor import load_models
 
         models = load_models(s.models_dir)
+        ood = alice_ood(s.models_dir, models, m.image, s.training_dataset, log=log)
+        trained = "Alice's networks were trained on"
     else:
         raise ConfigError(f"unknown estimator {s.estimator!r} (alice or posterior)")
+    report["ood"] = ood
+    _log_ood(ood, log)
+    if ood.get("out_of_distribution") and not s.force:
+        stop(out, path, report, "out of distribution",
+             "\n".join(_ood_lines(report)) + f"\n\n**Not decoded**: {ood['verdict']}. {trained} "
+             "families that do not look like this one (`--force` decodes it anyway).\n")
+        return None
     best, sweep = predict_and_sweep(cfg, models, m.image, m.family, ms_values,
                                     s.sweep_profiles if len(ms_values) > 1 else profiles, log=log)
     result = Estimate(best["params"])
@@ -566,7 +625,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
                        refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
                        refine_extend=None, moment_tolerance: float = MOMENT_TOLERANCE,
-                       log=_progress) -> dict:
+                       training_dataset=None, log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -606,7 +665,11 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     (made in the same box), and a family that a film beyond the bound fits better is flagged.
     ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
     not named an effect
-    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
+    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1). Whatever the estimator, a
+    training-data check runs before any decoding (report key ``ood``; ``estimate``): the posterior's, or
+    for Alice the image-only check against the train split of ``training_dataset`` (default
+    ``models_dir``/../dataset.h5); a family flagged stops unless ``force``; a check that could not run
+    says why, and one whose reference is too small to flag anything says so (``can_flag``, ``warning``)."""
     s = LoopSettings(params=params, models_dir=models_dir, ms_values_A_per_m=ms_values_A_per_m, profiles=profiles,
                      sweep_profiles=sweep_profiles, every_k=every_k, physics=physics, force=force, refit=refit,
                      refit_budget=refit_budget, measured_protocol=measured_protocol,
@@ -615,7 +678,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                      fixed_point=fixed_point, null_realisations=null_realisations, refine_budget=refine_budget,
                      refine_round_size=refine_round_size, refine_workers=refine_workers, refine_method=refine_method,
                      predictive_reference=predictive_reference, refine_extend=refine_extend,
-                     moment_tolerance=moment_tolerance)
+                     moment_tolerance=moment_tolerance, training_dataset=training_dataset)
     setup = check_options(s)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -668,8 +731,27 @@ def _markdown_domain(path, report) -> str:
     return "\n".join(lines)
 
 
+def _ood_lines(report) -> list[str]:
+    """The training-data check in Markdown (empty without one)."""
+    ood = report.get("ood")
+    if not ood:
+        return []
+    lines = ["## Training-data check (out of prior)", "",
+             f"Looks like the training data? {ood['verdict']}."]
+    details = [f"check: {ood['check']}" if ood.get("check") else None, ood.get("Ms_note"),
+               (f"{ood['n_validation']} held-out reference families, smallest p {ood['smallest_p']:.3f}, "
+                f"alpha {ood['alpha']:g}") if "smallest_p" in ood else None,
+               f"reference {ood['reference']}" if ood.get("reference") else None]
+    details = [d for d in details if d]
+    if details:
+        lines += ["", "(" + "; ".join(details) + ")"]
+    if ood.get("warning"):
+        lines += ["", f"**Warning: {ood['warning']}.**"]
+    return lines + [""]
+
+
 def _markdown(path, report, analysis) -> str:
-    lines = [_markdown_domain(path, report)]
+    lines = [_markdown_domain(path, report), *_ood_lines(report)]
     prediction = report.get("prediction")
     if prediction:
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
@@ -715,8 +797,6 @@ def _markdown(path, report, analysis) -> str:
                                ("Extension check: " if extension else "Posterior-predictive check: "))
                           + check["verdict"] + (".**" if check["misspecified"] else "."), "",
                           "![the check against its validation reference](predictive_check.png)"]
-        if report.get("ood"):
-            lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:
             lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
     lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "

@@ -87,7 +87,10 @@ def _summary_box(report: dict) -> str:
                  ("observation RMS (grid)", f"{report.get('observation_rms', float('nan')):.4f}")]
         ood = report.get("ood")
         if ood:
-            rows.append(("looks like the training data", ood.get("verdict")))
+            rows.append(("looks like the training data", ood.get("verdict")
+                         + (f" ({ood['Ms_note']})" if ood.get("Ms_note") else "")))
+            if ood.get("warning"):
+                rows.append(("training-data check: warning", ood["warning"]))
         peaks = report.get("diagram_peaks")
         if peaks:
             rows.append(("FORC peak (H_c, H_u) measured / re-simulated",
