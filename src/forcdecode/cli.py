@@ -21,9 +21,9 @@ COMMANDS = {
     "dataset": ("forcdecode.dataset.cli", "workflow stages: draw, screen, select, simulate, merge, figure1"),
     "learn": ("forcdecode.learn.cli", "workflow stages: train Alice and Bob for one parameter, evaluate and plot"),
     "closed-loop": ("forcdecode.loop.closed_loop_cli", "workflow stage: re-simulate the predicted Hamiltonians of the simulated test set"),
-    "fit": ("forcdecode.loop.fit_cli", "refine the posterior of one FORC family by simulating that film (importance sampling)"),
-    "fit-step": ("forcdecode.loop.fit_step_cli", "workflow stage: the refinement of `fit` one round per job (init, round, report)"),
-    "posterior-loop": ("forcdecode.loop.posterior_loop_cli", "workflow stage: re-simulate posterior draws of the simulated test set against the floor"),
+    "fit": ("forcdecode.infer.fit_cli", "refine the posterior of one FORC family by simulating that film (importance sampling)"),
+    "fit-step": ("forcdecode.infer.fit_step_cli", "workflow stage: the refinement of `fit` one round per job (init, round, report)"),
+    "posterior-loop": ("forcdecode.infer.posterior_loop_cli", "workflow stage: re-simulate posterior draws of the simulated test set against the floor"),
     "predict": ("forcdecode.learn.predict_cli", "predict the Hamiltonian (with uncertainties) from a FORC file or image and M_s"),
 }
 

@@ -82,12 +82,12 @@ def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path)
 
 
 def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
-    """With ``predictive`` settings each case's families are judged by ``loop.predictive_check``
+    """With ``predictive`` settings each case's families are judged by ``infer.predictive_check``
     against the validation reference; saved fit results are reused (nothing is simulated here: cfg
     None would fail), and the table gains the check's rows."""
     import json
 
-    from forcdecode.loop.predictive_check import make_reference
+    from forcdecode.infer.predictive_check import make_reference
 
     fresh = bar_dataset(n=20, seed=43)
     curves = np.zeros((20, 16, 16), np.float32)

@@ -1,6 +1,6 @@
-"""Layers import one way: core → readers/config → engine → protocol → dataset → learning → loop →
-commands. Parses every module's imports (also the ones inside functions) and fails on an import
-of a higher layer or on an import cycle between modules."""
+"""Layers import one way: core → readers/config → engine → protocol → dataset → learning → per-file
+inference → loop (residual → effect analysis) → commands. Parses every module's imports (also the
+ones inside functions) and fails on an import of a higher layer or on an import cycle between modules."""
 
 import ast
 import graphlib
@@ -18,8 +18,9 @@ LAYERS = {
     "forc": 3,                           # the FORC protocol, rasterization, diagrams
     "dataset": 4,
     "learn": 5,
-    "loop": 6,
-    "bench": 7, "cli": 7,                # commands and benchmarks
+    "infer": 6,                          # per-file inference by simulation: re-simulation, refinement, predictive checks
+    "loop": 7,                           # the residual → effect analysis
+    "bench": 8, "cli": 8,                # commands and benchmarks
 }
 """Layer of each top-level sub-package or module of forcdecode; a module imports its own layer or lower."""
 ROOT_LAYER = 0  # forcdecode/__init__.py (the version string) imports nothing of the package

@@ -65,6 +65,7 @@ def test_families_from_another_generator_are_flagged(trained):
         assert r["p_value"] == pytest.approx(min(1.0, 2 * min(r["p_features"], r["p_image"])))
         assert r["p_value"] >= 2 / (n_ref + 1) - 1e-12  # the smallest combined p-value n held-out scores allow
         assert r["out_of_distribution"] == (r["p_value"] < r["alpha"])
+        assert r["can_flag"] and r["smallest_p"] == pytest.approx(2 / (n_ref + 1)) and "warning" not in r
         assert r["verdict"].startswith("out of distribution" if r["out_of_distribution"] else "in distribution")
     # columns and diagonals lie off the principal subspace of the row-bar training images (no training
     # involved): each image score beyond every held-out one, p_image at its floor 1/(n + 1), so p = 2/(n + 1)

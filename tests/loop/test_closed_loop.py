@@ -21,7 +21,7 @@ from forcdecode.micromag.build import mesh_from_config
 from forcdecode.micromag.disorder import periodic_voronoi_labels
 
 ROOT = Path(__file__).resolve().parents[2]
-resim = importlib.import_module("forcdecode.loop.resimulate")  # the module (the package exports the function)
+resim = importlib.import_module("forcdecode.infer.resimulate")  # the module (the package exports the function)
 SAMPLE = 5
 # a square-loop film whose FORCs hardly depend on the disorder realisation on 16x16 cells
 TRUTH = dict(Ms=8e5, A_ex=1.2e-11, K_u=1.5e6, D=1e-3, N_pin=2, sigma_theta_deg=5.0, sigma_K=0.1)
@@ -172,7 +172,7 @@ def test_a_failed_resimulation_drops_its_realisation_from_all_three_means(cfg, m
             return None, "SimulationError: diverged"
         return input_family + offsets[role] + 0.01 * realisation, ""
 
-    monkeypatch.setattr(simulated, "_simulate_task", fake)
+    monkeypatch.setattr(resim, "_simulate_task", fake)
     truths = pd.DataFrame([TRUTH], index=[SAMPLE])
     result, _ = simulated.closed_loop(cfg, _table({**TRUTH, "D": 2e-3}), {SAMPLE: input_family}, truths, medians, 5)
     row = result.iloc[0]
@@ -180,7 +180,7 @@ def test_a_failed_resimulation_drops_its_realisation_from_all_three_means(cfg, m
     assert np.isnan(row["rms_null_per_realisation"][1])
     assert row["rms_floor"] == pytest.approx((0.00 + 0.02) / 2) and row["rms"] == pytest.approx((0.10 + 0.12) / 2)
     assert row["rms_null"] == pytest.approx((0.30 + 0.32) / 2)
-    monkeypatch.setattr(simulated, "_simulate_task", lambda *args: (None, "ValueError: bad"))
+    monkeypatch.setattr(resim, "_simulate_task", lambda *args: (None, "ValueError: bad"))
     with pytest.raises(SimulationError, match="every re-simulation failed"):
         simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family}, truths, medians, 5)
 

@@ -68,7 +68,7 @@ def test_undeclared_background_in_a_simulated_instrument_file(tmp_path):
     from forcdecode.dataset.params import draw_parameters
     from forcdecode.micromag.build import mesh_from_config
     from forcdecode.forc.raster import resample_curves
-    from forcdecode.loop import resimulate
+    from forcdecode.infer.resimulate import resimulate
     from forcdecode.measured import read_forc
     from forcdecode.measured.writers import write_micromag_0015
 

@@ -15,7 +15,7 @@ import pytest
 from forcdecode.bench.effects import CONFIG, PARAMS
 from forcdecode.core.errors import ConfigError
 from forcdecode.loop.fixed_point import image_of_family, predict_correct_iterate
-from forcdecode.loop.resimulate import resimulate
+from forcdecode.infer.resimulate import resimulate
 
 FILM = {**PARAMS, "A_ex": 5e-12, "sigma_theta_deg": 5.0, "sigma_K": 0.05}
 N = 32

@@ -14,8 +14,8 @@ from forcdecode.cli import main
 from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
 from forcdecode.learn.data import LearningData
 from forcdecode.learn.posterior import train_posterior
-from forcdecode.loop import resimulate
-from forcdecode.loop.predictive_check import make_reference
+from forcdecode.infer.resimulate import resimulate
+from forcdecode.infer.predictive_check import make_reference
 from forcdecode.measured.writers import write_micromag_0015
 from forcdecode.micromag.build import mesh_from_config
 
@@ -68,7 +68,7 @@ def measured(tmp_path_factory):
 def write_reference(path, value):
     """A predictive-check reference of 20 validation families, all with statistic ``value`` (budget 3):
     the smallest p it can give is 1/21 < 0.05."""
-    from forcdecode.loop.predictive_check import make_reference
+    from forcdecode.infer.predictive_check import make_reference
 
     path.write_text(json.dumps(make_reference([value] * 20, budget=3, round_size=3, prior="draw", sample_ids=range(20))))
     return path
@@ -83,6 +83,16 @@ def test_a_family_unlike_the_training_data_is_not_decoded(posterior, measured, t
     assert report["status"] == "out of distribution", report.get("ood")
     assert report["ood"]["out_of_distribution"] and "not decoded" in capsys.readouterr().out
     assert "Not decoded" in (out / "report.md").read_text() and (out / "report.html").exists()
+    # M_s given: checked at that M_s alone; the reference (validation + calibration) can flag at alpha
+    assert report["ood"]["Ms_mode"] == "given" and report["ood"]["Ms_A_per_m"] == 600e3 and "p_by_Ms" not in report["ood"]
+    assert report["ood"]["can_flag"] and "warning" not in report["ood"]
+    # M_s unknown: the sweep's most favourable p, and the report says so
+    assert main(["loop", str(path), "--out", str(out), "--config", str(cfg), "--estimator", "posterior",
+                 "--posterior", str(posterior), "--Ms-sweep-kA-m", "470", "1400", "3", "--profiles", "1"]) == 0
+    swept = json.loads((out / "report.json").read_text())["ood"]
+    assert swept["Ms_mode"] == "swept" and len(swept["p_by_Ms"]) == 3
+    assert swept["p_value"] == max(r["p_value"] for r in swept["p_by_Ms"])
+    assert "M_s unknown: the most favourable p over the sweep" in (out / "report.md").read_text()
 
 
 def test_forced_the_report_carries_the_posterior(posterior, measured, tmp_path):
@@ -238,8 +248,8 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
                  "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
                  "--refine-round-size", "2", "--predictive-reference", str(reference)]) == 2
     # nor one made with the other prior: the loop refines with fit_cli.DEFAULT_PRIOR, and says so
-    from forcdecode.loop.fit_cli import DEFAULT_PRIOR, PRIORS
-    from forcdecode.loop.predictive_check import make_reference
+    from forcdecode.infer.fit_cli import DEFAULT_PRIOR, PRIORS
+    from forcdecode.infer.predictive_check import make_reference
 
     other = tmp_path / "other_prior.json"
     other.write_text(json.dumps(make_reference([1e-6] * 20, budget=3, round_size=3, sample_ids=range(20),
@@ -307,7 +317,7 @@ def test_fit_one_round_per_job_equals_fit_in_one_process(posterior, measured, tm
     assert steps["refined_by_budget"]["6"]["parameters"] == whole["refined_by_budget"]["6"]["parameters"]
     # the report judges the film against a reference made in the same box (Λ), with its figure; one made
     # in another box is refused, at init before any simulation and at report
-    from forcdecode.loop.predictive_check import make_reference
+    from forcdecode.infer.predictive_check import make_reference
 
     extension = tmp_path / "extension.json"
     extension.write_text(json.dumps(make_reference([-1.0] * 20, budget=6, round_size=3, prior="draw",
@@ -333,7 +343,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     answer regression-adjusted at every checkpoint; a saved run extended equals the longer run."""
     from forcdecode.config import load_config
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.loop.fit_cli import fit_adjusted, observation, print_summary
+    from forcdecode.infer.fit_cli import fit_adjusted, observation, print_summary
 
     path, cfg_path = measured
     out = tmp_path / "fit"
@@ -360,7 +370,7 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     assert "answer: reading 'shifted'" in printed
     # shifted: the anchored medians, the amortized intervals moved there (in logit) and narrowed only by a
     # summary resolution below 1
-    from forcdecode.loop.fit import _inverse_logit, _logit
+    from forcdecode.infer.fit import _inverse_logit, _logit
 
     for name in result["names"]:
         row, anchored = final["parameters"][name], result["variants"]["anchored"]["12"]["parameters"][name]
@@ -443,7 +453,7 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     from forcdecode.config import load_config
     from forcdecode.core.streams import stream_seed
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.loop.fit_cli import fit_adjusted, network_summaries, observation, print_summary
+    from forcdecode.infer.fit_cli import fit_adjusted, network_summaries, observation, print_summary
 
     path, cfg_path = measured
     cfg, est = load_config(cfg_path), PosteriorEstimator.load(posterior)

@@ -97,11 +97,15 @@ def test_a_physics_candidate_must_beat_the_hamiltonians_own_neighbourhood():
     assert result["chosen"] == "none", result["chosen"]
     assert result["candidates"]["K_2"]["beats_hamiltonian"] is False
     assert result["hamiltonian_neighbourhood"]["K_u_change"] == pytest.approx(0.045, abs=0.01)
+    # ambiguity as an answer: the coercive candidate and the K_u change explain the family equally
+    assert result["verdict"] == "ambiguous" and result["ambiguous"] == ["K_2", "K_u change"], result["verdict_text"]
+    assert "hard-axis" in result["separating_measurements"]["K_2"]
     without_gate = analyse_residual(off_K_u, base, fields, **{**options, "hamiltonian_families": None})
     assert without_gate["chosen"] == "K_2"  # what the gate prevents: a K_u error named an effect
     other = squeezed(0.15, fields, base) + 0.002 * rng.normal(size=base.shape)
     named = analyse_residual(other, base, fields, **options)
     assert named["chosen"] == "bias_field" and named["candidates"]["bias_field"]["beats_hamiltonian"]
+    assert named["verdict"] == "bias_field" and named["ambiguous"] == []
 
 
 def test_a_term_that_only_carries_a_normalization_error_is_not_named():

@@ -14,7 +14,7 @@ import yaml
 
 from forcdecode.loop.physics_effects import analyse_residual, physics_candidate_families
 from forcdecode.loop.refit import analyse_with_refit, refit_hamiltonian
-from forcdecode.loop.resimulate import resimulate
+from forcdecode.infer.resimulate import resimulate
 
 ROOT = Path(__file__).resolve().parents[2]
 PREDICTION = {"Ms": 6e5, "A_ex": 5e-12, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 5.0, "sigma_K": 0.05}

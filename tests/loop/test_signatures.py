@@ -286,7 +286,7 @@ def test_the_shift_tests_null_reads_the_major_loop_alone_as_the_whole_protocol()
     import yaml
 
     from forcdecode.loop.refit import simulated_shift_offsets
-    from forcdecode.loop.resimulate import resimulate_measured
+    from forcdecode.infer.resimulate import resimulate_measured
     from forcdecode.loop.signatures import field_shift, major_branches
     from forcdecode.reference.independent import measurement_protocol
 

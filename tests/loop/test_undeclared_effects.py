@@ -20,7 +20,7 @@ import yaml
 
 from forcdecode.micromag.build import mesh_from_config
 from forcdecode.forc.raster import measured_image
-from forcdecode.loop import resimulate
+from forcdecode.infer.resimulate import resimulate
 from forcdecode.loop.instrument import simulated_instrument_curves
 from forcdecode.loop.physics_effects import analyse_residual, physics_candidate_families
 from forcdecode.measured import read_forc

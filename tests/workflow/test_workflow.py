@@ -138,7 +138,7 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     # the refinement of one family, one workflow job per round (workflow/rules/fit.smk; posterior tiny)
     # judged by the extension check against a reference of the same box and rounds (every Λ −1: any film is
     # flagged; fit.predictive_reference)
-    from forcdecode.loop.predictive_check import make_reference
+    from forcdecode.infer.predictive_check import make_reference
 
     (tmp_path / "extension.json").write_text(json.dumps(make_reference(
         [-1.0] * 20, budget=4, round_size=2, prior="draw", sample_ids=range(20), extend={"N_pin": 3.0})))

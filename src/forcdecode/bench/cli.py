@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..loop.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
+    from ..infer.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood", "information"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
@@ -110,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ood.add_argument("--ood-dir", default="results/bench/ood", help="ood: images per case (resumable) and summary.json")
     ood.add_argument("--predictive-budget", type=int, default=0,
                      help="ood: also refine every family for this many simulations and apply the posterior-predictive "
-                          "check (loop/predictive_check.py), calibrated on --calibration-families validation families "
+                          "check (infer/predictive_check.py), calibrated on --calibration-families validation families "
                           "(0: off; uses --round-size, --fit-workers, --prior)")
     ood.add_argument("--predictive-cases", nargs="+", help="ood: the cases the predictive check runs on (default: "
                      "every case asked for)")
@@ -402,7 +402,7 @@ def _bench_fit(args, say) -> int:
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..loop.fit_cli import beyond_prior_lines, fit_function, parse_extension
+    from ..infer.fit_cli import beyond_prior_lines, fit_function, parse_extension
 
     budgets = sorted(set(args.budgets))
     if args.extend_prior and args.method != "pmc":
@@ -422,7 +422,7 @@ def _bench_fit(args, say) -> int:
     extend = parse_extension(args.extend_prior, tuple(est.names))
     reference = None
     if args.extension_reference:
-        from ..loop.predictive_check import read_reference
+        from ..infer.predictive_check import read_reference
 
         reference = read_reference(args.extension_reference, round_size=args.round_size, prior=args.prior,
                                    budget_run=budgets[-1], extend=extend, what="extension-check reference")
@@ -447,7 +447,7 @@ def _bench_fit(args, say) -> int:
             state_path = f"{args.fit_dir}/state_{sid}.npz"
             if (result is not None and extend and os.path.exists(state_path)
                     and "log_likelihood_ratio_by_budget" not in (result.get("beyond_prior") or {})):
-                from ..loop.fit import Refinement, beyond_prior  # a result from before Λ: from its saved particles
+                from ..infer.fit import Refinement, beyond_prior  # a result from before Λ: from its saved particles
 
                 result["beyond_prior"] = beyond_prior(Refinement.load(state_path))
                 write_json(path, result)
@@ -491,14 +491,14 @@ def _bench_fit(args, say) -> int:
 
 
 def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
-    """The extension check (``loop.predictive_check``, Λ) of a bench over films refined in an extended box:
+    """The extension check (``infer.predictive_check``, Λ) of a bench over films refined in an extended box:
     a run on validation families writes its reference (FIT_DIR/extension_reference.json); with a
     reference, each family is judged and the flag rate goes into the summary (key ``extension_check``)."""
     import numpy as np
 
     from ..core.io import write_json
-    from ..loop.predictive_check import make_reference, predictive_check, predictive_statistic
-    from ..loop.report_page import check_figure
+    from ..infer.predictive_check import make_reference, predictive_check, predictive_statistic
+    from ..infer.predictive_check import check_figure
 
     values = [predictive_statistic(r, budget, extension=True) for r in rows]
     out["log_likelihood_ratio"] = {str(s): v for s, v in zip(out["sample_ids"], values)}
@@ -565,7 +565,7 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
 
     from ..core.errors import ConfigError
     from ..core.io import write_json
-    from ..loop.predictive_check import make_reference, predictive_statistic
+    from ..infer.predictive_check import make_reference, predictive_statistic
     from .ood import predictive_statistics
 
     if args.predictive_budget < args.round_size or args.predictive_budget % args.round_size:

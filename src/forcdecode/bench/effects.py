@@ -79,7 +79,7 @@ def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress
     from ..forc.raster import measured_image
     from ..loop.instrument import simulated_instrument_curves
     from ..loop.physics_effects import analyse_residual, physics_candidate_families
-    from ..loop.resimulate import resimulate
+    from ..infer.resimulate import resimulate
     from ..measured import read_forc
     from ..measured.writers import write_micromag_0015
 

@@ -129,7 +129,7 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
     lie from them (mean |Δ| in grey levels): for ``control`` that is the realisation floor, and a case
     whose images differ by no more than the floor cannot be told from an in-prior film by any check
     of the image. With ``predictive`` (budget, round_size, workers, seed, prior, fit_dir and the
-    validation ``reference`` of ``loop.predictive_check``; ``cases``: those it runs on, empty for all)
+    validation ``reference`` of ``infer.predictive_check``; ``cases``: those it runs on, empty for all)
     every family is also refined and judged by the posterior-predictive check."""
     from ..learn.ood import ood_check
 
@@ -202,10 +202,10 @@ def carry_over(previous: dict | None, result: dict) -> dict:
 
 
 def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
-    """Refine each family for ``settings["budget"]`` simulations (``loop.fit_cli.fit_one``; one
+    """Refine each family for ``settings["budget"]`` simulations (``infer.fit_cli.fit_one``; one
     fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
     from ..core.io import read_json, write_json
-    from ..loop.fit_cli import fit_one
+    from ..infer.fit_cli import fit_one
 
     fit_dir = Path(fit_dir)
     fit_dir.mkdir(parents=True, exist_ok=True)
@@ -228,8 +228,8 @@ def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: di
 def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
     """The predictive check on one case's families against ``settings["reference"]`` (validation), with
     its figure (``fit_dir``/predictive_check.png)."""
-    from ..loop.predictive_check import predictive_check
-    from ..loop.report_page import check_figure
+    from ..infer.predictive_check import predictive_check
+    from ..infer.predictive_check import check_figure
 
     results = predictive_statistics(est, cfg, images, curves, Ms, keys, settings, fit_dir, say)
     checks = [predictive_check(r, settings["reference"]) for r in results]

@@ -66,6 +66,16 @@ def bootstrap_interval(statistic, arrays, rng: np.random.Generator, n_boot: int 
     return [float(np.percentile(values, tail)), float(np.percentile(values, 100 - tail))]
 
 
+def median_with_interval(values, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, list]:
+    """Median of the finite ``values`` and its percentile bootstrap 90 % interval over them (NaN
+    interval below two values)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return float("nan"), [float("nan"), float("nan")]
+    return float(np.median(values)), bootstrap_interval(np.median, [values], rng, n_boot)
+
+
 def _mae(truth, prediction) -> float:
     return float(np.mean(np.abs(np.asarray(prediction, float) - np.asarray(truth, float))))
 

@@ -10,7 +10,7 @@ import argparse
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .fit_cli import METHODS
+    from ..infer.fit_cli import METHODS
     from .physics_effects import NULL_REALISATIONS
 
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
@@ -18,7 +18,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
     parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
                         help="alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
-                             "68/90 %% intervals, correlations) after an out-of-distribution check")
+                             "68/90 %% intervals, correlations); either after a training-data (out-of-distribution) check")
+    parser.add_argument("--dataset", help="the dataset the Alice networks were trained on, for their training-data "
+                                          "check (default: dataset.h5 beside the --models directory)")
     parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
     parser.add_argument("--refine", type=int, default=0, metavar="N",
                         help="with --estimator posterior: refine the posterior of this file by N simulations of the "
@@ -104,6 +106,7 @@ def run(args) -> int:
                                 refine_budget=args.refine, refine_round_size=args.refine_round_size,
                                 refine_workers=args.refine_workers, refine_method=args.refine_method,
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
+                                training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")

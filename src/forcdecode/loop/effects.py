@@ -28,6 +28,7 @@ best simpler candidate; a single effect stays named as the single effect.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,6 +228,16 @@ def _per_curve_mse(measured, model, rows):
     return out
 
 
+def bootstrap_resamples(rng, n_boot: int, n_curves: int) -> np.ndarray:
+    """Bootstrap resamples of ``n_curves`` held-out curves, (n_boot, n_curves) indices, drawn from a
+    copy of ``rng``: common random numbers. Every comparison made with one generator resamples the same
+    curves, so its outcome depends on the two candidates' errors alone, never on which comparisons ran
+    before it. (With the generator consumed call by call, a last-bit tie between two candidates' mean
+    errors reordered the comparisons, reshuffled every later resample and could flip a verdict from
+    one CPU to another.)"""
+    return copy.deepcopy(rng).integers(0, n_curves, size=(n_boot, n_curves))
+
+
 def _bootstrap_gain(base_mse, mse, rng, n_boot):
     """Paired bootstrap over the curves both can score (resampled as whole curves). Returns
     (mean gain base − candidate, [5 %, 95 %] of the mean gain, [5 %, 95 %] of the relative gain
@@ -236,7 +247,7 @@ def _bootstrap_gain(base_mse, mse, rng, n_boot):
     base, candidate = base_mse[both], mse[both]
     if base.size == 0:
         return float("nan"), [float("-inf")] * 2, [float("-inf")] * 2
-    pick = rng.integers(0, base.size, size=(n_boot, base.size))
+    pick = bootstrap_resamples(rng, n_boot, base.size)
     base_sum, candidate_sum = base[pick].sum(axis=1), candidate[pick].sum(axis=1)
     gain = (base_sum - candidate_sum) / base.size
     relative = np.where(base_sum > 0, 1 - candidate_sum / np.where(base_sum > 0, base_sum, 1.0), 0.0)
@@ -327,6 +338,84 @@ def choose_candidate(heldout_mse: dict, n_parameters: dict, rng, n_boot: int = 2
                 chosen = challenger
                 break
     return chosen, scores
+
+
+HAMILTONIAN_CHANGE = "K_u change"
+"""The name an ambiguous set gives the Hamiltonian's own neighbourhood (K_u moved along its
+re-simulated families, ``analyse_residual(hamiltonian_families=)``): a change of the decoded
+Hamiltonian, not an effect the model lacks."""
+
+SEPARATING_MEASUREMENTS = {
+    "field_tilt": "a loop with the field at another angle to the film normal (a misalignment moves the "
+                  "switching field with the angle; a K_u change does not)",
+    "K_2": "a hard-axis (in-plane) loop: K_2 and K_u enter its curvature differently, while on an easy-axis "
+           "FORC family both move the switching field",
+    "thermal_activation": "FORC families at two sweep rates or temperatures (thermal activation moves "
+                          "the switching field with the rate; a Hamiltonian change does not)",
+    "second_phase": "a FORC diagram at finer field steps, or a minor loop of the soft phase alone",
+    "bias_field": "loops after field cooling in opposite fields (an exchange bias reverses; a K_u change "
+                  "does not)",
+    "field_offset": "the field calibration against a paramagnetic standard (an offset of the reported field "
+                    "moves with the instrument, not with the sample)",
+    "background": "a loop to higher fields (a background keeps its slope where the film is saturated)",
+    "scale": "the sample's volume or M_s measured apart (a scale is a normalization error)",
+    "additive_drift": "the measurement repeated in the reverse order of reversal fields (a drift follows "
+                      "the clock, the film does not)",
+    "multiplicative_drift": "the measurement repeated in the reverse order of reversal fields (a drift "
+                            "follows the clock, the film does not)",
+    HAMILTONIAN_CHANGE: "a hard-axis loop (its saturation field gives K_eff independently of the switching field)",
+}
+"""For each candidate, a measurement apart from the FORC family that tells it from the others it is
+ambiguous with (``separating_measurements``)."""
+
+
+def _components(name: str) -> frozenset:
+    return frozenset(name.split("+"))
+
+
+def nested(a: str, b: str) -> bool:
+    """Is one candidate a combination containing the other (e.g. background, background+additive_drift)?
+    Nested candidates are told apart by parsimony (the stepwise rule), not reported as ambiguous."""
+    ca, cb = _components(a), _components(b)
+    return ca <= cb or cb <= ca
+
+
+def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 2000, min_relative_gain: float = 0.05,
+                          equivalence: float = 0.05, same_observable=()) -> list[str]:
+    """The candidates that explain the held-out residual as well as ``chosen``.
+
+    ``heldout_mse``: {name: per-held-out-curve mean-square misfit} of the candidates still offered
+    (after every gate), ``"none"`` included, and optionally ``HAMILTONIAN_CHANGE`` (the Hamiltonian's
+    own neighbourhood). A candidate c is equivalent to ``chosen`` when c alone beats ``none`` and
+    neither of the two beats the other (``_beats``: a held-out error lower by more than
+    ``equivalence`` and a paired-bootstrap 5 % bound of the relative reduction above
+    ``min_relative_gain``; common random numbers, ``bootstrap_resamples``). Nested candidates (one a
+    combination containing the other) and candidates that are one observable with ``chosen``
+    (``same_observable``: groups of names) are not counted: the first are told apart by parsimony,
+    the second by no FORC measurement at all. Returns the sorted names (empty: ``chosen`` stands
+    alone)."""
+    if chosen == "none" or chosen not in heldout_mse:
+        return []
+    same = set().union(*[set(g) for g in same_observable if chosen in g]) if same_observable else set()
+    out = []
+    for name, mse in heldout_mse.items():
+        if name in ("none", chosen) or name in same or nested(name, chosen):
+            continue
+        if not _beats(mse, heldout_mse["none"], rng, n_boot, min_relative_gain, equivalence):
+            continue
+        if _beats(heldout_mse[chosen], mse, rng, n_boot, min_relative_gain, equivalence):
+            continue
+        if _beats(mse, heldout_mse[chosen], rng, n_boot, min_relative_gain, equivalence):
+            continue
+        out.append(name)
+    return sorted(out)
+
+
+def separating_measurements(names) -> dict:
+    """{candidate: the measurement apart from the FORC family that tells it from the others}."""
+    generic = "a measurement whose prediction differs between these candidates (they are equal on this FORC family)"
+    return {name: SEPARATING_MEASUREMENTS.get(name, SEPARATING_MEASUREMENTS.get(name.split("+")[0], generic))
+            for name in names}
 
 
 def _grid_resolution(values, best) -> float:

@@ -14,6 +14,7 @@ points in A·m². Writes OUT/report.json, OUT/report.md and figures (fields μ0H
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +68,7 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
     from ..learn.predictor import predict_parameters
-    from .resimulate import observation_error, resimulate_with_spread
+    from ..infer.resimulate import observation_error, resimulate_with_spread
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
@@ -85,17 +86,17 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
 
 def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
             method: str = "pmc", extend=None):
-    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``loop.fit``):
+    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``infer.fit``):
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
-    ``loop.predictive_check.make_reference``) the posterior-predictive misspecification check.
+    ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
     ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
     particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
     beyond the prior's bound (``fit_cli.parse_extension``); the entry then carries ``beyond_prior``
-    (``loop.fit.beyond_prior``) and the medians may lie past the bound."""
+    (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
     from ..core.parameters import denormalize
-    from .fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
-    from .posterior_predictive import draws_as_hamiltonians
+    from ..infer.fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
+    from ..infer.posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
@@ -124,7 +125,7 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         for line in beyond_prior_lines(result["beyond_prior"]):
             log(line)
     if predictive_reference is not None:
-        from .predictive_check import predictive_check
+        from ..infer.predictive_check import predictive_check
 
         entry["predictive_check"] = predictive_check(result, predictive_reference)
         log(f"{entry['predictive_check'].get('check', 'predictive')} check: {entry['predictive_check']['verdict']}")
@@ -186,7 +187,7 @@ def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max
     its saturated branches) and m_sat, m_0 of the simulated ⟨m⟩·ĥ by the same rule at the same points
     (explicit normalization of both, no fitted scale), measured moments after the drift
     correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²)."""
-    from .resimulate import resimulate_measured
+    from ..infer.resimulate import resimulate_measured
 
     curves, points = thin_protocol(data, max_points)
     reversal = [data.curves[i].reversal_field_T for i in curves]
@@ -215,6 +216,406 @@ def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max
             "per_curve": per_curve}
 
 
+@dataclass(frozen=True)
+class LoopSettings:
+    """The options of ``close_loop_on_file`` (see there), as its stages read them."""
+
+    params: dict | None
+    models_dir: object
+    ms_values_A_per_m: object
+    profiles: int
+    sweep_profiles: int
+    every_k: int
+    physics: bool
+    force: bool
+    refit: object
+    refit_budget: int
+    measured_protocol: bool
+    measured_profiles: int
+    max_measured_points: int
+    measured_max_step_T: float | None
+    estimator: str
+    posterior_path: object
+    fixed_point: bool
+    null_realisations: int
+    refine_budget: int
+    refine_round_size: int
+    refine_workers: int
+    refine_method: str
+    predictive_reference: object
+    refine_extend: object
+    moment_tolerance: float
+    training_dataset: object = None
+
+
+@dataclass
+class RefineSetup:
+    """The refinement's box beyond the prior's bound ({name: factor}, ``fit_cli.parse_extension``) and the
+    reference of its posterior-predictive check (None without ``predictive_reference``)."""
+
+    extend: dict | None
+    reference: dict | None
+
+
+@dataclass
+class Measurement:
+    """The file (``read_forc``) on the training grid ``fields``: its image and family, the domain
+    (``forc.saturation``) and why it is out of it (None: in the domain)."""
+
+    data: object
+    image: np.ndarray
+    family: np.ndarray
+    domain_note: str | None
+    moment_saturation: float
+    domain: object
+    fields: np.ndarray
+
+
+@dataclass
+class Estimate:
+    """The Hamiltonian to re-simulate (SI); the family and profile spread when the M_s sweep already
+    re-simulated it with the final number of profiles (else None); ``predictor`` (fixed point only):
+    family → Hamiltonian at the chosen M_s."""
+
+    params: dict
+    resim: np.ndarray | None = None
+    spread: object = None
+    predictor: object = None
+
+
+@dataclass
+class Residual:
+    """The observation error of the re-simulation, and the model-free evidence the candidates need: the
+    noise (m units), the field-shift and drift evidence, the measured points for the saturation test."""
+
+    error: dict
+    noise: float | None
+    shift: dict | None
+    drift: dict | None
+    points: object
+
+
+@dataclass
+class Judgement:
+    """The residual analysis (``analyse_residual``'s dict, or the refit's) and the Hamiltonian it ends on."""
+
+    analysis: dict
+    final_params: dict
+
+
+def check_options(s: LoopSettings) -> RefineSetup:
+    """ConfigError for options that contradict each other or lie outside their range, before any work;
+    the refinement's extended box and its predictive check's reference (read here)."""
+    fixed_point, refit, refine_budget, estimator = s.fixed_point, s.refit, s.refine_budget, s.estimator
+    refine_round_size, refine_workers, refine_method = s.refine_round_size, s.refine_workers, s.refine_method
+    predictive_reference, moment_tolerance, measured_max_step_T = (s.predictive_reference, s.moment_tolerance,
+                                                                   s.measured_max_step_T)
+    if fixed_point and not refit:
+        raise ConfigError("the fixed-point iteration needs a Hamiltonian refit (refit names, --refit)")
+    if refine_budget and (estimator != "posterior" or s.params is not None):
+        raise ConfigError("refinement by simulation (--refine) starts from the joint posterior: it needs "
+                          "--estimator posterior and a prediction, not --params")
+    if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
+        raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
+                          f"(round size {refine_round_size}) and >= 1 worker")
+    from ..core.parameters import TARGETS
+    from ..infer.fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
+
+    fit_function(refine_method)  # an unknown method: ConfigError before any simulation
+    if predictive_reference is not None and refine_method != "pmc":
+        raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
+                          "RMS: it needs --refine-method pmc")
+    if s.refine_extend and (not refine_budget or refine_method != "pmc"):
+        raise ConfigError("--refine-extend-prior needs --refine with --refine-method pmc")
+    extend = parse_extension(s.refine_extend, TARGETS)  # an unknown or non-extensible name: before any simulation
+    reference = None
+    if predictive_reference is not None:
+        if not refine_budget:
+            raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
+        from ..infer.predictive_check import read_reference
+
+        reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
+                                   budget_run=refine_budget, extend=extend)
+    if fixed_point and s.params is not None:
+        raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
+                          "networks, not a given Hamiltonian (--params)")
+    if not 0.0 <= moment_tolerance < 1.0:
+        raise ConfigError(f"moment tolerance {moment_tolerance!r} (--moment-tolerance) must lie in [0, 1): a relative "
+                          "uncertainty of the moment normalization, e.g. 0.02 for ±2 %")
+    if measured_max_step_T is not None and not measured_max_step_T > 0:
+        raise ConfigError(f"measured-protocol field step {measured_max_step_T!r} T (--measured-max-step-mT) must be "
+                          "> 0: the re-simulation sweeps on a lattice of that step")
+    return RefineSetup(extend, reference)
+
+
+def read_domain(path, cfg: dict) -> tuple[Measurement, dict]:
+    """The file read and put on the training grid, its domain decided by physics; the report's first
+    entries."""
+    from ..forc.raster import measurement_on_grid
+    from ..measured import read_forc
+
+    data = read_forc(path)
+    B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
+    image, family, domain_note, moment_saturation, domain = measurement_on_grid(data, B_max, n, with_domain=True)
+    report = {"file": str(path), "format": data.format, "n_curves": len(data.curves),
+              "drift_percent": data.drift_percent, "drift_correction": _drift_note(data),
+              "moment_saturation_Am2": moment_saturation, "moment_offset_Am2": domain.moment_offset_Am2,
+              "in_domain": domain_note is None, "out_of_domain_reason": domain_note, "domain": domain.report()}
+    fields = np.linspace(-B_max, B_max, n)
+    return Measurement(data, image, family, domain_note, moment_saturation, domain, fields), report
+
+
+def stop(out: Path, path, report: dict, status: str, note: str) -> dict:
+    """A file not analysed (``status``): the report, its Markdown (the domain, then ``note``) and page."""
+    report["status"] = status
+    write_json(out / "report.json", _json_ready(report))
+    text = _markdown_domain(path, report) + note
+    write_text(out / "report.md", text)
+    write_report_page(out, _json_ready(report), text, figures=())
+    return report
+
+
+OOD_SWEPT_NOTE = "M_s unknown: the most favourable p over the sweep"
+"""How the report names the posterior's check when M_s is swept: the M_s of the largest p is kept."""
+
+
+def posterior_ood(est, image, ms_values) -> dict:
+    """The posterior's training-data check (``learn.ood.ood_check``): at the given M_s alone (one value),
+    or, M_s unknown (several), at each M_s of the sweep keeping the most favourable p, and saying so."""
+    from ..core.parameters import normalize
+    from ..learn.ood import ood_check
+
+    checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
+    if not checks[0].get("available"):
+        return dict(checks[0])
+    if len(ms_values) == 1:
+        ood = dict(checks[0])
+        ood.update(Ms_A_per_m=float(ms_values[0]), Ms_mode="given",
+                   Ms_note=f"at the given M_s ({ms_values[0] / 1e3:.0f} kA/m) alone")
+        return ood
+    k = int(np.argmax([c["p_value"] for c in checks]))
+    ood = dict(checks[k])
+    ood.update(Ms_A_per_m=float(ms_values[k]), Ms_mode="swept",
+               Ms_note=(f"{OOD_SWEPT_NOTE} (at {ms_values[k] / 1e3:.0f} kA/m, of {len(ms_values)} values from "
+                        f"{min(ms_values) / 1e3:.0f} to {max(ms_values) / 1e3:.0f} kA/m)"),
+               p_by_Ms=[{"Ms": float(ms), "p_value": c["p_value"]} for ms, c in zip(ms_values, checks)])
+    return ood
+
+
+def alice_ood(models_dir, models, image, dataset=None, log=_progress) -> dict:
+    """Alice's training-data check: the image-only conformal check (``learn.ood.image_ood_check``) against
+    the train split of the networks' own dataset (``training_image_reference``); M_s plays no part. Not
+    available, with the reason, when that dataset cannot be found or is another configuration's."""
+    from ..core.errors import ModelFileError
+    from ..learn.ood import image_ood_check, training_image_reference
+
+    check = "image only (no posterior)"
+    hashes = ([str(m.payload["config_hash"]) for m in models.values()
+               if getattr(m, "payload", {}).get("config_hash") is not None] if isinstance(models, dict) else None)
+    reference, note = training_image_reference(models_dir, dataset, hashes, log=log)
+    if reference is None:
+        return {"available": False, "check": check, "verdict": f"could not run: {note}"}
+    try:
+        ood = image_ood_check(reference, image)
+    except (ValueError, ModelFileError) as error:
+        return {"available": False, "check": check, "verdict": f"could not run: {error}"}
+    ood.update(reference=note, Ms_mode="not used", Ms_note="image only: M_s plays no part in it")
+    return ood
+
+
+def _log_ood(ood: dict, log) -> None:
+    log(f"training-data check ({ood.get('check', 'posterior')}): {ood['verdict']}"
+        + (f"; {ood['Ms_note']}" if ood.get("Ms_note") else ""))
+    if ood.get("warning"):
+        log(f"WARNING training-data check: {ood['warning']}")
+
+
+def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, report: dict, out: Path, path,
+             log) -> Estimate | None:
+    """The Hamiltonian: given, or predicted (Alice or the posterior) at each M_s and the M_s whose
+    re-simulation is closest kept, then optionally refined by simulation (``_refine``); its report
+    entries. First, whatever the estimator, the training-data check (report key ``ood``: the posterior's
+    ``posterior_ood``, Alice's image-only ``alice_ood``); None when it stops the file (its report
+    written; ``force`` decodes it anyway)."""
+    if s.params is not None:
+        report.update(parameters=s.params, Ms_source="given (--params)",
+                      ood={"available": False, "verdict": "not run: the Hamiltonian is given (--params), nothing is decoded"})
+        return Estimate(s.params)
+    profiles = s.profiles
+    ms_values = list(s.ms_values_A_per_m if s.ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
+    est = None
+    if s.estimator == "posterior":
+        from ..learn.posterior import PosteriorEstimator, posterior_prediction
+
+        est = PosteriorEstimator.load(s.posterior_path)
+        ood = posterior_ood(est, m.image, ms_values)
+        models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
+        trained = "The posterior was trained on"
+    elif s.estimator == "alice":
+        from ..learn.predictor import load_models
+
+        models = load_models(s.models_dir)
+        ood = alice_ood(s.models_dir, models, m.image, s.training_dataset, log=log)
+        trained = "Alice's networks were trained on"
+    else:
+        raise ConfigError(f"unknown estimator {s.estimator!r} (alice or posterior)")
+    report["ood"] = ood
+    _log_ood(ood, log)
+    if ood.get("out_of_distribution") and not s.force:
+        stop(out, path, report, "out of distribution",
+             "\n".join(_ood_lines(report)) + f"\n\n**Not decoded**: {ood['verdict']}. {trained} "
+             "families that do not look like this one (`--force` decodes it anyway).\n")
+        return None
+    best, sweep = predict_and_sweep(cfg, models, m.image, m.family, ms_values,
+                                    s.sweep_profiles if len(ms_values) > 1 else profiles, log=log)
+    result = Estimate(best["params"])
+    if s.fixed_point:
+        result.predictor = family_predictor(models, best["Ms"])
+    report.update(parameters=result.params, prediction=best["prediction"], Ms_chosen_A_per_m=best["Ms"],
+                  Ms_source="given" if len(ms_values) == 1 else "swept",
+                  Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
+    if best["n_profiles"] == profiles:
+        result.resim, result.spread = best["family"], best["spread"]
+    if s.refine_budget:
+        report["refined"], result.params = _refine(cfg, est, m.image, m.family, best["Ms"], path, s.refine_budget,
+                                                   s.refine_round_size, s.refine_workers, log, setup.reference,
+                                                   method=s.refine_method,
+                                                   extend=setup.extend)
+        report["parameters"] = result.params
+        result.resim = None  # re-simulate the refined Hamiltonian
+        check = report["refined"].get("predictive_check")
+        if check is not None:  # where this film lies among the reference's validation families
+            from ..infer.predictive_check import check_figure
+
+            check_figure(out / "predictive_check.png", setup.reference, {Path(str(path)).name: check},
+                         title=f"{check['check']} check")
+    return result
+
+
+def resimulate_estimate(cfg: dict, s: LoopSettings, e: Estimate) -> tuple[np.ndarray, object]:
+    """The re-simulated family of the estimate (``profiles`` pinning profiles) and the variance between
+    its profiles; the sweep's own when it already has them."""
+    if e.resim is not None:
+        return e.resim, e.spread
+    from ..infer.resimulate import resimulate_with_spread
+
+    return resimulate_with_spread(cfg, e.params, n_profiles=s.profiles, progress=counter("re-simulation", "profiles"))
+
+
+def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict) -> Residual:
+    """The observation error of the re-simulation and the model-free evidence of the measured curves
+    (field shift, drift; report entries), and the measured points for the saturation test."""
+    from ..infer.resimulate import observation_error, protocol_name
+
+    data, domain, moment_saturation = m.data, m.domain, m.moment_saturation
+    error = observation_error(m.family, resim)
+    noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
+    # the model-free evidence field-shift and drift candidates need: is the major loop symmetric, do
+    # the saturated end points drift?
+    shift = drift = None
+    if noise:
+        from .signatures import drift_evidence_of, field_shift_of
+
+        shift = field_shift_of(data, moment_saturation, noise, domain.moment_offset_Am2)
+        drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
+        report["field_shift"], report["drift_evidence"] = shift, drift
+    # the measured points themselves for the saturation test (the re-simulated major loop tells where the
+    # film is saturated; the measured protocol is re-simulated quasi-statically only)
+    points = None
+    if protocol_name(cfg) == "quasistatic" and moment_saturation > 0:
+        from .signatures import measured_point_arrays
+
+        points = measured_point_arrays(data, moment_saturation, domain.moment_offset_Am2)
+    return Residual(error, noise, shift, drift, points)
+
+
+def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
+    """The physics-side candidate families around ``params`` (none without ``physics``)."""
+    from .physics_effects import physics_candidate_families
+
+    return (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
+            if s.physics else {})
+
+
+def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
+                   r: Residual, candidates: dict) -> Judgement:
+    """The residual traced to an effect against the re-simulation (``analyse_residual``)."""
+    from .physics_effects import analyse_residual
+    from .refit import measured_saturation
+
+    saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
+    analysis = analyse_residual(m.family, resim, m.fields, every_k=s.every_k, seed=cfg["seed"], noise_sigma=r.noise,
+                                floor_variance=spread, n_profiles=s.profiles, field_shift=r.shift, drift=r.drift,
+                                moment_tolerance=s.moment_tolerance, saturation_points=saturated, **candidates)
+    return Judgement(analysis, params)
+
+
+def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r: Residual, report: dict,
+                     log) -> Judgement:
+    """The residual traced to an effect against the Hamiltonian refitted without it
+    (``refit.analyse_with_refit``), or iterated to a fixed point (``fixed_point``); report entries."""
+    from ..infer.resimulate import protocol_name
+
+    data, fields, refit = m.data, m.fields, s.refit
+    if s.fixed_point:
+        from .fixed_point import predict_correct_iterate
+
+        analysis = predict_correct_iterate(cfg, e.predictor, m.family, fields, names=tuple(refit),
+                                           budget=s.refit_budget, noise_sigma=r.noise, every_k=s.every_k,
+                                           n_profiles=s.sweep_profiles, physics=s.physics, log=log,
+                                           null_realisations=s.null_realisations, field_shift=r.shift, drift=r.drift,
+                                           moment_tolerance=s.moment_tolerance, measured_points=r.points,
+                                           progress=counter("Hamiltonian refit", "re-simulations"))
+        report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
+        analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
+    else:
+        from .refit import analyse_with_refit
+
+        analysis = analyse_with_refit(cfg, e.params, m.family, fields, names=tuple(refit), every_k=s.every_k,
+                                      null_realisations=s.null_realisations,
+                                      n_profiles=s.sweep_profiles, budget=s.refit_budget, physics=s.physics,
+                                      noise_sigma=r.noise, field_shift=r.shift, drift=r.drift,
+                                      moment_tolerance=s.moment_tolerance, measured_points=r.points,
+                                      shift_protocol=((data.reversal_fields_T,
+                                                       [c.field_T for c in data.curves])
+                                                      if r.shift is not None and protocol_name(cfg) == "quasistatic"
+                                                      else None),
+                                      progress=counter("Hamiltonian refit", "re-simulations"))
+    final_params = analysis["hamiltonian"]["refit_without_effect"]
+    report["hamiltonian"] = analysis["hamiltonian"]
+    if analysis.get("field_shift") is not None:
+        report["field_shift"] = analysis["field_shift"]  # calibrated by simulation when the refit ran
+    report["refit"] = analysis["refit"]
+    return Judgement(analysis, final_params)
+
+
+def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r: Residual,
+                 j: Judgement, report: dict) -> dict:
+    """The analysed file's report: its entries, the residual at the measured points (the file's own
+    protocol re-simulated), the figures, report.json, report.md and report.html."""
+    from ..infer.resimulate import protocol_name
+
+    analysis, fields, family = j.analysis, m.fields, m.family
+    error = r.error
+    residual = family - resim
+    report.update(status="analysed", observation_rms=error["rms"],
+                  per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],
+                  effect=analysis["chosen"], verdict=analysis["verdict"], verdict_text=analysis["verdict_text"],
+                  analysis=_json_ready(analysis),
+                  heldout_rms_before=analysis["heldout_rms_before"], heldout_rms_after=analysis["heldout_rms_after"])
+    if s.measured_protocol and protocol_name(cfg) == "quasistatic":
+        report["measured_points"] = measured_points_residual(
+            cfg, j.final_params, m.data, m.domain, n_profiles=s.measured_profiles, max_points=s.max_measured_points,
+            max_step_T=s.measured_max_step_T, progress=counter("measured protocol", "profiles"))
+    _figures(out, fields, family, resim, residual, analysis.get("arrays", {}).get("residual_after"))
+    report["diagram_peaks"] = diagrams_figure(out / "diagrams.png", fields, family, resim)
+    write_json(out / "report.json", _json_ready(report))
+    text = _markdown(path, report, analysis)
+    write_text(out / "report.md", text)
+    write_report_page(out, _json_ready(report), text)
+    return report
+
+
 def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, models_dir="results/models",
                        ms_values_A_per_m=None, profiles: int = 20, sweep_profiles: int = 2, every_k: int = 4,
                        physics: bool = True, force: bool = False, refit=None, refit_budget: int = 20,
@@ -224,7 +625,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
                        refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
                        refine_extend=None, moment_tolerance: float = MOMENT_TOLERANCE,
-                       log=_progress) -> dict:
+                       training_dataset=None, log=_progress) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
@@ -252,11 +653,11 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     disorder realisations of the refitted Hamiltonian whose gains a candidate must beat (the
     realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
     posterior estimator): refine the amortized posterior of this family by that many simulations of
-    the film at the chosen M_s (``loop.fit``, rounds of ``refine_round_size``, ``refine_workers``
-    processes; ``refine_method`` "pmc" or "adjusted", ``loop.fit_cli.METHODS``); the refined medians
+    the film at the chosen M_s (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers``
+    processes; ``refine_method`` "pmc" or "adjusted", ``infer.fit_cli.METHODS``); the refined medians
     are the Hamiltonian re-simulated, so the residual analysis runs on the refined re-simulation;
     report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
-    method): the calibrated posterior-predictive check (``loop.predictive_check``) of the
+    method): the calibrated posterior-predictive check (``infer.predictive_check``) of the
     refinement; a family no in-prior film reproduces is flagged in the report (key
     ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
     the pmc method): refine in a box extended beyond the prior's bound and report the posterior mass past
@@ -264,197 +665,37 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     (made in the same box), and a family that a film beyond the bound fits better is flagged.
     ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
     not named an effect
-    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1)."""
-    from ..forc.raster import measurement_on_grid
-    from ..measured import read_forc
-
-    if fixed_point and not refit:
-        raise ConfigError("the fixed-point iteration needs a Hamiltonian refit (refit names, --refit)")
-    if refine_budget and (estimator != "posterior" or params is not None):
-        raise ConfigError("refinement by simulation (--refine) starts from the joint posterior: it needs "
-                          "--estimator posterior and a prediction, not --params")
-    if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
-        raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
-                          f"(round size {refine_round_size}) and >= 1 worker")
-    from ..core.parameters import TARGETS
-    from .fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
-
-    fit_function(refine_method)  # an unknown method: ConfigError before any simulation
-    if predictive_reference is not None and refine_method != "pmc":
-        raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
-                          "RMS: it needs --refine-method pmc")
-    if refine_extend and (not refine_budget or refine_method != "pmc"):
-        raise ConfigError("--refine-extend-prior needs --refine with --refine-method pmc")
-    extend = parse_extension(refine_extend, TARGETS)  # an unknown or non-extensible name: before any simulation
-    reference = None
-    if predictive_reference is not None:
-        if not refine_budget:
-            raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
-        from .predictive_check import read_reference
-
-        reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
-                                   budget_run=refine_budget, extend=extend)
-    if fixed_point and params is not None:
-        raise ConfigError("the fixed-point iteration predicts again from the corrected family: it needs the "
-                          "networks, not a given Hamiltonian (--params)")
-    if not 0.0 <= moment_tolerance < 1.0:
-        raise ConfigError(f"moment tolerance {moment_tolerance!r} (--moment-tolerance) must lie in [0, 1): a relative "
-                          "uncertainty of the moment normalization, e.g. 0.02 for ±2 %")
-    if measured_max_step_T is not None and not measured_max_step_T > 0:
-        raise ConfigError(f"measured-protocol field step {measured_max_step_T!r} T (--measured-max-step-mT) must be "
-                          "> 0: the re-simulation sweeps on a lattice of that step")
+    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1). Whatever the estimator, a
+    training-data check runs before any decoding (report key ``ood``; ``estimate``): the posterior's, or
+    for Alice the image-only check against the train split of ``training_dataset`` (default
+    ``models_dir``/../dataset.h5); a family flagged stops unless ``force``; a check that could not run
+    says why, and one whose reference is too small to flag anything says so (``can_flag``, ``warning``)."""
+    s = LoopSettings(params=params, models_dir=models_dir, ms_values_A_per_m=ms_values_A_per_m, profiles=profiles,
+                     sweep_profiles=sweep_profiles, every_k=every_k, physics=physics, force=force, refit=refit,
+                     refit_budget=refit_budget, measured_protocol=measured_protocol,
+                     measured_profiles=measured_profiles, max_measured_points=max_measured_points,
+                     measured_max_step_T=measured_max_step_T, estimator=estimator, posterior_path=posterior_path,
+                     fixed_point=fixed_point, null_realisations=null_realisations, refine_budget=refine_budget,
+                     refine_round_size=refine_round_size, refine_workers=refine_workers, refine_method=refine_method,
+                     predictive_reference=predictive_reference, refine_extend=refine_extend,
+                     moment_tolerance=moment_tolerance, training_dataset=training_dataset)
+    setup = check_options(s)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    data = read_forc(path)
-    B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
-    image, family, domain_note, moment_saturation, domain = measurement_on_grid(data, B_max, n, with_domain=True)
-    report = {"file": str(path), "format": data.format, "n_curves": len(data.curves),
-              "drift_percent": data.drift_percent, "drift_correction": _drift_note(data),
-              "moment_saturation_Am2": moment_saturation, "moment_offset_Am2": domain.moment_offset_Am2,
-              "in_domain": domain_note is None, "out_of_domain_reason": domain_note, "domain": domain.report()}
-    if domain_note is not None and not force:
-        report["status"] = "out of domain"
-        write_json(out / "report.json", _json_ready(report))
-        text = _markdown_domain(path, report) + "\nNo prediction is made (`--force` analyses it anyway).\n"
-        write_text(out / "report.md", text)
-        write_report_page(out, _json_ready(report), text, figures=())
+    measurement, report = read_domain(path, cfg)  # domain
+    if measurement.domain_note is not None and not force:
+        return stop(out, path, report, "out of domain", "\nNo prediction is made (`--force` analyses it anyway).\n")
+    hamiltonian = estimate(cfg, s, measurement, setup, report, out, path, log)  # estimate
+    if hamiltonian is None:  # not decoded: unlike the posterior's training data
         return report
-    from .physics_effects import analyse_residual, physics_candidate_families
-    from .resimulate import observation_error, protocol_name, resimulate_with_spread
-
-    fields = np.linspace(-B_max, B_max, n)
-    resim = None  # the final re-simulation, unless the prediction step already made it
-    predictor = None  # family -> Hamiltonian at the chosen M_s (fixed_point)
-    if params is not None:
-        report.update(parameters=params, Ms_source="given (--params)")
-    else:
-        ms_values = list(ms_values_A_per_m if ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
-        if estimator == "posterior":
-            from ..core.parameters import normalize
-            from ..learn.ood import ood_check
-            from ..learn.posterior import PosteriorEstimator, posterior_prediction
-
-            est = PosteriorEstimator.load(posterior_path)
-            checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
-            ood = max(checks, key=lambda c: c.get("p_value", 1.0))  # the most favourable M_s
-            report["ood"] = ood
-            log(f"training-data check: {ood['verdict']}")
-            if ood.get("out_of_distribution") and not force:
-                report["status"] = "out of distribution"
-                write_json(out / "report.json", _json_ready(report))
-                text = (_markdown_domain(path, report) + f"\n**Not decoded**: {ood['verdict']}. The posterior was "
-                        "trained on families that do not look like this one (`--force` decodes it anyway).\n")
-                write_text(out / "report.md", text)
-                write_report_page(out, _json_ready(report), text, figures=())
-                return report
-            models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
-        elif estimator == "alice":
-            from ..learn.predictor import load_models
-
-            models = load_models(models_dir)
-        else:
-            raise ConfigError(f"unknown estimator {estimator!r} (alice or posterior)")
-        best, sweep = predict_and_sweep(cfg, models, image, family, ms_values,
-                                        sweep_profiles if len(ms_values) > 1 else profiles, log=log)
-        params = best["params"]
-        if fixed_point:
-            predictor = family_predictor(models, best["Ms"])
-        report.update(parameters=params, prediction=best["prediction"], Ms_chosen_A_per_m=best["Ms"],
-                      Ms_source="given" if len(ms_values) == 1 else "swept",
-                      Ms_sweep=[{"Ms": r["Ms"], "observation_rms": r["observation_rms"]} for r in sweep])
-        if best["n_profiles"] == profiles:
-            resim, spread = best["family"], best["spread"]
-        if refine_budget:
-            report["refined"], params = _refine(cfg, est, image, family, best["Ms"], path, refine_budget,
-                                                refine_round_size, refine_workers, log, reference,
-                                                method=refine_method,
-                                                extend=extend)
-            report["parameters"] = params
-            resim = None  # re-simulate the refined Hamiltonian
-            check = report["refined"].get("predictive_check")
-            if check is not None:  # where this film lies among the reference's validation families
-                from .report_page import check_figure
-
-                check_figure(out / "predictive_check.png", reference, {Path(str(path)).name: check},
-                             title=f"{check['check']} check")
-    if resim is None:
-        resim, spread = resimulate_with_spread(cfg, params, n_profiles=profiles,
-                                               progress=counter("re-simulation", "profiles"))
-    error = observation_error(family, resim)
-    noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
-    # the model-free evidence field-shift and drift candidates need: is the major loop symmetric, do
-    # the saturated end points drift?
-    shift = drift = None
-    if noise:
-        from .signatures import drift_evidence_of, field_shift_of
-
-        shift = field_shift_of(data, moment_saturation, noise, domain.moment_offset_Am2)
-        drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
-        report["field_shift"], report["drift_evidence"] = shift, drift
-    final_params = params
-    # the measured points themselves for the saturation test (the re-simulated major loop tells where the
-    # film is saturated; the measured protocol is re-simulated quasi-statically only)
-    points = None
-    if protocol_name(cfg) == "quasistatic" and moment_saturation > 0:
-        from .signatures import measured_point_arrays
-
-        points = measured_point_arrays(data, moment_saturation, domain.moment_offset_Am2)
-    if refit and fixed_point:
-        from .fixed_point import predict_correct_iterate
-
-        analysis = predict_correct_iterate(cfg, predictor, family, fields, names=tuple(refit), budget=refit_budget,
-                                           noise_sigma=noise, every_k=every_k, n_profiles=sweep_profiles,
-                                           physics=physics, log=log, null_realisations=null_realisations,
-                                           field_shift=shift, drift=drift, moment_tolerance=moment_tolerance,
-                                           measured_points=points,
-                                           progress=counter("Hamiltonian refit", "re-simulations"))
-        report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
-        analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
-    elif refit:
-        from .refit import analyse_with_refit
-
-        analysis = analyse_with_refit(cfg, params, family, fields, names=tuple(refit), every_k=every_k,
-                                      null_realisations=null_realisations,
-                                      n_profiles=sweep_profiles, budget=refit_budget, physics=physics,
-                                      noise_sigma=noise, field_shift=shift, drift=drift,
-                                      moment_tolerance=moment_tolerance, measured_points=points,
-                                      shift_protocol=((data.reversal_fields_T,
-                                                       [c.field_T for c in data.curves])
-                                                      if shift is not None and protocol_name(cfg) == "quasistatic"
-                                                      else None),
-                                      progress=counter("Hamiltonian refit", "re-simulations"))
-    if refit:
-        final_params = analysis["hamiltonian"]["refit_without_effect"]
-        report["hamiltonian"] = analysis["hamiltonian"]
-        if analysis.get("field_shift") is not None:
-            report["field_shift"] = analysis["field_shift"]  # calibrated by simulation when the refit ran
-        report["refit"] = analysis["refit"]
-    else:
-        candidates = (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
-                      if physics else {})
-        from .refit import measured_saturation
-
-        saturated = measured_saturation(cfg, params, points) if points is not None else None
-        analysis = analyse_residual(family, resim, fields, every_k=every_k, seed=cfg["seed"], noise_sigma=noise,
-                                    floor_variance=spread, n_profiles=profiles, field_shift=shift, drift=drift,
-                                    moment_tolerance=moment_tolerance, saturation_points=saturated, **candidates)
-    residual = family - resim
-    report.update(status="analysed", observation_rms=error["rms"],
-                  per_curve_rms=[None if not np.isfinite(v) else float(v) for v in error["per_curve"]],
-                  effect=analysis["chosen"], verdict=analysis["verdict"], verdict_text=analysis["verdict_text"],
-                  analysis=_json_ready(analysis),
-                  heldout_rms_before=analysis["heldout_rms_before"], heldout_rms_after=analysis["heldout_rms_after"])
-    if measured_protocol and protocol_name(cfg) == "quasistatic":
-        report["measured_points"] = measured_points_residual(
-            cfg, final_params, data, domain, n_profiles=measured_profiles, max_points=max_measured_points,
-            max_step_T=measured_max_step_T, progress=counter("measured protocol", "profiles"))
-    _figures(out, fields, family, resim, residual, analysis.get("arrays", {}).get("residual_after"))
-    report["diagram_peaks"] = diagrams_figure(out / "diagrams.png", fields, family, resim)
-    write_json(out / "report.json", _json_ready(report))
-    text = _markdown(path, report, analysis)
-    write_text(out / "report.md", text)
-    write_report_page(out, _json_ready(report), text)
-    return report
+    resim, spread = resimulate_estimate(cfg, s, hamiltonian)  # re-simulate
+    residual = residual_evidence(cfg, measurement, resim, report)  # residual
+    if refit:  # candidates and judge, against the Hamiltonian refitted without each candidate
+        judgement = judge_with_refit(cfg, s, measurement, hamiltonian, residual, report, log)
+    else:  # candidates, judge
+        candidates = physics_candidates(cfg, s, hamiltonian.params)
+        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, resim, spread, residual, candidates)
+    return write_report(out, path, cfg, s, measurement, resim, residual, judgement, report)  # report
 
 
 def _markdown_domain(path, report) -> str:
@@ -490,8 +731,27 @@ def _markdown_domain(path, report) -> str:
     return "\n".join(lines)
 
 
+def _ood_lines(report) -> list[str]:
+    """The training-data check in Markdown (empty without one)."""
+    ood = report.get("ood")
+    if not ood:
+        return []
+    lines = ["## Training-data check (out of prior)", "",
+             f"Looks like the training data? {ood['verdict']}."]
+    details = [f"check: {ood['check']}" if ood.get("check") else None, ood.get("Ms_note"),
+               (f"{ood['n_validation']} held-out reference families, smallest p {ood['smallest_p']:.3f}, "
+                f"alpha {ood['alpha']:g}") if "smallest_p" in ood else None,
+               f"reference {ood['reference']}" if ood.get("reference") else None]
+    details = [d for d in details if d]
+    if details:
+        lines += ["", "(" + "; ".join(details) + ")"]
+    if ood.get("warning"):
+        lines += ["", f"**Warning: {ood['warning']}.**"]
+    return lines + [""]
+
+
 def _markdown(path, report, analysis) -> str:
-    lines = [_markdown_domain(path, report)]
+    lines = [_markdown_domain(path, report), *_ood_lines(report)]
     prediction = report.get("prediction")
     if prediction:
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
@@ -526,7 +786,7 @@ def _markdown(path, report, analysis) -> str:
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
             if refined.get("beyond_prior"):
-                from .fit_cli import beyond_prior_lines
+                from ..infer.fit_cli import beyond_prior_lines
 
                 lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")
@@ -537,8 +797,6 @@ def _markdown(path, report, analysis) -> str:
                                ("Extension check: " if extension else "Posterior-predictive check: "))
                           + check["verdict"] + (".**" if check["misspecified"] else "."), "",
                           "![the check against its validation reference](predictive_check.png)"]
-        if report.get("ood"):
-            lines += ["", f"Looks like the training data? {report['ood']['verdict']}."]
         if len(report.get("Ms_sweep", [])) > 1:
             lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
     lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "

@@ -36,13 +36,16 @@ chosen one and lists the other under ``same_observable_as``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from ..core.streams import stream_rng
 from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
-                      measurement_clock)
+                      measurement_clock, bootstrap_resamples)
+from .effects import HAMILTONIAN_CHANGE, equivalent_candidates, separating_measurements
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -94,9 +97,9 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
     "soft_phase_families": {K_u_soft: family}, "hamiltonian_families": {c: family},
     "physics_reference_family": family without an effect}, ready for ``analyse_residual(..., **this)``."""
-    from .resimulate import resimulate
+    from ..infer.resimulate import resimulate
 
-    from .resimulate import protocol_name
+    from ..infer.resimulate import protocol_name
 
     tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
     total = (1 + len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())
@@ -280,7 +283,7 @@ def _reduction_ci(before, after, rng, n_boot):
     before, after = before[both], after[both]
     if before.size == 0 or before.sum() == 0:
         return float("nan"), [float("nan"), float("nan")]
-    pick = rng.integers(0, before.size, size=(n_boot, before.size))
+    pick = bootstrap_resamples(rng, n_boot, before.size)
     boots = 1 - np.sqrt(after[pick].sum(axis=1) / np.maximum(before[pick].sum(axis=1), 1e-300))
     return float(1 - np.sqrt(after.sum() / before.sum())), [float(np.quantile(boots, 0.05)),
                                                                float(np.quantile(boots, 0.95))]
@@ -290,6 +293,417 @@ def _rms_per_curve(residual):
     counts = np.isfinite(residual).sum(axis=1)
     sums = np.nansum(residual**2, axis=1)
     return [float(np.sqrt(s / c)) if c else None for s, c in zip(sums, counts)]
+
+
+@dataclass
+class ResidualProblem:
+    """What every stage of ``analyse_residual`` reads: the measured and re-simulated families on the grid
+    ``fields``, the measurement clock ``order``, the held-out ``folds`` and ``everything`` (all curves
+    that are fitted)."""
+
+    measured: np.ndarray
+    base_family: np.ndarray
+    fields: np.ndarray
+    order: np.ndarray
+    folds: list
+    everything: list
+
+
+@dataclass
+class CandidateLibrary:
+    """Each candidate: name → (kind, number of fitted parameters, fit(rows) → (model, parameters,
+    uncertainties)); ``at_edge``: filled by the physics fits (whether the fitted size lies at the edge of
+    its grid); the physics candidates' names, the soft phase's grid and the Hamiltonian's neighbourhood
+    (on the base model when the physics families came with their own reference)."""
+
+    fits: dict
+    at_edge: dict
+    physics_names: list
+    soft_phase_families: dict | None
+    hamiltonian_families: dict
+
+
+@dataclass
+class CandidateFits:
+    """Per candidate: held-out MSE per curve (``mse``), its model fitted on all curves (``models``) and
+    its record (kind, parameters, uncertainties, gains, gate outcomes)."""
+
+    mse: dict
+    records: dict
+    models: dict
+
+
+@dataclass
+class Baselines:
+    """What a candidate must also beat: the base model with its normalization free inside the moment
+    tolerance (``nuisance_mse``), K_u moved along its neighbourhood (``knob_mse``, summarized in
+    ``hamiltonian``)."""
+
+    nuisance_mse: np.ndarray | None
+    knob_mse: np.ndarray | None
+    hamiltonian: dict | None
+
+
+@dataclass
+class GateSettings:
+    """The gates' settings (see ``analyse_residual``)."""
+
+    seed: int
+    n_boot: int
+    min_relative_gain: float
+    equivalence: float
+    null_gain: dict | None
+    null_margin: float
+    field_shift: dict | None
+    drift: dict | None
+    moment_tolerance: float
+    evidence_suffices: bool
+    saturation_gate: bool
+    saturation_points: object
+
+
+@dataclass
+class Offered:
+    """The candidates that passed the gates (name → held-out MSE per curve) and those whose model-free
+    evidence spares them the bootstrap bound (``choose_candidate(evidenced=)``)."""
+
+    mse: dict
+    evidenced: set
+
+
+@dataclass
+class Choice:
+    """The chosen candidate, every candidate's record with its scores, and the held-out reduction."""
+
+    chosen: str
+    candidates: dict
+    reduction: float
+    reduction_ci: list
+
+
+@dataclass
+class Verdict:
+    """The verdict on the chosen model's residual: its structure, the saturation test, the verdict."""
+
+    verdict: str
+    verdict_text: str
+    structure: dict
+    saturation: dict | None
+    ambiguous: list = field(default_factory=list)
+    separating_measurements: dict = field(default_factory=dict)
+
+
+def residual_problem(measured, base_family, fields, order, every_k: int, cross_fit: bool) -> ResidualProblem:
+    """The families as float arrays, the clock (default ``measurement_clock``) and the held-out folds."""
+    measured = np.asarray(measured, dtype=float)
+    base_family = np.asarray(base_family, dtype=float)
+    fields = np.asarray(fields, dtype=float)
+    n = measured.shape[0]
+    order = measurement_clock(n) if order is None else np.asarray(order, dtype=float)
+    folds = heldout_folds(measured, every_k, cross_fit)
+    everything = sorted(i for fold in folds[:1] for part in fold for i in part)
+    return ResidualProblem(measured, base_family, fields, order, folds, everything)
+
+
+def candidate_library(p: ResidualProblem, *, physics_families, soft_phase_families, measured_candidates,
+                      thermal: bool, physics_reference_family, hamiltonian_families) -> CandidateLibrary:
+    """Every candidate and its fit: "none", the measured-side effects, the gridded physics effects, the
+    second phase and thermal activation."""
+    measured, base_family, fields, order = p.measured, p.base_family, p.fields, p.order
+    hamiltonian_families = {v: np.asarray(f, float) for v, f in (hamiltonian_families or {}).items()}
+    # each candidate: kind, number of fitted parameters, fit(rows) -> (model, parameters, uncertainties)
+    candidates = {}
+    for name in ["none"] + [k for k in (measured_candidates or EFFECTS) if k != "none"]:
+        def fit(rows, effect=EFFECTS[name]):
+            theta, errors = fit_effect(effect, measured, base_family, fields, order, rows)
+            return (effect.model(base_family, fields, order, theta), dict(zip(effect.parameters, map(float, theta))),
+                    dict(zip(effect.parameters, map(float, errors))))
+        candidates[name] = ("measured" if name != "none" else "none", len(EFFECTS[name].parameters), fit)
+    if physics_reference_family is not None:
+        # each gridded effect as the change it makes on its own realisation, put on the base model
+        reference = np.asarray(physics_reference_family, float)
+        physics_families = {name: {v: base_family + (np.asarray(f, float) - reference) for v, f in families.items()}
+                            for name, families in (physics_families or {}).items()}
+        hamiltonian_families = {v: base_family + (f - reference) for v, f in hamiltonian_families.items()}
+    at_edge = {}
+    for name, families in (physics_families or {}).items():
+        def fit(rows, name=name, families=families, parameter=PHYSICS_PARAMETERS.get(name, "value")):
+            result = fit_interpolated_effect(measured, families, base_family, rows)
+            at_edge[name] = result["at_grid_edge"]
+            return result["model"], {parameter: result["value"]}, {parameter: result["uncertainty"]}
+        candidates[name] = ("physics", 1, fit)
+    if soft_phase_families:
+        def fit(rows):
+            result = fit_second_phase(measured, base_family, soft_phase_families, rows)
+            model, uncertainties = result.pop("model"), result.pop("uncertainties")
+            return model, result, uncertainties
+        candidates["second_phase"] = ("physics", 2, fit)
+    if thermal:
+        def fit(rows):
+            epsilon, error, model = fit_thermal(measured, base_family, fields, rows)
+            return model, {"epsilon": epsilon}, {"epsilon": error}
+        candidates["thermal_activation"] = ("physics", 1, fit)
+    return CandidateLibrary(candidates, at_edge, list(physics_families or {}), soft_phase_families,
+                            hamiltonian_families)
+
+
+def fit_candidates(p: ResidualProblem, library: CandidateLibrary) -> CandidateFits:
+    """Each candidate's held-out MSE per curve and its fit on all curves."""
+    mse, records, models = {}, {}, {}
+    for name, (kind, n_parameters, fit) in library.fits.items():
+        mse[name] = heldout_mse(p.measured, lambda rows, fit=fit: fit(rows)[0], p.folds)
+        models[name], parameters, uncertainties = fit(p.everything)
+        records[name] = {"kind": kind, "n_parameters": n_parameters, "parameters": parameters,
+                         "uncertainties": uncertainties}
+    for name in library.physics_names:
+        records[name]["at_grid_edge"] = library.at_edge[name]  # of the fit on all curves, the last one made
+    soft_phase_families = library.soft_phase_families
+    if soft_phase_families:
+        records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
+                                                       in (min(soft_phase_families), max(soft_phase_families)))
+    return CandidateFits(mse, records, models)
+
+
+def _normalization_fit(p: ResidualProblem, rows, moment_tolerance: float) -> float:
+    """The base model with its moment normalization free inside the tolerance: a·m_sim, a fitted
+    by least squares on ``rows`` and clipped to 1 ± ``moment_tolerance``."""
+    measured, base_family = p.measured, p.base_family
+    mask = np.zeros(measured.shape, dtype=bool)
+    mask[list(rows)] = True
+    ok = mask & np.isfinite(measured) & np.isfinite(base_family)
+    sxx = float((base_family[ok] ** 2).sum())
+    a = float((base_family[ok] * measured[ok]).sum() / sxx) if sxx > 0 else 1.0
+    return float(np.clip(a, 1 - moment_tolerance, 1 + moment_tolerance))
+
+
+def baselines(p: ResidualProblem, hamiltonian_families: dict, moment_tolerance: float) -> Baselines:
+    """The held-out MSE of the free normalization and of K_u's neighbourhood (where given)."""
+    measured, base_family = p.measured, p.base_family
+    nuisance_mse = (heldout_mse(measured, lambda rows: _normalization_fit(p, rows, moment_tolerance) * base_family,
+                                p.folds)
+                    if moment_tolerance > 0 else None)
+    knob_mse, hamiltonian = None, None
+    if hamiltonian_families:
+        def knob(rows):
+            return fit_interpolated_effect(measured, hamiltonian_families, base_family, rows)
+        knob_mse = heldout_mse(measured, lambda rows: knob(rows)["model"], p.folds)
+        fitted = knob(p.everything)
+        hamiltonian = {"K_u_change": fitted["value"], "K_u_change_uncertainty": fitted["uncertainty"],
+                       "heldout_rms": float(np.sqrt(np.nanmean(knob_mse)))}
+    return Baselines(nuisance_mse, knob_mse, hamiltonian)
+
+
+def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g: GateSettings) -> Offered:
+    """Record each candidate's gain and offer it to the selection only past the gates: the moment
+    tolerance, the saturation test, the model-free shift and drift evidence, the free normalization,
+    K_u's neighbourhood and the realisation floor (see ``analyse_residual``)."""
+    measured, base_family, fields = p.measured, p.base_family, p.fields
+    mse, records, models = fits.mse, fits.records, fits.models
+    nuisance_mse, knob_mse = base.nuisance_mse, base.knob_mse
+    null_gain, null_margin, moment_tolerance = g.null_gain, g.null_margin, g.moment_tolerance
+    field_shift, drift, saturation_points = g.field_shift, g.drift, g.saturation_points
+    n_boot, min_relative_gain, equivalence = g.n_boot, g.min_relative_gain, g.equivalence
+    saturation_gate, evidence_suffices = g.saturation_gate, g.evidence_suffices
+    gate_rng = stream_rng(g.seed, "bootstrap", "hamiltonian_gate")
+
+    none_mse = float(np.nanmean(mse["none"]))
+    offered = dict(mse)
+    evidenced = set()  # shown by the model-free shift or drift test: ``choose_candidate(evidenced=)``
+    for name in records:
+        gain_mse = none_mse - float(np.nanmean(mse[name]))
+        records[name]["gain_mse_mean"] = gain_mse
+        records[name]["relative_gain"] = gain_mse / none_mse if none_mse > 0 else 0.0
+        records[name]["heldout_mse_per_curve"] = [None if not np.isfinite(v) else float(v) for v in mse[name]]
+        if name == "none":
+            continue
+        if null_gain is not None:
+            # recorded for every candidate (the gates below may spare one the floor)
+            null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
+            records[name]["null_gain"] = dict(null)
+            records[name]["beats_null"] = bool(
+                records[name]["relative_gain"] > max(null["relative"], 0.0) + null_margin
+                and gain_mse > max(null["mse"], 0.0) * (1 + null_margin))
+        if name in EFFECTS and "scale" in EFFECTS[name].components:
+            scale = records[name]["parameters"].get("scale", 1.0)
+            records[name]["within_moment_tolerance"] = bool(abs(scale - 1.0) <= moment_tolerance)
+            if records[name]["within_moment_tolerance"]:
+                offered.pop(name, None)  # the normalization's own error, not an instrument effect
+                continue
+        if saturation_gate and saturation_gated(name, records[name]["kind"]):
+            # a time-independent map of (H, m) must leave noise where the film is saturated: a reversible
+            # residual there (a paramagnet, a non-linear background) is not what it models; a bias field
+            # moves the saturated film as an offset does
+            if saturation_points is not None:
+                shift = candidate_shift(records[name]["parameters"])
+                check = saturation_residual_points(saturation_points, offset_T=shift[0] if shift else 0.0,
+                                                   moment_tolerance=moment_tolerance, free=saturation_terms(name))
+            else:
+                check = saturation_residual(measured, models[name], base_family, fields,
+                                            moment_tolerance=moment_tolerance, free=saturation_terms(name))
+            records[name]["saturation_evidence"] = check
+            if check["reversible"]:
+                offered.pop(name, None)
+                continue
+        shift_checked = field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None
+        if shift_checked:
+            check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"],
+                                    resolution_T=float(abs(fields[1] - fields[0])) / np.sqrt(12.0))
+            records[name]["shift_evidence"] = check
+            # a shift combined with a drift needs the drift's evidence too: each component its own
+            drift_ok = drift_agreement(drift, name) if drift is not None else None
+            if drift_ok is not None:
+                records[name]["drift_evidence"] = drift_ok
+            if not (field_shift["significant"] and check["agrees"]) or drift_ok is False:
+                # the loop's own symmetry shows no shift, or not this one (or the saturated ends show no
+                # such drift): a fitted shift would cover the difference between the model's film and
+                # the sample, not an effect
+                offered.pop(name)
+            elif evidence_suffices:
+                evidenced.add(name)
+            continue  # a shift the data show by themselves: no realisation floor, no further gate
+        drift_ok = drift_agreement(drift, name) if drift is not None else None
+        if drift_ok is not None:
+            records[name]["drift_evidence"] = drift_ok
+            if not drift_ok:
+                offered.pop(name, None)  # the saturated end points do not drift that way
+            elif evidence_suffices:
+                evidenced.add(name)
+            continue
+        if nuisance_mse is not None and records[name]["kind"] == "measured" and "scale" in records[name]["parameters"]:
+            # a candidate with its own scale must also beat the base whose normalization is free inside
+            # the tolerance (else its other terms only carry a normalization error, e.g. a background
+            # of χ = 3e-4 /T beside a 0.45 % gain)
+            records[name]["beats_normalization"] = bool(_beats(mse[name], nuisance_mse, gate_rng, n_boot,
+                                                               min_relative_gain, equivalence))
+            if not records[name]["beats_normalization"]:
+                offered.pop(name, None)
+                continue
+        if knob_mse is not None and (records[name]["kind"] == "physics" or shifts_field(name)):
+            # switching fields move with K_u too: beat K_u moved along its neighbourhood
+            records[name]["beats_hamiltonian"] = bool(_beats(mse[name], knob_mse, gate_rng, n_boot, min_relative_gain,
+                                                             equivalence))
+            if not records[name]["beats_hamiltonian"]:
+                offered.pop(name, None)
+                continue
+        if null_gain is not None and not records[name]["beats_null"]:
+            offered.pop(name)
+    return Offered(offered, evidenced)
+
+
+def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int, n_boot: int,
+           min_relative_gain: float, equivalence: float) -> Choice:
+    """The candidate chosen on held-out curves among those offered (``effects.choose_candidate``), every
+    candidate's scores, and the held-out reduction of the chosen one with its bootstrap interval."""
+    mse, records = fits.mse, fits.records
+    rng = stream_rng(seed, "bootstrap", "analyse_residual")
+    chosen, scores = choose_candidate(offered.mse, {k: v["n_parameters"] for k, v in records.items()}, rng,
+                                      n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced)
+    for name in set(records) - set(offered.mse):
+        scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
+                        "relative_gain_ci90": None, "accepted": False}
+    candidates = {k: {**records[k], **scores[k]} for k in records}
+    reduction, reduction_ci = _reduction_ci(mse["none"], mse[chosen], rng, n_boot)
+    return Choice(chosen, candidates, reduction, reduction_ci)
+
+
+def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, floor_variance, n_profiles: int,
+          saturation_gate: bool, saturation_points, moment_tolerance: float) -> Verdict:
+    """The structure test of the chosen model's residual (``loop.structure``) and the saturation test:
+    the chosen effect, "none", or "unexplained structured residual" (and where it lives)."""
+    from .structure import describe, residual_structure
+
+    measured, base_family, fields = p.measured, p.base_family, p.fields
+    records, models = fits.records, fits.models
+    residual_after = measured - models[chosen]
+    structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
+    saturation = None
+    if saturation_gate:
+        saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
+                      if saturation_points is not None else
+                      saturation_residual(measured, models["none"], base_family, fields,
+                                          moment_tolerance=moment_tolerance))
+    rejected_in_saturation = sorted(k for k, v in records.items() if v.get("saturation_evidence", {}).get("reversible"))
+    if chosen == "none" and saturation is not None and saturation.get("reversible") and rejected_in_saturation:
+        verdict = "unexplained structured residual"
+        verdict_text = (f"unexplained structured residual: a reversible residual where the film is saturated "
+                        f"(column means up to {saturation['max_abs_mean']:.3g} at {min(saturation['fields_T']):.2f}…"
+                        f"{max(saturation['fields_T']):.2f} T, χ² {saturation['chi2']:.0f} on {saturation['dof']} dof) that "
+                        f"{', '.join(rejected_in_saturation)} do not remove: something outside the library "
+                        "(a field-only term such as a paramagnet or a non-linear background, or a signal that "
+                        "lags the field)")
+    elif chosen == "none" and structure["structured"]:
+        verdict, verdict_text = "unexplained structured residual", describe(structure)
+    elif chosen == "none":
+        verdict, verdict_text = "none", "no candidate earns its place and the residual is not structured beyond the noise"
+    else:
+        verdict = chosen
+        verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
+                                             if structure["structured"] else "")
+    return Verdict(verdict, verdict_text, structure, saturation)
+
+
+def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: str, verdict: Verdict, *, seed: int,
+              n_boot: int, min_relative_gain: float, equivalence: float) -> Verdict:
+    """Ambiguity as an answer: the candidates that explain the held-out residual as well as the chosen
+    one (``effects.equivalent_candidates``: each beats "none", neither beats the other; nested ones and
+    one observable excluded), K_u moved along its neighbourhood included as ``effects.HAMILTONIAN_CHANGE``
+    where it was given. Where nothing is chosen, a physics candidate that beats "none" but was withheld
+    only because K_u's neighbourhood explains the residual as well (and no better) is ambiguous with
+    that K_u change (a field tilt, K_2 or thermal activation against the decoded K_u). The verdict is
+    then "ambiguous", with the set and, for each member, the measurement that would separate it.
+    Draws on its own bootstrap stream (``ambiguity``), after the choice: the choice is unchanged."""
+    rng = stream_rng(seed, "bootstrap", "ambiguity")
+    pool = dict(offered.mse)
+    if base.knob_mse is not None:
+        pool[HAMILTONIAN_CHANGE] = base.knob_mse
+    options = dict(n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence)
+    if chosen != "none":
+        members = equivalent_candidates(pool, chosen, rng, same_observable=SAME_OBSERVABLE, **options)
+        members = sorted(set(members) | {chosen}) if members else []
+    elif base.knob_mse is not None and HAMILTONIAN_CHANGE in pool:
+        withheld = {name: fits.mse[name] for name, record in fits.records.items()
+                    if record.get("beats_hamiltonian") is False and name not in offered.mse}
+        equal = equivalent_candidates({**withheld, "none": fits.mse["none"], HAMILTONIAN_CHANGE: base.knob_mse},
+                                      HAMILTONIAN_CHANGE, rng, same_observable=SAME_OBSERVABLE, **options)
+        beats_none = _beats(base.knob_mse, fits.mse["none"], rng, **options)
+        members = sorted(set(equal) | {HAMILTONIAN_CHANGE}) if equal and beats_none else []
+    else:
+        members = []
+    if not members:
+        return verdict
+    separating = separating_measurements(members)
+    text = (f"ambiguous: {', '.join(members)} explain the held-out residual equally (neither beats the other "
+            "beyond its noise); to tell them apart: " + "; ".join(f"{k}: {v}" for k, v in separating.items()))
+    return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
+
+
+def residual_report(p: ResidualProblem, fits: CandidateFits, base: Baselines, choice: Choice, verdict: Verdict,
+                    field_shift: dict | None, drift: dict | None) -> dict:
+    """The result of ``analyse_residual`` (see there)."""
+    measured, base_family = p.measured, p.base_family
+    records, models, folds = fits.records, fits.models, p.folds
+    chosen, candidates = choice.chosen, choice.candidates
+    residual_before = measured - base_family
+    residual_after = measured - models[chosen]
+    same = [k for group in SAME_OBSERVABLE if chosen in group for k in sorted(group - {chosen}) if k in candidates]
+    return {"verdict": verdict.verdict, "verdict_text": verdict.verdict_text, "structure": verdict.structure,
+            "ambiguous": list(verdict.ambiguous), "separating_measurements": dict(verdict.separating_measurements),
+            "field_shift": field_shift,
+            "saturation": verdict.saturation,
+            "hamiltonian_neighbourhood": base.hamiltonian,
+            "drift": drift,
+            "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
+            "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
+            "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),
+            "residual_rms_after": float(np.sqrt(np.nanmean(residual_after**2))),
+            "per_curve_rms_before": _rms_per_curve(residual_before),
+            "per_curve_rms_after": _rms_per_curve(residual_after),
+            "heldout_curves": [i for _, held in folds for i in held],
+            "heldout_rms_before": candidates["none"]["heldout_rms"],
+            "heldout_rms_after": candidates[chosen]["heldout_rms"], "heldout_reduction": choice.reduction,
+            "heldout_reduction_ci90": choice.reduction_ci,
+            "arrays": {"model": models[chosen], "residual_before": residual_before, "residual_after": residual_after},
+            }
 
 
 def analyse_residual(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
@@ -398,211 +812,21 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     saturation test then run on them (``signatures.saturation_residual_points``) instead of on the
     deep-saturated grid points.
     """
-    measured = np.asarray(measured, dtype=float)
-    base_family = np.asarray(base_family, dtype=float)
-    fields = np.asarray(fields, dtype=float)
-    n = measured.shape[0]
-    order = measurement_clock(n) if order is None else np.asarray(order, dtype=float)
-    folds = heldout_folds(measured, every_k, cross_fit)
-    everything = sorted(i for fold in folds[:1] for part in fold for i in part)
-
-    hamiltonian_families = {v: np.asarray(f, float) for v, f in (hamiltonian_families or {}).items()}
-
-    def normalization_fit(rows):
-        """The base model with its moment normalization free inside the tolerance: a·m_sim, a fitted
-        by least squares on ``rows`` and clipped to 1 ± ``moment_tolerance``."""
-        mask = np.zeros(measured.shape, dtype=bool)
-        mask[list(rows)] = True
-        ok = mask & np.isfinite(measured) & np.isfinite(base_family)
-        sxx = float((base_family[ok] ** 2).sum())
-        a = float((base_family[ok] * measured[ok]).sum() / sxx) if sxx > 0 else 1.0
-        return float(np.clip(a, 1 - moment_tolerance, 1 + moment_tolerance))
-
-    # each candidate: kind, number of fitted parameters, fit(rows) -> (model, parameters, uncertainties)
-    candidates = {}
-    for name in ["none"] + [k for k in (measured_candidates or EFFECTS) if k != "none"]:
-        def fit(rows, effect=EFFECTS[name]):
-            theta, errors = fit_effect(effect, measured, base_family, fields, order, rows)
-            return (effect.model(base_family, fields, order, theta), dict(zip(effect.parameters, map(float, theta))),
-                    dict(zip(effect.parameters, map(float, errors))))
-        candidates[name] = ("measured" if name != "none" else "none", len(EFFECTS[name].parameters), fit)
-    if physics_reference_family is not None:
-        # each gridded effect as the change it makes on its own realisation, put on the base model
-        reference = np.asarray(physics_reference_family, float)
-        physics_families = {name: {v: base_family + (np.asarray(f, float) - reference) for v, f in families.items()}
-                            for name, families in (physics_families or {}).items()}
-        hamiltonian_families = {v: base_family + (f - reference) for v, f in hamiltonian_families.items()}
-    at_edge = {}
-    for name, families in (physics_families or {}).items():
-        def fit(rows, name=name, families=families, parameter=PHYSICS_PARAMETERS.get(name, "value")):
-            result = fit_interpolated_effect(measured, families, base_family, rows)
-            at_edge[name] = result["at_grid_edge"]
-            return result["model"], {parameter: result["value"]}, {parameter: result["uncertainty"]}
-        candidates[name] = ("physics", 1, fit)
-    if soft_phase_families:
-        def fit(rows):
-            result = fit_second_phase(measured, base_family, soft_phase_families, rows)
-            model, uncertainties = result.pop("model"), result.pop("uncertainties")
-            return model, result, uncertainties
-        candidates["second_phase"] = ("physics", 2, fit)
-    if thermal:
-        def fit(rows):
-            epsilon, error, model = fit_thermal(measured, base_family, fields, rows)
-            return model, {"epsilon": epsilon}, {"epsilon": error}
-        candidates["thermal_activation"] = ("physics", 1, fit)
-
-    mse, records, models = {}, {}, {}
-    for name, (kind, n_parameters, fit) in candidates.items():
-        mse[name] = heldout_mse(measured, lambda rows, fit=fit: fit(rows)[0], folds)
-        models[name], parameters, uncertainties = fit(everything)
-        records[name] = {"kind": kind, "n_parameters": n_parameters, "parameters": parameters,
-                         "uncertainties": uncertainties}
-    for name in physics_families or {}:
-        records[name]["at_grid_edge"] = at_edge[name]  # of the fit on all curves, the last one made
-    if soft_phase_families:
-        records["second_phase"]["at_grid_edge"] = bool(records["second_phase"]["parameters"]["K_u_soft_J_per_m3"]
-                                                       in (min(soft_phase_families), max(soft_phase_families)))
-    nuisance_mse = (heldout_mse(measured, lambda rows: normalization_fit(rows) * base_family, folds)
-                    if moment_tolerance > 0 else None)
-    knob_mse, hamiltonian = None, None
-    if hamiltonian_families:
-        def knob(rows):
-            return fit_interpolated_effect(measured, hamiltonian_families, base_family, rows)
-        knob_mse = heldout_mse(measured, lambda rows: knob(rows)["model"], folds)
-        fitted = knob(everything)
-        hamiltonian = {"K_u_change": fitted["value"], "K_u_change_uncertainty": fitted["uncertainty"],
-                       "heldout_rms": float(np.sqrt(np.nanmean(knob_mse)))}
-    gate_rng = stream_rng(seed, "bootstrap", "hamiltonian_gate")
-
-    none_mse = float(np.nanmean(mse["none"]))
-    offered = dict(mse)
-    evidenced = set()  # shown by the model-free shift or drift test: ``choose_candidate(evidenced=)``
-    for name in records:
-        gain_mse = none_mse - float(np.nanmean(mse[name]))
-        records[name]["gain_mse_mean"] = gain_mse
-        records[name]["relative_gain"] = gain_mse / none_mse if none_mse > 0 else 0.0
-        records[name]["heldout_mse_per_curve"] = [None if not np.isfinite(v) else float(v) for v in mse[name]]
-        if name == "none":
-            continue
-        if null_gain is not None:
-            # recorded for every candidate (the gates below may spare one the floor)
-            null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
-            records[name]["null_gain"] = dict(null)
-            records[name]["beats_null"] = bool(
-                records[name]["relative_gain"] > max(null["relative"], 0.0) + null_margin
-                and gain_mse > max(null["mse"], 0.0) * (1 + null_margin))
-        if name in EFFECTS and "scale" in EFFECTS[name].components:
-            scale = records[name]["parameters"].get("scale", 1.0)
-            records[name]["within_moment_tolerance"] = bool(abs(scale - 1.0) <= moment_tolerance)
-            if records[name]["within_moment_tolerance"]:
-                offered.pop(name, None)  # the normalization's own error, not an instrument effect
-                continue
-        if saturation_gate and saturation_gated(name, records[name]["kind"]):
-            # a time-independent map of (H, m) must leave noise where the film is saturated: a reversible
-            # residual there (a paramagnet, a non-linear background) is not what it models; a bias field
-            # moves the saturated film as an offset does
-            if saturation_points is not None:
-                shift = candidate_shift(records[name]["parameters"])
-                check = saturation_residual_points(saturation_points, offset_T=shift[0] if shift else 0.0,
-                                                   moment_tolerance=moment_tolerance, free=saturation_terms(name))
-            else:
-                check = saturation_residual(measured, models[name], base_family, fields,
-                                            moment_tolerance=moment_tolerance, free=saturation_terms(name))
-            records[name]["saturation_evidence"] = check
-            if check["reversible"]:
-                offered.pop(name, None)
-                continue
-        shift_checked = field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None
-        if shift_checked:
-            check = shift_agreement(field_shift, records[name]["parameters"], records[name]["uncertainties"],
-                                    resolution_T=float(abs(fields[1] - fields[0])) / np.sqrt(12.0))
-            records[name]["shift_evidence"] = check
-            # a shift combined with a drift needs the drift's evidence too: each component its own
-            drift_ok = drift_agreement(drift, name) if drift is not None else None
-            if drift_ok is not None:
-                records[name]["drift_evidence"] = drift_ok
-            if not (field_shift["significant"] and check["agrees"]) or drift_ok is False:
-                # the loop's own symmetry shows no shift, or not this one (or the saturated ends show no
-                # such drift): a fitted shift would cover the difference between the model's film and
-                # the sample, not an effect
-                offered.pop(name)
-            elif evidence_suffices:
-                evidenced.add(name)
-            continue  # a shift the data show by themselves: no realisation floor, no further gate
-        drift_ok = drift_agreement(drift, name) if drift is not None else None
-        if drift_ok is not None:
-            records[name]["drift_evidence"] = drift_ok
-            if not drift_ok:
-                offered.pop(name, None)  # the saturated end points do not drift that way
-            elif evidence_suffices:
-                evidenced.add(name)
-            continue
-        if nuisance_mse is not None and records[name]["kind"] == "measured" and "scale" in records[name]["parameters"]:
-            # a candidate with its own scale must also beat the base whose normalization is free inside
-            # the tolerance (else its other terms only carry a normalization error, e.g. a background
-            # of χ = 3e-4 /T beside a 0.45 % gain)
-            records[name]["beats_normalization"] = bool(_beats(mse[name], nuisance_mse, gate_rng, n_boot,
-                                                               min_relative_gain, equivalence))
-            if not records[name]["beats_normalization"]:
-                offered.pop(name, None)
-                continue
-        if knob_mse is not None and (records[name]["kind"] == "physics" or shifts_field(name)):
-            # switching fields move with K_u too: beat K_u moved along its neighbourhood
-            records[name]["beats_hamiltonian"] = bool(_beats(mse[name], knob_mse, gate_rng, n_boot, min_relative_gain,
-                                                             equivalence))
-            if not records[name]["beats_hamiltonian"]:
-                offered.pop(name, None)
-                continue
-        if null_gain is not None and not records[name]["beats_null"]:
-            offered.pop(name)
-    rng = stream_rng(seed, "bootstrap", "analyse_residual")
-    chosen, scores = choose_candidate(offered, {k: v["n_parameters"] for k, v in records.items()}, rng,
-                                      n_boot, min_relative_gain, equivalence, evidenced=evidenced)
-    for name in set(records) - set(offered):
-        scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
-                        "relative_gain_ci90": None, "accepted": False}
-    candidates = {k: {**records[k], **scores[k]} for k in records}
-    reduction, reduction_ci = _reduction_ci(mse["none"], mse[chosen], rng, n_boot)
-    residual_before = measured - base_family
-    residual_after = measured - models[chosen]
-    same = [k for group in SAME_OBSERVABLE if chosen in group for k in sorted(group - {chosen}) if k in candidates]
-    from .structure import describe, residual_structure
-
-    structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
-    saturation = None
-    if saturation_gate:
-        saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
-                      if saturation_points is not None else
-                      saturation_residual(measured, models["none"], base_family, fields,
-                                          moment_tolerance=moment_tolerance))
-    rejected_in_saturation = sorted(k for k, v in records.items() if v.get("saturation_evidence", {}).get("reversible"))
-    if chosen == "none" and saturation is not None and saturation.get("reversible") and rejected_in_saturation:
-        verdict = "unexplained structured residual"
-        verdict_text = (f"unexplained structured residual: a reversible residual where the film is saturated "
-                        f"(column means up to {saturation['max_abs_mean']:.3g} at {min(saturation['fields_T']):.2f}…"
-                        f"{max(saturation['fields_T']):.2f} T, χ² {saturation['chi2']:.0f} on {saturation['dof']} dof) that "
-                        f"{', '.join(rejected_in_saturation)} do not remove: something outside the library "
-                        "(a field-only term such as a paramagnet or a non-linear background, or a signal that "
-                        "lags the field)")
-    elif chosen == "none" and structure["structured"]:
-        verdict, verdict_text = "unexplained structured residual", describe(structure)
-    elif chosen == "none":
-        verdict, verdict_text = "none", "no candidate earns its place and the residual is not structured beyond the noise"
-    else:
-        verdict = chosen
-        verdict_text = f"{chosen} chosen" + ("; a structured residual remains: " + describe(structure)
-                                             if structure["structured"] else "")
-    return {"verdict": verdict, "verdict_text": verdict_text, "structure": structure, "field_shift": field_shift,
-        "saturation": saturation,
-        "hamiltonian_neighbourhood": hamiltonian,
-        "drift": drift,
-        "chosen": chosen, "kind": records[chosen]["kind"], "parameters": records[chosen]["parameters"],
-        "uncertainties": records[chosen]["uncertainties"], "same_observable_as": same, "candidates": candidates,
-        "residual_rms_before": float(np.sqrt(np.nanmean(residual_before**2))),
-        "residual_rms_after": float(np.sqrt(np.nanmean(residual_after**2))),
-        "per_curve_rms_before": _rms_per_curve(residual_before), "per_curve_rms_after": _rms_per_curve(residual_after),
-        "heldout_curves": [i for _, held in folds for i in held], "heldout_rms_before": candidates["none"]["heldout_rms"],
-        "heldout_rms_after": candidates[chosen]["heldout_rms"], "heldout_reduction": reduction,
-        "heldout_reduction_ci90": reduction_ci,
-        "arrays": {"model": models[chosen], "residual_before": residual_before, "residual_after": residual_after},
-    }
+    p = residual_problem(measured, base_family, fields, order, every_k, cross_fit)
+    library = candidate_library(p, physics_families=physics_families, soft_phase_families=soft_phase_families,
+                                measured_candidates=measured_candidates, thermal=thermal,
+                                physics_reference_family=physics_reference_family,
+                                hamiltonian_families=hamiltonian_families)
+    fits = fit_candidates(p, library)
+    base = baselines(p, library.hamiltonian_families, moment_tolerance)
+    offered = gate_candidates(p, fits, base, GateSettings(
+        seed=seed, n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence, null_gain=null_gain,
+        null_margin=null_margin, field_shift=field_shift, drift=drift, moment_tolerance=moment_tolerance,
+        evidence_suffices=evidence_suffices, saturation_gate=saturation_gate, saturation_points=saturation_points))
+    choice = choose(p, fits, offered, seed, n_boot, min_relative_gain, equivalence)
+    verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
+                    n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,
+                    moment_tolerance=moment_tolerance)
+    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
+                        min_relative_gain=min_relative_gain, equivalence=equivalence)
+    return residual_report(p, fits, base, choice, verdict, field_shift, drift)

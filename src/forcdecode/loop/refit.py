@@ -47,7 +47,7 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
     "history" [(multipliers, objective)], "family" (the refitted re-simulation), "model" (with the
     effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
     from .effects import fit_effect, measurement_clock
-    from .resimulate import resimulate
+    from ..infer.resimulate import resimulate
 
     measured = np.asarray(measured, float)
     names = tuple(names)
@@ -153,7 +153,7 @@ def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fi
     lowest curve's fields: ``signatures.major_loop_protocol``; a sweep on ``max_step_T`` nodes).
     ``noise_sigma`` enters the test's error model only (the films are noise-free; 1e-3 if not given).
     None where a film gives too few levels."""
-    from .resimulate import resimulate_measured
+    from ..infer.resimulate import resimulate_measured
     from .signatures import field_shift, major_branches, major_loop_protocol
 
     reversal, curves = major_loop_protocol(reversal_fields_T, curve_fields_T)
@@ -170,7 +170,7 @@ def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "ma
     """The measured points (reversal field, field, m per point: ``signatures.measured_point_arrays``)
     past the closure of ``params``' major loop, re-simulated on a 10 mT lattice over the points' window
     (``resimulate.major_loop_branches``, disorder stream ``key``): ``signatures.SaturatedPoints``."""
-    from .resimulate import major_loop_branches
+    from ..infer.resimulate import major_loop_branches
     from .signatures import saturated_measured_points
 
     window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
@@ -237,7 +237,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     (``signatures.saturated_measured_points``) instead of on the grid. Cost: one major loop."""
     from .effects import EFFECTS, heldout_folds
     from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
-    from .resimulate import resimulate
+    from ..infer.resimulate import resimulate
 
     measured = np.asarray(measured, float)
     fields = np.asarray(fields, float)

@@ -87,7 +87,10 @@ def _summary_box(report: dict) -> str:
                  ("observation RMS (grid)", f"{report.get('observation_rms', float('nan')):.4f}")]
         ood = report.get("ood")
         if ood:
-            rows.append(("looks like the training data", ood.get("verdict")))
+            rows.append(("looks like the training data", ood.get("verdict")
+                         + (f" ({ood['Ms_note']})" if ood.get("Ms_note") else "")))
+            if ood.get("warning"):
+                rows.append(("training-data check: warning", ood["warning"]))
         peaks = report.get("diagram_peaks")
         if peaks:
             rows.append(("FORC peak (H_c, H_u) measured / re-simulated",
@@ -124,50 +127,4 @@ def write_report_page(out, report: dict, markdown_text: str, figures=("diagrams.
     return path
 
 
-def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
-    """The conformal check on one axis: the reference families' statistic (T or Λ, grey), the value above
-    which a film is flagged at the reference's α (the dashed line), and each judged film (label → its
-    ``predictive_check`` verdict; red if flagged, blue if not, hollow if undetermined). A symmetric-log
-    axis, since Λ is 0 for most in-distribution films and hundreds for a clearly beyond-prior one."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .predictive_check import ALPHA, check_flag_threshold
-
-    values = np.sort(np.asarray(reference["values"], dtype=float))
-    alpha = float(reference.get("alpha", ALPHA))
-    threshold = check_flag_threshold(reference)
-    fig, ax = plt.subplots(figsize=(8.5, 1.2 + 0.28 * (len(judged) + 1)))
-    ax.scatter(values, np.zeros_like(values), color="0.5", s=22, label=f"reference ({reference.get('split', '')}, "
-               f"n = {values.size})")
-    if (values == 0).sum() > 1:  # Λ = 0 (the best fit inside the prior) is common: say how many lie there
-        ax.annotate(f"{int((values == 0).sum())} at 0", (0.0, 0.0), xytext=(6, 5), textcoords="offset points",
-                    fontsize=7, color="0.4")
-    for i, (label, check) in enumerate(judged.items(), start=1):
-        value, flagged = check["statistic"], check["misspecified"]
-        if value is None or not np.isfinite(value):
-            ax.scatter([0.0], [i], facecolors="none", edgecolors="k", s=30)
-            ax.annotate("undetermined", (0.0, i), xytext=(6, -3), textcoords="offset points", fontsize=7)
-            continue
-        ax.scatter([value], [i], color="C3" if flagged else "C0", s=30)
-    if threshold is not None:
-        ax.axvline(threshold, color="k", ls="--", lw=1, label=f"flag above (p < {alpha:g})")
-    ax.set_yticks(range(len(judged) + 1), ["reference"] + [str(label) for label in judged], fontsize=7)
-    ax.set_ylim(-0.7, len(judged) + 0.7)
-    ax.set_xscale("symlog", linthresh=1e-2)
-    shown = [c["statistic"] for c in judged.values() if c["statistic"] is not None and np.isfinite(c["statistic"])]
-    shown += values.tolist()
-    ax.set_xlim(-5e-3, 3.0 * max(max(shown), threshold or 0.0, 1e-2))
-    name = "Λ (log-likelihood ratio, extended box)" if reference.get("extend") else "T (best RMS / floor)"
-    ax.set_xlabel(f"{name} at {reference['budget']} simulations")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-
-
-__all__ = ["check_figure", "diagrams_figure", "write_report_page"]
+__all__ = ["diagrams_figure", "write_report_page"]

@@ -22,7 +22,6 @@ paper (ten test samples, input vs re-simulated from the prediction, realisation 
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 import pandas as pd
@@ -31,7 +30,8 @@ from ..core.errors import DatasetError, SimulationError
 from ..core.io import atomic_path
 from ..core.streams import stream_rng
 from ..core.parameters import NAMES as PARAMETERS, denormalize
-from .resimulate import DISORDER_STREAM, observation_error, protocol_name, simulate_family
+from ..infer.resimulate import observation_error, protocol_name, run_tasks
+from ..learn.scoring import median_with_interval
 
 ROLES = ("prediction", "floor", "null")
 """The three re-simulated Hamiltonians of a sample: predicted, true (floor), training median (null)."""
@@ -108,54 +108,6 @@ def choose_samples(table: pd.DataFrame, max_samples: int, seed: int) -> pd.DataF
     return table.iloc[np.sort(rng.choice(len(table), max_samples, replace=False))]
 
 
-def _simulate_task(cfg: dict, params: dict, sample_id: int, realisation: int):
-    """Worker: one family of ``params`` on realisation ``realisation`` of ``sample_id``'s disorder;
-    (curves, "") or (None, reason): a failed or non-finite simulation is a result, not an exception."""
-    try:
-        rng = stream_rng(cfg["seed"], DISORDER_STREAM, int(sample_id), int(realisation))
-        curves = simulate_family(cfg, params, rng)
-    except Exception as error:  # recorded per task, never fatal for the stage
-        return None, f"{type(error).__name__}: {error}"
-    if not np.isfinite(np.diag(curves)).all():
-        return None, "non-finite magnetization on the diagonal"
-    return curves, ""
-
-
-def _init_worker() -> None:
-    """One numba thread per worker process and the CLI's allocator tuning."""
-    from .._runtime import tune_allocator
-
-    import numba
-
-    tune_allocator()
-    numba.set_num_threads(1)
-
-
-def run_tasks(cfg: dict, tasks: list, workers: int = 1, progress=None) -> list:
-    """Run ``_simulate_task`` for each (params, sample_id, realisation); ``workers`` > 1 uses a process
-    pool (spawned processes: a calling script needs the ``if __name__ == "__main__":`` guard). Results
-    in task order; the outcome does not depend on ``workers``."""
-    if workers < 1:
-        raise ValueError("workers must be >= 1")
-    results = [None] * len(tasks)
-    if workers == 1 or len(tasks) <= 1:
-        for k, task in enumerate(tasks):
-            results[k] = _simulate_task(cfg, *task)
-            if progress is not None:
-                progress(k + 1, len(tasks))
-        return results
-    import multiprocessing
-
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_init_worker) as pool:
-        futures = {pool.submit(_simulate_task, cfg, *task): k for k, task in enumerate(tasks)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            results[futures[future]] = future.result()
-            if progress is not None:
-                progress(done, len(tasks))
-    return results
-
-
 def closed_loop(cfg: dict, table: pd.DataFrame, curves_by_id: dict, truths: pd.DataFrame, medians: dict,
                 max_samples: int, realisations: int = 3, workers: int = 1, progress=None) -> tuple[pd.DataFrame, dict]:
     """Re-simulate up to ``max_samples`` test samples (prediction, floor, null; ``realisations`` shared
@@ -222,18 +174,6 @@ def closed_loop(cfg: dict, table: pd.DataFrame, curves_by_id: dict, truths: pd.D
         record["failures"] = "; ".join(failures.get(sid, []))
         out.append(record)
     return pd.DataFrame(out), families
-
-
-def median_with_interval(values, rng: np.random.Generator, n_boot: int = 2000) -> tuple[float, list]:
-    """Median of the finite ``values`` and its percentile bootstrap 90 % interval over them (NaN
-    interval below two values)."""
-    from ..learn.scoring import bootstrap_interval
-
-    values = np.asarray(values, dtype=float)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return float("nan"), [float("nan"), float("nan")]
-    return float(np.median(values)), bootstrap_interval(np.median, [values], rng, n_boot)
 
 
 def summarize(cfg: dict, result: pd.DataFrame, realisations: int, n_boot: int = 2000) -> dict:

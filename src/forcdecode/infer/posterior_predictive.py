@@ -22,8 +22,8 @@ import pandas as pd
 from ..core.errors import DatasetError, SimulationError
 from ..core.parameters import denormalize
 from ..core.streams import stream_rng, stream_seed
-from .resimulate import observation_error
-from .simulated import median_with_interval, run_tasks
+from ..learn.scoring import median_with_interval
+from .resimulate import observation_error, run_tasks
 
 
 def draws_as_hamiltonians(draws_u, names, Ms: float, bounds: dict) -> list[dict]:

@@ -11,8 +11,8 @@ from forcdecode.config import load_config, shipped_config
 from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
 from forcdecode.core.streams import stream_rng
 from forcdecode.learn.data import LearningData
-from forcdecode.loop.posterior_predictive import draws_as_hamiltonians, posterior_closed_loop
-from forcdecode.loop.resimulate import simulate_family
+from forcdecode.infer.posterior_predictive import draws_as_hamiltonians, posterior_closed_loop
+from forcdecode.infer.resimulate import simulate_family
 
 NAMES = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
 # weak disorder (no pinning site), so a new realisation changes the family little (a small floor)

@@ -14,6 +14,8 @@ parameter ``field_tilt_deg`` applies the field at that angle from the normal (a 
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
 import numpy as np
 
 from ..core.errors import ConfigError
@@ -152,6 +154,54 @@ def major_loop_branches(cfg: dict, params: dict, top_T: float, step_T: float = 0
                                  n_profiles=n_profiles, key=key)
     descending = np.array([float(c[0]) for c in curves])[::-1]
     return fields, descending, np.asarray(curves[-1], float)
+
+
+def _simulate_task(cfg: dict, params: dict, sample_id: int, realisation: int):
+    """Worker: one family of ``params`` on realisation ``realisation`` of ``sample_id``'s disorder;
+    (curves, "") or (None, reason): a failed or non-finite simulation is a result, not an exception."""
+    try:
+        rng = stream_rng(cfg["seed"], DISORDER_STREAM, int(sample_id), int(realisation))
+        curves = simulate_family(cfg, params, rng)
+    except Exception as error:  # recorded per task, never fatal for the stage
+        return None, f"{type(error).__name__}: {error}"
+    if not np.isfinite(np.diag(curves)).all():
+        return None, "non-finite magnetization on the diagonal"
+    return curves, ""
+
+
+def _init_worker() -> None:
+    """One numba thread per worker process and the CLI's allocator tuning."""
+    from .._runtime import tune_allocator
+
+    import numba
+
+    tune_allocator()
+    numba.set_num_threads(1)
+
+
+def run_tasks(cfg: dict, tasks: list, workers: int = 1, progress=None) -> list:
+    """Run ``_simulate_task`` for each (params, sample_id, realisation); ``workers`` > 1 uses a process
+    pool (spawned processes: a calling script needs the ``if __name__ == "__main__":`` guard). Results
+    in task order; the outcome does not depend on ``workers``."""
+    if workers < 1:
+        raise ValueError("workers must be >= 1")
+    results = [None] * len(tasks)
+    if workers == 1 or len(tasks) <= 1:
+        for k, task in enumerate(tasks):
+            results[k] = _simulate_task(cfg, *task)
+            if progress is not None:
+                progress(k + 1, len(tasks))
+        return results
+    import multiprocessing
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_init_worker) as pool:
+        futures = {pool.submit(_simulate_task, cfg, *task): k for k, task in enumerate(tasks)}
+        for done, future in enumerate(as_completed(futures), start=1):
+            results[futures[future]] = future.result()
+            if progress is not None:
+                progress(done, len(tasks))
+    return results
 
 
 def observation_error(reference: np.ndarray, candidate: np.ndarray) -> dict:

@@ -10,7 +10,7 @@ floor (the RMS difference two disorder realisations of one Hamiltonian make)?
 
     T = min over the first b candidates of RMS(candidate − observation) / √σ²,
 
-σ² measured by the refinement itself (``loop.fit``: the amortized median on 4 realisations). A family
+σ² measured by the refinement itself (``infer.fit``: the amortized median on 4 realisations). A family
 our film can make has a candidate near T ≈ 1 or below; a family no in-prior film makes keeps T
 above. The threshold is not guessed: T is computed the same way (same budget b, same round size,
 same prior) for held-out validation families, which our film made and the posterior never trained on,
@@ -24,7 +24,7 @@ as the calibration run (and the weights of a tempered run do not enter). What it
 (``forcdecode bench ood --predictive-budget``, README).
 
 The extension check asks the same question of a refinement run in a box extended beyond the prior's
-bound (``fit --extend-prior``, ``loop.fit.beyond_prior``): does a film beyond the bound reproduce the
+bound (``fit --extend-prior``, ``infer.fit.beyond_prior``): does a film beyond the bound reproduce the
 family better than every film inside? Its statistic is the generalized log-likelihood ratio
 
     Λ = max log L over the first b candidates − max log L over those of them inside the prior's box
@@ -56,7 +56,7 @@ def _best_by_budget(fit_result: dict) -> dict:
 
 
 def _ratio_by_budget(fit_result: dict) -> dict:
-    """The fit result's Λ per round boundary ({"b": Λ}, ``loop.fit.beyond_prior``)."""
+    """The fit result's Λ per round boundary ({"b": Λ}, ``infer.fit.beyond_prior``)."""
     by_budget = (fit_result.get("beyond_prior") or {}).get("log_likelihood_ratio_by_budget")
     if not by_budget:
         raise ConfigError("the fit result has no beyond_prior.log_likelihood_ratio_by_budget: the extension check "
@@ -70,7 +70,7 @@ def is_extension(reference: dict) -> bool:
 
 
 def predictive_statistic(fit_result: dict, budget: int, extension: bool = False) -> float:
-    """T (or, with ``extension``, Λ) at ``budget`` from a fit result (``loop.fit_cli.finish_fit``'s dict)."""
+    """T (or, with ``extension``, Λ) at ``budget`` from a fit result (``infer.fit_cli.finish_fit``'s dict)."""
     by_budget = _ratio_by_budget(fit_result) if extension else _best_by_budget(fit_result)
     if str(int(budget)) not in by_budget:
         raise ConfigError(f"the refinement ran {max(int(b) for b in by_budget)} simulations in rounds "
@@ -196,5 +196,51 @@ def predictive_check(fit_result: dict, reference: dict, alpha: float | None = No
                         f"(validation families: median {np.median(values):.2f}×; p = {p:.2f})")}
 
 
-__all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_flag_threshold", "check_reference", "is_extension",
+def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
+    """The conformal check on one axis: the reference families' statistic (T or Λ, grey), the value above
+    which a film is flagged at the reference's α (the dashed line), and each judged film (label → its
+    ``predictive_check`` verdict; red if flagged, blue if not, hollow if undetermined). A symmetric-log
+    axis, since Λ is 0 for most in-distribution films and hundreds for a clearly beyond-prior one."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    values = np.sort(np.asarray(reference["values"], dtype=float))
+    alpha = float(reference.get("alpha", ALPHA))
+    threshold = check_flag_threshold(reference)
+    fig, ax = plt.subplots(figsize=(8.5, 1.2 + 0.28 * (len(judged) + 1)))
+    ax.scatter(values, np.zeros_like(values), color="0.5", s=22, label=f"reference ({reference.get('split', '')}, "
+               f"n = {values.size})")
+    if (values == 0).sum() > 1:  # Λ = 0 (the best fit inside the prior) is common: say how many lie there
+        ax.annotate(f"{int((values == 0).sum())} at 0", (0.0, 0.0), xytext=(6, 5), textcoords="offset points",
+                    fontsize=7, color="0.4")
+    for i, (label, check) in enumerate(judged.items(), start=1):
+        value, flagged = check["statistic"], check["misspecified"]
+        if value is None or not np.isfinite(value):
+            ax.scatter([0.0], [i], facecolors="none", edgecolors="k", s=30)
+            ax.annotate("undetermined", (0.0, i), xytext=(6, -3), textcoords="offset points", fontsize=7)
+            continue
+        ax.scatter([value], [i], color="C3" if flagged else "C0", s=30)
+    if threshold is not None:
+        ax.axvline(threshold, color="k", ls="--", lw=1, label=f"flag above (p < {alpha:g})")
+    ax.set_yticks(range(len(judged) + 1), ["reference"] + [str(label) for label in judged], fontsize=7)
+    ax.set_ylim(-0.7, len(judged) + 0.7)
+    ax.set_xscale("symlog", linthresh=1e-2)
+    shown = [c["statistic"] for c in judged.values() if c["statistic"] is not None and np.isfinite(c["statistic"])]
+    shown += values.tolist()
+    ax.set_xlim(-5e-3, 3.0 * max(max(shown), threshold or 0.0, 1e-2))
+    name = "Λ (log-likelihood ratio, extended box)" if reference.get("extend") else "T (best RMS / floor)"
+    ax.set_xlabel(f"{name} at {reference['budget']} simulations")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    from ..core.io import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+
+
+__all__ = ["ALPHA", "EXTENSION_STATISTIC", "STATISTIC", "check_figure", "check_flag_threshold", "check_reference", "is_extension",
            "make_reference", "predictive_check", "predictive_p_value", "predictive_statistic", "read_reference"]

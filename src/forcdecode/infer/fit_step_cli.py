@@ -1,7 +1,7 @@
 """``forcdecode fit-step init|round|report``: the refinement of ``forcdecode fit`` one round per process,
 so that each round is its own workflow job (``workflow/rules/fit.smk``: on a cluster, one SLURM job
 per round, its simulations spread over the job's cores). The state between rounds is one .npz
-(``loop.fit.Refinement``: particles, proposals, β, the generator's state), written atomically; the
+(``infer.fit.Refinement``: particles, proposals, β, the generator's state), written atomically; the
 rounds give exactly what ``forcdecode fit`` gives in one process.
 
     fit-step init INPUT [--sample-id N | --Ms-kA-m M] --posterior P --budget N --round-size R --state S0.npz
@@ -66,7 +66,7 @@ def run(args) -> int:
         result["truth"] = state.context.get("truth")
         if args.predictive_reference:
             from .predictive_check import predictive_check, read_reference
-            from .report_page import check_figure
+            from .predictive_check import check_figure
 
             reference = read_reference(args.predictive_reference, round_size=state.round_size,
                                        prior=result["prior"], budget_run=state.budget, extend=result.get("extend"))

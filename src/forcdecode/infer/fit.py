@@ -630,7 +630,7 @@ def observation_rms(state) -> dict:
     realisation). ``amortized``: median over round 1 (draws of the amortized posterior);
     ``refined``: weighted median over every particle at the final β; ``best_over_floor_by_budget``:
     per round boundary b, the smallest ratio among the first b candidates (the statistic of the
-    calibrated misspecification check, ``loop.predictive_check``: it does not depend on the budget
+    calibrated misspecification check, ``infer.predictive_check``: it does not depend on the budget
     run beyond b)."""
     ok = np.isfinite(state.loglik)
     ratio_all = _rms_over_floor(state)
@@ -714,7 +714,7 @@ def beyond_prior(state) -> dict:
     the target is bridged to q₀, which is 0 beyond the bound). ``log_likelihood_ratio`` Λ = max log L over
     every candidate − max log L over the candidates inside the prior's box (≥ 0; = ν/2 · (T_in² − T_all²)
     in floor units T): the generalized likelihood ratio of "the film lies beyond the bound", the statistic
-    of the calibrated extension check (``loop.predictive_check``), per round boundary b in
+    of the calibrated extension check (``infer.predictive_check``), per round boundary b in
     ``log_likelihood_ratio_by_budget`` (first b candidates: a longer run gives the same Λ at b). Unlike
     the ratio of RMS it stays ≈ 0 where both best fits lie far below a floor measured too high (measured:
     a validation film at 0.006 vs 0.004 × its floor, ratio 1.6, Λ 2·10⁻⁵). {} for a run in the prior's box."""
@@ -786,7 +786,7 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     """A batch simulator u (k, d) → grid families (k, n, n) on the config's film, every candidate on the
     same disorder realisation (stream ``closed_loop_disorder``, keys (``key``, 0)): common random numbers."""
     from ..core.parameters import denormalize
-    from .simulated import run_tasks
+    from .resimulate import run_tasks
 
     def simulate(u):
         tasks = []

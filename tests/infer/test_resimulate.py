@@ -4,7 +4,7 @@ import yaml
 from pathlib import Path
 
 from forcdecode.dataset.params import draw_parameters
-from forcdecode.loop import observation_error, resimulate
+from forcdecode.infer.resimulate import observation_error, resimulate
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,7 +44,7 @@ def test_major_loop_branches_close_between_the_stoner_wohlfarth_fields(cfg):
     reversed beyond B_K itself: the loop's closure lies in [0.8, 1] B_K (+ one lattice step). Past it
     the two branches coincide; at zero field they carry ±1 (a square loop); the Hamiltonian is odd
     under (m, B) → (−m, −B), so the descending branch mirrors the ascending one."""
-    from forcdecode.loop.resimulate import major_loop_branches
+    from forcdecode.infer.resimulate import major_loop_branches
     from forcdecode.loop.signatures import loop_closure
 
     params = dict(Ms=8e5, A_ex=1e-11, K_u=6e5, D=0.0, N_pin=0, sigma_theta_deg=3.0, sigma_K=0.0)

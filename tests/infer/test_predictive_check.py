@@ -1,4 +1,4 @@
-"""The calibrated posterior-predictive check (``loop.predictive_check``) on the synthetic
+"""The calibrated posterior-predictive check (``infer.predictive_check``) on the synthetic
 common-random-numbers problem of ``test_fit.py``: calibrated on in-model families, it keeps its
 false-alarm rate on new in-model families and flags families whose truth lies outside the prior box
 (the analogue of a film pinned more densely than any training film) or that carry a term the model
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.loop.fit import Refinement, difference_variance, observation_rms
-from forcdecode.loop.predictive_check import check_flag_threshold, make_reference, predictive_check, predictive_p_value
+from forcdecode.infer.fit import Refinement, difference_variance, observation_rms
+from forcdecode.infer.predictive_check import check_flag_threshold, make_reference, predictive_check, predictive_p_value
 
 from test_fit import K, SIGMA, forward, proposal
 

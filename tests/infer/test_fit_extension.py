@@ -1,5 +1,5 @@
 """The refinement in a box extended beyond the prior's bound (``Refinement(scale=…)``,
-``loop.fit.beyond_prior``, ``forcdecode fit --extend-prior``), on the synthetic problem of
+``infer.fit.beyond_prior``, ``forcdecode fit --extend-prior``), on the synthetic problem of
 ``test_fit.py`` with b's box stretched to 2.5 × its prior range. The exact posterior of the extended
 prior is known on a grid: a truth inside the prior gets no posterior mass beyond the bound (grid:
 < 1e-3), a truth at b = 1.6 gets all of it (grid: 1.000), and the refinement must say the same."""
@@ -9,9 +9,9 @@ import pytest
 from scipy.stats import norm
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.loop.fit import (Refinement, _log_jacobian, _logit, beyond_prior, log_likelihood_ratio, widen_draws,
+from forcdecode.infer.fit import (Refinement, _log_jacobian, _logit, beyond_prior, log_likelihood_ratio, widen_draws,
                                  widened_logpdf)
-from forcdecode.loop.predictive_check import EXTENSION_STATISTIC, make_reference, predictive_check
+from forcdecode.infer.predictive_check import EXTENSION_STATISTIC, make_reference, predictive_check
 
 from test_fit import SIGMA, forward
 
@@ -149,7 +149,7 @@ def test_the_extension_is_parsed_and_the_draw_prior_continues_uniformly_past_the
     from types import SimpleNamespace
 
     from forcdecode.dataset.params import draw_log_density
-    from forcdecode.loop.fit_cli import EXTENSION_FACTOR, parse_extension, prior_logpdf
+    from forcdecode.infer.fit_cli import EXTENSION_FACTOR, parse_extension, prior_logpdf
 
     names = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
     assert parse_extension(["N_pin=3", "D"], names) == {"N_pin": 3.0, "D": EXTENSION_FACTOR}

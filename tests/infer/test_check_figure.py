@@ -4,8 +4,8 @@ flag line, ``check_flag_threshold``, is tested against the p-value in ``test_pre
 import numpy as np
 import pytest
 
-from forcdecode.loop.predictive_check import make_reference, predictive_p_value
-from forcdecode.loop.report_page import check_figure
+from forcdecode.infer.predictive_check import make_reference, predictive_p_value
+from forcdecode.infer.predictive_check import check_figure
 
 
 @pytest.mark.parametrize("n", [20, 10])

@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import norm
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.loop.fit import _log_jacobian, _logit, refine
+from forcdecode.infer.fit import _log_jacobian, _logit, refine
 
 K = np.arange(1, 21)
 SIGMA = 0.05
@@ -82,7 +82,7 @@ def test_nested_budgets_are_prefixes():
 def test_effective_observations_of_gaussian_families():
     """R realisations of a family carrying ν independent N(0, σ²) observations (each repeated over the
     points it covers, as a disorder feature covers many points): σ² and ν are recovered."""
-    from forcdecode.loop.fit import effective_observations
+    from forcdecode.infer.fit import effective_observations
 
     rng = np.random.default_rng(5)
     n, nu, sigma = 40, 12, 0.05
@@ -155,7 +155,7 @@ def test_beta_schedule_is_monotone_reaches_one_and_a_tempered_result_says_so():
 def test_a_state_saved_and_loaded_between_rounds_continues_exactly(tmp_path):
     """Refinement.save/load (each round its own job): the generator, the rounds' proposals and β come
     back, so the run equals `refine` in one process."""
-    from forcdecode.loop.fit import Refinement
+    from forcdecode.infer.fit import Refinement
 
     truth, observed, draws, whole = run(7, budget=100)
     rng = np.random.default_rng(7)  # the same draws as `run`: truth, noise, proposal
@@ -183,7 +183,7 @@ def test_a_state_saved_and_loaded_between_rounds_continues_exactly(tmp_path):
 def test_a_saved_run_extended_to_a_larger_budget_equals_the_longer_run(tmp_path):
     """A budget-100 run saved, loaded and extended to 200 (``Refinement.extend``: what ``bench fit``
     does when a larger budget is asked of a family already refined) gives the budget-200 run exactly."""
-    from forcdecode.loop.fit import Refinement
+    from forcdecode.infer.fit import Refinement
 
     truth, observed, draws, whole = run(7, budget=200)
     rng = np.random.default_rng(7)
@@ -208,7 +208,7 @@ def test_a_saved_run_extended_to_a_larger_budget_equals_the_longer_run(tmp_path)
 
 def test_a_file_that_is_not_a_state_is_named(tmp_path):
     from forcdecode.core.errors import InputFileError
-    from forcdecode.loop.fit import Refinement
+    from forcdecode.infer.fit import Refinement
 
     bad = tmp_path / "bad.npz"
     np.savez(bad, x=np.zeros(3))
@@ -223,7 +223,7 @@ def run_crn(seed, variance_rule, budget=200, realisations=4):
     (N(0, SIGMA²) per point) to every family simulated on it. Candidates share realisation 0 (common
     random numbers); the observation is another one. σ² and ν come from ``realisations`` families of
     the proposal's median, as ``forcdecode fit`` measures them."""
-    from forcdecode.loop.fit import difference_variance, effective_observations
+    from forcdecode.infer.fit import difference_variance, effective_observations
 
     rng = np.random.default_rng(1000 + seed)
     truth = rng.uniform(0.2, 0.8, 2)
@@ -265,8 +265,8 @@ def test_observation_rms_of_the_refined_particles_reaches_the_floor():
     refined particles' observation RMS is the floor's up to the scatter of a 20-point, 2-parameter fit
     (√(χ²₁₈/20) between its 1 and 99 % points, 0.59–1.32 ×; measured 0.71–1.16), the biased amortized
     draws' well above it (> 1.5 ×; measured 4.5–10.9)."""
-    from forcdecode.loop.fit import Refinement, difference_variance
-    from forcdecode.loop.fit import observation_rms
+    from forcdecode.infer.fit import Refinement, difference_variance
+    from forcdecode.infer.fit import observation_rms
 
     out = []
     for seed in range(10):
@@ -332,7 +332,7 @@ def _adjustment_problem(rng, z_true, gain, bias, noise, n=400, proposal_sd=1.5):
 def test_regression_adjustment_removes_a_biased_summary_and_reaches_the_exact_posterior():
     """A "network" reading z with a bias of 0.8 and a gain of 0.6: its naive inversion-free reading
     (s_o taken as z) is off by far more than the adjusted answer, which lies near the exact median."""
-    from forcdecode.loop.fit import regression_adjust, weighted_quantiles
+    from forcdecode.infer.fit import regression_adjust, weighted_quantiles
 
     rng = np.random.default_rng(3)
     adjusted_err, naive_err = [], []
@@ -351,7 +351,7 @@ def test_regression_adjustment_removes_a_biased_summary_and_reaches_the_exact_po
 def test_regression_adjustment_with_an_uninformative_summary_returns_the_prior():
     """A summary that does not depend on the parameter: the answer is the prior's median (0.5), not the
     proposal's centre, because the proposal is divided out."""
-    from forcdecode.loop.fit import regression_adjust, weighted_quantiles
+    from forcdecode.infer.fit import regression_adjust, weighted_quantiles
 
     rng = np.random.default_rng(4)
     z = 1.0 + 1.5 * rng.standard_normal(3000)  # a proposal off the prior's centre (its median u = 0.73)
@@ -363,7 +363,7 @@ def test_regression_adjustment_with_an_uninformative_summary_returns_the_prior()
 
 
 def test_regression_adjustment_refuses_mismatched_inputs():
-    from forcdecode.loop.fit import regression_adjust
+    from forcdecode.infer.fit import regression_adjust
 
     with pytest.raises(ValueError, match="must match"):
         regression_adjust(np.zeros((5, 1)), np.zeros((4, 1)), np.zeros(1), np.zeros(5))
@@ -375,7 +375,7 @@ def test_a_diagonal_regression_keeps_a_noisy_summary_from_moving_another_paramet
     """Two parameters: s_1 reads z_1 (gain 1, small noise); s_2 is noise only, drawn from few particles so that
     a full regression finds a spurious slope of z_1 on it. The diagonal adjustment moves z_1 by s_1 alone:
     its slope matrix has no off-diagonal term and z_1's answer does not change with s_2's observed value."""
-    from forcdecode.loop.fit import regression_adjust, weighted_quantiles
+    from forcdecode.infer.fit import regression_adjust, weighted_quantiles
 
     rng = np.random.default_rng(5)
     z = rng.normal(0.0, 1.0, (40, 2))
@@ -398,7 +398,7 @@ def test_summary_resolution_tells_a_summary_that_can_narrow_from_one_that_cannot
     twentieth of its spread), summary 1 = a slope 0.2 on logit u₁ (and 0.3 on logit u₀) in noise of
     sd 1 (5× the spread). The ratio is the noise over the own slope over the spread, within 15 % and
     30 % on 2000 draws; a constant summary is inf; a summary per parameter and enough rows are required."""
-    from forcdecode.loop.fit import _inverse_logit, summary_resolution
+    from forcdecode.infer.fit import _inverse_logit, summary_resolution
 
     rng = np.random.default_rng(3)
     z = rng.standard_normal((2000, 2)) * np.array([2.0, 1.0])
@@ -418,7 +418,7 @@ def test_summary_resolution_tells_a_summary_that_can_narrow_from_one_that_cannot
 def _anchoring_errors(noise: float, replications: int = 300, k: int = 50):
     """Logit errors of the plain and the anchored adjusted medians against the exact posterior median,
     on z ~ N(0, 1) (proposal and prior), s = z + N(0, noise²), s_o = 0.7 (exact median s_o/(1 + noise²))."""
-    from forcdecode.loop.fit import (_inverse_logit, _logit, anchored_summary, regression_adjust,
+    from forcdecode.infer.fit import (_inverse_logit, _logit, anchored_summary, regression_adjust,
                                      summarize_particles)
 
     rng = np.random.default_rng(11)
@@ -449,7 +449,7 @@ def test_anchoring_removes_the_particles_sampling_error_where_the_summary_is_wea
 def test_anchoring_on_a_constant_summary_returns_the_reported_posterior_and_refuses_mismatches():
     """A summary equal for every particle: no adjustment, equal kernel weights, so the anchored answer is
     the reported posterior's median and intervals (a recalibrated one stays recalibrated)."""
-    from forcdecode.loop.fit import anchored_summary, regression_adjust
+    from forcdecode.infer.fit import anchored_summary, regression_adjust
 
     rng = np.random.default_rng(12)
     u = rng.uniform(0.2, 0.8, (40, 2))
@@ -471,7 +471,7 @@ def test_anchoring_on_a_constant_summary_returns_the_reported_posterior_and_refu
 def _image_problem(rng, k: int, signal: float):
     """k draws u of two parameters; 16×16 uint8 images whose pixels move with logit u₀ along one pattern
     (amplitude ``signal`` per logit unit) and not at all with u₁, in pixel noise of sd 12 (of 255)."""
-    from forcdecode.loop.fit import _inverse_logit
+    from forcdecode.infer.fit import _inverse_logit
 
     z = rng.standard_normal((k, 2))
     pattern = np.sin(np.linspace(0, 3 * np.pi, 256)).reshape(16, 16)
@@ -488,7 +488,7 @@ def test_image_summaries_read_what_the_images_encode_and_nothing_else():
     encode is not resolved (above 1.5; 2.7–27 over ten seeds): the summaries are predicted out of fold
     and the components chosen by cross-validated error, so noise is not read as signal. The chosen
     components and ridge are among those declared."""
-    from forcdecode.loop.fit import IMAGE_SUMMARY_COMPONENTS, IMAGE_SUMMARY_RIDGES, image_summaries
+    from forcdecode.infer.fit import IMAGE_SUMMARY_COMPONENTS, IMAGE_SUMMARY_RIDGES, image_summaries
 
     rng = np.random.default_rng(21)
     u, images, render = _image_problem(rng, 200, 40.0)
@@ -508,7 +508,7 @@ def test_an_observed_summary_outside_the_simulated_cloud_is_told_from_one_inside
     """500 simulated summaries from a correlated Gaussian: a point on their mean is inside; a point 3 sd
     along the direction their correlation forbids (x₀ = −x₁ with correlation 0.9) is outside although each
     coordinate alone is within the cloud's range; the distances are the Mahalanobis ones."""
-    from forcdecode.loop.fit import outside_simulations
+    from forcdecode.infer.fit import outside_simulations
 
     rng = np.random.default_rng(31)
     cov = np.array([[1.0, 0.9], [0.9, 1.0]])
@@ -532,7 +532,7 @@ def test_shifting_the_reported_posterior_keeps_its_coverage_where_anchoring_coun
     its coverage lies in the band, and it moves every quantile by the same logit amount."""
     from scipy.stats import binom
 
-    from forcdecode.loop.fit import _inverse_logit, _logit, anchored_summary, regression_adjust, shifted_summary
+    from forcdecode.infer.fit import _inverse_logit, _logit, anchored_summary, regression_adjust, shifted_summary
 
     rng = np.random.default_rng(21)
     reps, k = 400, 200
@@ -575,7 +575,7 @@ def test_a_summary_that_pins_a_parameter_finer_than_the_amortized_posterior_narr
     resolution they keep q₀'s width and hold the truth nearly always (over-wide)."""
     from scipy.stats import binom
 
-    from forcdecode.loop.fit import (_inverse_logit, _logit, anchored_summary, regression_adjust, shifted_summary,
+    from forcdecode.infer.fit import (_inverse_logit, _logit, anchored_summary, regression_adjust, shifted_summary,
                                      summary_resolution)
 
     rng = np.random.default_rng(22)

@@ -1,5 +1,5 @@
 """``forcdecode fit INPUT --budget N``: refine the amortized posterior of one FORC family by simulating
-that film (``loop.fit``), and ``forcdecode bench fit``'s per-family runs.
+that film (``infer.fit``), and ``forcdecode bench fit``'s per-family runs.
 
     fit results/dataset.h5 --sample-id 33 --posterior results/posterior/model.pt --budget 200 --out DIR
     fit FILE.frc --Ms-kA-m 800 --budget 200 --out DIR            (a measured file, on the training grid)
@@ -33,7 +33,7 @@ four times the densest pinning the dataset was drawn with)."""
 
 def parse_extension(items, names) -> dict:
     """``["N_pin=4", "D"]`` → {"N_pin": 4.0, "D": EXTENSION_FACTOR}: the parameters whose box the
-    refinement extends beyond the prior's bound, each by the factor of its range (``loop.fit.beyond_prior``).
+    refinement extends beyond the prior's bound, each by the factor of its range (``infer.fit.beyond_prior``).
     Only parameters drawn uniformly on a linear scale can be extended (the extension continues that
     uniform density past the upper bound). ConfigError for anything else."""
     from ..core.errors import ConfigError
@@ -129,13 +129,13 @@ def family_key(label: str) -> int:
 
 def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(),
               prior=DEFAULT_PRIOR, extend=None):
-    """The refinement's initial state (``loop.fit.Refinement``) for one family: amortized draws, and
+    """The refinement's initial state (``infer.fit.Refinement``) for one family: amortized draws, and
     σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
     realisations. The state carries what later rounds
     need (``context``: M_s, key, names, the amortized summary, the prior) so that each round can run as a
     job. ``prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
     or "uniform" on the normalized box (the former target, kept for comparison). ``extend``: {name:
-    factor} of ``parse_extension`` (the box beyond the prior's bound; ``loop.fit.beyond_prior``)."""
+    factor} of ``parse_extension`` (the box beyond the prior's bound; ``infer.fit.beyond_prior``)."""
     from ..core.errors import ConfigError
 
     if prior not in PRIORS:
@@ -145,7 +145,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     from ..learn.calibration import recalibrate_draws
     from .fit import Refinement, difference_variance, summarize_particles
     from .posterior_predictive import draws_as_hamiltonians
-    from .simulated import run_tasks
+    from .resimulate import run_tasks
 
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
@@ -162,7 +162,7 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     floor = [c for c, _ in run_tasks(cfg, [(params, key, r) for r in range(n_real)], workers) if c is not None]
     sigma2, nu = difference_variance(floor, quantization_step=2 / 255)
     scale = None
-    if extend:  # the proposal widened over the extended box (loop.fit.widened_logpdf; _proposal_logpdf)
+    if extend:  # the proposal widened over the extended box (infer.fit.widened_logpdf; _proposal_logpdf)
         from .fit import widen_draws
 
         scale = extension_scale(names, extend)
@@ -220,7 +220,7 @@ def finish_fit(state) -> dict:
 
 def _proposal_logpdf(est, state):
     """log q₀(u) of the amortized posterior at this observation (the image is kept in the state); for a
-    refinement in an extended box, of q₀ widened over it (``loop.fit.widened_logpdf``)."""
+    refinement in an extended box, of q₀ widened over it (``infer.fit.widened_logpdf``)."""
     image = np.asarray(state.context["image_uint8"], dtype=np.uint8)
     ms_norm = state.context["ms_norm"]
     extend = state.context.get("extend")
@@ -249,7 +249,7 @@ def _flow_logpdf(est, image, ms_norm: float):
 
 def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
             state_path=None, prior=DEFAULT_PRIOR, extend=None) -> dict:
-    """Amortized posterior → refined posterior of one family (see ``loop.fit``); plain-value dict.
+    """Amortized posterior → refined posterior of one family (see ``infer.fit``); plain-value dict.
     The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
     ``state_path``: the state (every particle) is saved there after each round; a run that stops
     resumes from it."""
@@ -265,7 +265,7 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
                               f"asked for {prior}")
         if extend and state.context.get("proposal") != "widened":
             raise ConfigError(f"{state_path}: an extended refinement from before its proposal was widened "
-                              f"(loop.fit.widened_logpdf): start it again in another place")
+                              f"(infer.fit.widened_logpdf): start it again in another place")
         if (state.context.get("extend") or {}) != (extend or {}):
             raise ConfigError(f"{state_path}: refined with the prior's box extended as {state.context.get('extend') or {}}, "
                               f"asked for {extend or {}}")
@@ -284,7 +284,7 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
 
 METHODS = ("pmc", "adjusted")
 """The refinement's methods: ``pmc``, tempered population Monte Carlo with the synthetic likelihood on
-one disorder realisation (``loop.fit.Refinement``); ``adjusted``, the amortized posterior's draws
+one disorder realisation (``infer.fit.Refinement``); ``adjusted``, the amortized posterior's draws
 simulated each on its own realisation and its answer corrected by local-linear regression on the
 network's own summaries (``fit_adjusted``). ``fit_function`` gives each one's entry point."""
 
@@ -308,16 +308,16 @@ ADJUSTED_READINGS = {"proposal_as_prior": (False, False, False, "network"),
                      "images_anchored": (False, False, True, "images"),
                      "both_anchored": (False, False, True, "both")}
 # and "resolved_anchored": each parameter from anchored or images_anchored, whichever summary resolves it
-# better (``loop.fit.summary_resolution`` of the network's and of the image summaries, measured on the
+# better (``infer.fit.summary_resolution`` of the network's and of the image summaries, measured on the
 # simulations alone)
 """name → (importance-weighted by p(u | M_s)/q₀; each parameter regressed on its own summary only;
-anchored on the reported amortized posterior by a control variate, ``loop.fit.anchored_summary``;
-summaries: the network's mean, ``loop.fit.image_summaries`` of the family's own simulated images, or
+anchored on the reported amortized posterior by a control variate, ``infer.fit.anchored_summary``;
+summaries: the network's mean, ``infer.fit.image_summaries`` of the family's own simulated images, or
 both side by side). The image readings exist only for states that kept their images."""
 SHIFTED_READINGS = {"shifted": "anchored", "images_shifted": "images_anchored"}
 """shifted name → anchored reading whose medians it takes, with the reported amortized posterior's
 widths around them, narrowed only where that reading's summaries alone pin a parameter finer than q₀
-(``loop.fit.shifted_summary``: q₀ as the prior counts the observation twice). The answer: the same
+(``infer.fit.shifted_summary``: q₀ as the prior counts the observation twice). The answer: the same
 medians as the anchored readings (so the same MAE, which chose them), the shifted intervals. Measured
 on re-reading the 20 saved test states at 200 simulations (`bench fit --method adjusted --families 20`,
 2026-11-27): A_ex's 90 % coverage 0.70 anchored (below the band 0.80-1.0), back within it shifted;
@@ -353,14 +353,14 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
 
     ``budget`` draws of the amortized posterior q₀ (the flow) are simulated, each on its own disorder
     realisation (stream ``closed_loop_disorder``, keys (``key``, 1000 + i)), and summarized by the
-    network (``network_summaries``). ``loop.fit.regression_adjust`` then fits how the network's summary
+    network (``network_summaries``). ``infer.fit.regression_adjust`` then fits how the network's summary
     moves with the parameters near this observation and moves each draw to the observed summary: where
     the network is biased near this film the simulations expose and remove the bias. The answer
     (``refined_by_budget``) is the reading ``ADJUSTED_CHOICE`` chosen on validation (summaries read from
-    the family's own simulated images by ``loop.fit.image_summaries``, q₀ as the prior, anchored on the
+    the family's own simulated images by ``infer.fit.image_summaries``, q₀ as the prior, anchored on the
     reported amortized posterior: its quantiles moved by the adjustment, the particles' sampling error
     removed by a control variate), or ``ADJUSTED_FALLBACK`` (the network's summaries) where no images
-    were kept or the observed image summary lies outside the simulated ones (``loop.fit.
+    were kept or the observed image summary lies outside the simulated ones (``infer.fit.
     outside_simulations``: the regression would extrapolate); the other ``ADJUSTED_READINGS`` (weights
     p(u | M_s)/q₀(u), which turn the draws into a prior sample and fall back to p(u | M_s) where the
     summary is flat; each parameter on its own summary) are under ``variants``. Independent
@@ -380,7 +380,7 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from .fit import (anchored_summary, image_summaries, outside_simulations, regression_adjust, shifted_summary,
                       summarize_particles, summary_resolution)
     from .posterior_predictive import draws_as_hamiltonians
-    from .simulated import run_tasks
+    from .resimulate import run_tasks
 
     if prior not in PRIORS:
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
@@ -598,7 +598,7 @@ def run(args) -> int:
     result["truth"] = truth
     if reference is not None:
         from .predictive_check import predictive_check
-        from .report_page import check_figure
+        from .predictive_check import check_figure
 
         result["predictive_check"] = check = predictive_check(result, reference)
         label = Path(args.input).name + ("" if args.sample_id is None else f":{args.sample_id}")

@@ -1,5 +1,5 @@
 """``forcdecode posterior-loop``: the posterior-predictive closed loop on the simulated test set
-(``loop.posterior_predictive``): K posterior draws per test family re-simulated against the floor.
+(``infer.posterior_predictive``): K posterior draws per test family re-simulated against the floor.
 
     posterior-loop --config config.json --learning learning.json --dataset dataset.h5
                    --posterior model.pt --out summary.json --table table.parquet [--figure F.png]

@@ -1,0 +1,325 @@
+"""The posterior's training (``learn.posterior``): ``fit_posterior`` fits the embedding, the regression
+head and the flow on the train split with early stopping on validation (an ensemble of members from
+independent weight seeds), and ``train_posterior``, the workflow stage, fits it, recalibrates and
+calibrates it on the held-out splits and writes the model, metrics.json and the calibration figure."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+from torch import nn
+
+from ...config import defaults
+from ...core import io
+from ...core.errors import ConfigError, DatasetError
+from ...core.parameters import LOG_SCALE, TARGETS
+from ...core.streams import stream_rng, stream_seed
+from ..scoring import binomial_band
+from ..splits import SPLITS, assign_splits
+from .calibration import fit_held_out_recalibration, split_diagnostics
+from .estimator import PosteriorEstimator
+from .file_format import FORMAT
+from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_embedding, posterior_settings, to_latent
+
+
+@_float32
+def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = None, seed: int = 0,
+                  embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
+    """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
+    of the epoch with the lowest validation negative log-likelihood; ``x`` are uint8 images (cnn) or
+    float vectors (mlp), ``u`` the targets in [0, 1], shape (n, len(names)).
+
+    ``settings["ensemble"]`` = K > 1 fits K members from independent weight seeds (member 0 from
+    ``seed`` itself, the others from the ``posterior`` stream's ``ensemble_fit`` keys) on the same
+    split; the posterior is their equal mixture (a deep ensemble: members that agree where the data
+    speak and disagree where they do not, so the mixture is wider exactly where one flow's
+    maximum-likelihood fit on a few hundred families is over-sure)."""
+    settings = posterior_settings(settings)
+    members = []
+    for k in range(int(settings["ensemble"])):
+        member_seed = seed if k == 0 else stream_seed(seed, "posterior", "ensemble_fit", k)
+        if log is not None and settings["ensemble"] > 1:
+            log(f"posterior ensemble member {k + 1}/{settings['ensemble']}")
+        members.append(_fit_member(x, ms_norm, u, train, val, names=names, settings=settings, seed=member_seed,
+                                   embedding=embedding, bounds=bounds, log=log))
+    est = members[0]
+    est.members = [m.net for m in members[1:]]
+    if len(members) > 1:
+        est.history["ensemble_best_epochs"] = [int(m.best_epoch) for m in members]
+        est.history["ensemble_val_nll"] = [float(m.history["val_nll"][m.best_epoch]) for m in members]
+        est.history["train_seconds"] = float(sum(m.history["train_seconds"] for m in members))
+    return est
+
+
+def _fit_member(x, ms_norm, u, train, val, *, names, settings: dict, seed: int, embedding: str,
+                bounds: dict | None, log) -> PosteriorEstimator:
+    """One flow (and its embedding) fitted from the weight seed ``seed``: see :func:`fit_posterior`."""
+    u = np.asarray(u, dtype=float)
+    train, val = np.asarray(train), np.asarray(val)
+    if u.ndim != 2 or u.shape[1] != len(names) or u.shape[0] != len(np.asarray(x)):
+        raise DatasetError(f"targets of shape {u.shape} do not match {len(np.asarray(x))} observations of {len(names)} parameters")
+    if not np.isfinite(u).all() or u.min() < 0.0 or u.max() > 1.0:
+        raise DatasetError("normalized targets must be finite and inside [0, 1]")
+    if len(train) < 2 or len(val) < 1:
+        raise DatasetError(f"the posterior needs at least 2 training and 1 validation samples (got {len(train)}, {len(val)})")
+    if embedding not in EMBEDDINGS:
+        raise ConfigError(f"unknown embedding {embedding!r} (one of {', '.join(EMBEDDINGS)})")
+    x = np.asarray(x)
+    architecture = {"embedding": embedding, "summary": settings["summary"], "coordinates": settings["coordinates"],
+                    "dim": len(names), "width": int(settings["width"]),
+                    "dropout": float(settings["dropout"]), "transforms": int(settings["transforms"]),
+                    "hidden": int(settings["hidden"]), "bins": int(settings["bins"])}
+    if embedding == "cnn":
+        if x.ndim != 3 or x.shape[1] != x.shape[2]:
+            raise DatasetError(f"the CNN embedding needs square images (n, side, side), got {x.shape}")
+        architecture["image_size"] = int(x.shape[-1])
+    else:
+        if x.ndim != 2:
+            raise DatasetError(f"the MLP embedding needs vectors (n, features), got {x.shape}")
+        architecture["features"] = int(x.shape[1])
+    torch.manual_seed(stream_seed(seed, "posterior", "weights"))
+    net = PosteriorNet(architecture)
+    est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}))
+    if architecture["coordinates"] == "prior" and not set(names) <= set(TARGETS):
+        raise ConfigError(f"coordinates: prior needs the dataset's parameters (a draw prior), got {list(names)}; "
+                          "use coordinates: box")
+    x_all, ms_all = est._inputs(x, ms_norm)
+    z = to_latent(est.to_coordinates(u, ms_all.double().numpy()))
+    mean, std = z[train].mean(axis=0), z[train].std(axis=0) + 1e-6
+    net.z_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+    net.z_std.copy_(torch.as_tensor(std, dtype=torch.float32))
+    z_all = torch.as_tensor((z - mean) / std, dtype=torch.float32)
+    generator = torch.Generator().manual_seed(stream_seed(seed, "posterior", "batches"))
+    train_t, val_t = torch.as_tensor(train), torch.as_tensor(val)
+    started = time.perf_counter()
+    history = {}
+    mode = settings["summary"]
+    if mode == "joint":
+        # embedding and flow together, by the flow's likelihood alone
+        def nll(index):
+            return -net.log_prob(z_all[index], x_all[index], ms_all[index]).mean()
+
+        history["train_nll"], history["val_nll"], best_epoch = _train(net, nll, train_t, val_t, settings, generator,
+                                                                      log, "posterior NLL")
+    else:
+        # 1. the embedding and a linear head as a regression of the standardized logits (early stopping
+        #    on validation): learned summaries, estimates of the posterior means
+        history["regression_train_mse"], history["regression_val_mse"], history["regression_best_epoch"] = _fit_regression(
+            net.embedding, net.head, x_all, ms_all, z_all, train_t, val_t, settings, generator, log, "summary regression")
+        net.embedding.requires_grad_(False)
+        net.head.requires_grad_(False)
+        with torch.no_grad():
+            ctx_all = net.context(x_all, ms_all)
+        if mode == "crossfit":
+            # 2. the training samples' summaries out of fold (K regressions, each blind to its fold):
+            #    the flow then learns how far summaries of unseen images are from the truth, as at test
+            folds = max(2, min(int(settings["folds"]), len(train)))
+            fold_of = stream_rng(seed, "posterior", "folds").permutation(len(train)) % folds
+            for k in range(folds):
+                held, kept = train[fold_of == k], train[fold_of != k]
+                torch.manual_seed(stream_seed(seed, "posterior", "fold_weights", k))
+                embedding, head = _make_embedding(architecture).float(), nn.Linear(architecture["width"] + 1, len(names)).float()
+                _fit_regression(embedding, head, x_all, ms_all, z_all, torch.as_tensor(kept), val_t, settings,
+                                generator, log, f"summary regression, fold {k + 1}/{folds}")
+                with torch.no_grad():
+                    held_t = torch.as_tensor(held)
+                    features = torch.cat([embedding(x_all[held_t], ms_all[held_t]), ms_all[held_t].reshape(-1, 1)], 1)
+                    ctx_all[held_t] = torch.cat([head(features), ms_all[held_t].reshape(-1, 1)], dim=1)
+        # 3. the flow on the fixed summaries
+
+        def nll(index):
+            return -net.flow(ctx_all[index]).log_prob(z_all[index]).mean()
+
+        history["train_nll"], history["val_nll"], best_epoch = _train(net.flow, nll, train_t, val_t, settings,
+                                                                      generator, log, "posterior NLL")
+        net.embedding.requires_grad_(True)
+        net.head.requires_grad_(True)
+    history["train_seconds"] = time.perf_counter() - started
+    net.eval()
+    est.history, est.best_epoch = history, best_epoch
+    return est
+
+
+def _fit_regression(embedding, head, x_all, ms_all, z_all, train_t, val_t, settings, generator, log, what):
+    """Fit ``embedding`` + linear ``head`` by the MSE of the standardized logits (early stopping on
+    validation); returns (train MSEs, validation MSEs, best epoch)."""
+    module = nn.ModuleDict({"embedding": embedding, "head": head})
+
+    def mse(index):
+        features = torch.cat([embedding(x_all[index], ms_all[index]), ms_all[index].reshape(-1, 1)], dim=1)
+        return torch.nn.functional.mse_loss(head(features), z_all[index])
+
+    return _train(module, mse, train_t, val_t, settings, generator, log, what)
+
+
+def _train(module: nn.Module, loss_of, train_t, val_t, settings, generator, log, what: str):
+    """AdamW on ``loss_of(batch indices)`` over the training indices; early stopping on the validation
+    loss; the module is left with the weights of its best epoch. Returns (train losses, validation
+    losses, best epoch)."""
+    optimizer = torch.optim.AdamW([p for p in module.parameters() if p.requires_grad], lr=settings["lr"],
+                                  weight_decay=settings["weight_decay"])
+    train_loss, val_loss = [], []
+    best, best_state, best_epoch, waited = np.inf, None, -1, 0
+    batch_size, epochs = int(settings["batch_size"]), int(settings["epochs"])
+    for epoch in range(epochs):
+        module.train()
+        order = train_t[torch.randperm(len(train_t), generator=generator)]
+        total = 0.0
+        for start in range(0, len(order), batch_size):
+            batch = order[start:start + batch_size]
+            optimizer.zero_grad()
+            loss = loss_of(batch)
+            loss.backward()
+            optimizer.step()
+            total += loss.item() * len(batch)
+        module.eval()
+        with torch.no_grad():
+            val = float(loss_of(val_t))
+        train_loss.append(total / len(order))
+        val_loss.append(val)
+        if log is not None and (epoch % 10 == 0 or epoch == epochs - 1):
+            log(f"{what}, epoch {epoch + 1}: train {train_loss[-1]:.3f}, validation {val:.3f}")
+        if np.isfinite(val) and val < best:
+            best, best_epoch, waited = val, epoch, 0
+            best_state = {k: v.detach().clone() for k, v in module.state_dict().items()}
+        else:
+            waited += 1
+            if waited >= int(settings["patience"]):
+                break
+    if best_state is None:
+        raise DatasetError(f"the {what} on the validation split was never finite")
+    module.load_state_dict(best_state)
+    module.eval()
+    return train_loss, val_loss, best_epoch
+
+
+def _regression_summary(history: dict) -> dict | None:
+    """Best epoch, epochs run and validation MSE (standardized logits) of the summary regression."""
+    if "regression_best_epoch" not in history:
+        return None
+    best = int(history["regression_best_epoch"])
+    return {"best_epoch": best, "epochs_run": len(history["regression_val_mse"]),
+            "validation_mse": float(history["regression_val_mse"][best])}
+
+
+
+def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
+                    figure_path, log=print) -> dict:
+    """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
+    the test split; write the model, metrics.json and the calibration figure (all atomically)."""
+    from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics,
+                              conformal_coverage, conformal_widening, recalibrated_calibration)
+
+    settings = posterior_settings(settings)
+    learning = {**defaults("learning"), **(learning or {})}
+    names = tuple(settings["parameters"])
+    missing = [n for n in names if n not in data.values]
+    if missing:
+        raise DatasetError(f"the dataset has no column for {', '.join(missing)}")
+    n = len(data)
+    if n < learning["min_samples"]:
+        raise DatasetError(f"the dataset has {n} FORC families; the posterior needs at least {learning['min_samples']}")
+    splits = assign_splits(data.sample_id, seed, learning["split"], learning["protocol"])
+    empty = [k for k in SPLITS if len(splits[k]) == 0]
+    if empty:
+        raise DatasetError(f"the {', '.join(empty)} split(s) of {n} FORC families are empty; raise n_samples")
+    train, val, test = splits["train"], splits["validation"], splits["test"]
+    u = np.stack([data.target(name) for name in names], axis=1)
+    log(f"posterior: {len(names)} parameters, {len(train)} training / {len(val)} validation / {len(test)} test samples")
+    started = time.perf_counter()
+    est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=settings, seed=seed,
+                        embedding="cnn", bounds=data.bounds, log=log)
+    train_s = time.perf_counter() - started
+    from ..ood import fit_ood_reference, ood_check
+
+    # calibrated on validation + calibration families (held out from the flow, never test): with ~20 each
+    # the conformal p-value can reach 1/42, below the Bonferroni level 0.025 of two scores at alpha 0.05
+    est.metadata["ood"] = fit_ood_reference(est, data.images, data.ms_norm, train,
+                                            np.union1d(val, splits["calibration"]))
+    test_ood = ood_check(est, data.images[test], data.ms_norm[test])
+    started = time.perf_counter()
+    draws = int(settings["draws"])
+    levels = [float(a) for a in settings["levels"]]
+    recalibration = None
+    if settings["recalibrate"] and learning["protocol"] == "holdout":
+        n_held_out = len(np.union1d(splits["validation"], splits["calibration"]))
+        if n_held_out < RECALIBRATION_MIN_SAMPLES:
+            log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
+                f"{RECALIBRATION_MIN_SAMPLES}")
+        else:
+            est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(
+                est, data, u, splits, draws, seed, settings["recalibration_gate_alpha"])
+            log(f"posterior recalibration fitted on {recalibration['n']} held-out families (Beta a, b; likelihood-"
+                f"ratio p; applied below {recalibration['gate_alpha']:g}): "
+                + ", ".join(f"{n} {a:.2f} {b:.2f} p {recalibration['likelihood_ratio_p'][n]:.3f}"
+                            + (" applied" if n in recalibration["beta"] else " not applied")
+                            for n, (a, b) in recalibration["beta_fitted"].items()))
+    samples = est.sample(data.images[test], data.ms_norm[test], draws, seed=stream_seed(seed, "posterior", "test_draws"),
+                         recalibrated=False)
+    # scored recalibrated, the flow alone on the same test draws reported beside it
+    calibration, flow_only, samples = recalibrated_calibration(
+        samples, u[test], names, (recalibration or {}).get("beta"),
+        lambda: stream_rng(seed, "posterior", "calibration"), levels)
+    # the calibration split is held out from the posterior too (only Alice's conformal step uses it):
+    # test + calibration doubles the samples behind the SBC and coverage figures (reported apart), and
+    # the calibration split alone conformalizes the reported intervals (measured on test)
+    held_out = np.union1d(test, splits["calibration"])
+    pooled, conformal = None, None
+    if learning["protocol"] == "holdout" and len(held_out) > len(test):
+        cal = splits["calibration"]
+        extra = est.sample(data.images[cal], data.ms_norm[cal], draws,
+                           seed=stream_seed(seed, "posterior", "calibration_draws"))
+        both = np.concatenate([test, cal])
+        pooled = calibration_metrics(np.concatenate([samples, extra]), u[both], names,
+                                     stream_rng(seed, "posterior", "calibration_pooled"), levels)
+        pooled = {"n": int(len(both)), "per_parameter": pooled["per_parameter"], "joint": pooled["joint"]["tarp"]}
+        widening = conformal_widening(extra, u[cal], levels)
+        conformal = {"n_calibration": int(len(cal)),
+                     "widening": {f"{int(round(a * 100))}": {n_: float(q[j]) for j, n_ in enumerate(names)}
+                                  for a, q in widening.items()}}
+        for level, (cov, width) in conformal_coverage(samples, u[test], widening).items():
+            tag = f"{int(round(level * 100))}"
+            for j, name in enumerate(names):
+                calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
+                calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
+    diagnostics = split_diagnostics(est, data, u, splits, draws, seed) if learning["protocol"] == "holdout" else None
+    calibration_s = time.perf_counter() - started
+    metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
+               "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
+               "parameters": list(names), "log_scale": [p for p in names if p in LOG_SCALE], "units": "normalized u in [0, 1]",
+               "bounded_support": BOUNDED_SUPPORT, "estimator": "zuko NSF conditioned on a CNN embedding and M_s",
+               "coverage": "central (equal-tailed) marginal credible intervals; joint: TARP",
+               "coverage_binomial_band": {f"{int(round(a * 100))}": binomial_band(len(test), a) for a in levels},
+               "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]},
+               "best_epoch": int(est.best_epoch), "epochs_run": len(est.history["val_nll"]),
+               "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
+               "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
+               "test_and_calibration_splits": pooled,
+               "split_diagnostics": diagnostics,
+               "conformal": conformal,
+               "recalibration": recalibration, "flow_without_recalibration": flow_only,
+               "sample_id_test": [int(s) for s in data.sample_id[test]],
+               "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
+               "ood_alpha": est.metadata["ood"]["alpha"],
+               "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
+    metrics["wall_s"]["total"] = train_s + calibration_s
+    fitted = np.union1d(train, val) if recalibration is None else np.union1d(np.union1d(train, val), splits["calibration"])
+    fitted_ids = np.sort(np.asarray(data.sample_id[fitted], dtype=np.int64)).tolist()
+    est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings, sample_ids_fitted=fitted_ids,
+             summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
+             per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal,
+             recalibration=recalibration)
+    io.write_json(metrics_path, metrics)
+    calibration_figure(metrics, figure_path)
+    for name, row in metrics["per_parameter"].items():
+        log(f"posterior {name}: MAE mean {row['mae_mean']:.3f} median {row['mae_median']:.3f}; SBC KS p {row['sbc_ks_p']:.3f}; "
+            f"coverage 50/68/90 {row.get('coverage_50', float('nan')):.2f}/{row.get('coverage_68', float('nan')):.2f}/"
+            f"{row.get('coverage_90', float('nan')):.2f}; width 90 {row.get('width_90', float('nan')):.3f}")
+    if diagnostics and "train_vs_held_out_ks_p" in diagnostics:
+        log("posterior split diagnostics (train vs held-out marginal KS p; PIT KS p train/validation/calibration/test): "
+            + "; ".join(f"{n} {diagnostics['train_vs_held_out_ks_p'][n]:.3f} ("
+                        + "/".join(f"{diagnostics['pit'][k][n]['ks_p']:.3f}" for k in SPLITS if k in diagnostics["pit"])
+                        + ")" for n in names))
+    return metrics
