@@ -522,6 +522,8 @@ def summarize(out_dir, films=None) -> dict:
         main = _block(analyses, names, "float", primary)
         film_row.update(n_fiducials=main["n_fiducials"], per_parameter=main["per_parameter"],
                         sigma_w_alignment_deg_median=main["sigma_w_alignment_deg_median"],
+                        sigma_w_alignment_matched_deg_median=main["sigma_w_alignment_matched_deg_median"],
+                        compressed_median=main["compressed_median"],
                         rho_median=main["rho_median"])
         film_row["image"] = _block(analyses, names, "image", primary)
         film_row["per_regime"] = {r: {"float": _block([a for a in analyses if a["regime"] == r], names, "float", primary),
