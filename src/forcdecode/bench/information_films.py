@@ -308,7 +308,8 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
     loaded = {label: _load(out_dir, film, sid, label, R) for label in pts}
     cpu = [c for v in loaded.values() for c in v[2]]
     out = {"film": film, "sample_id": sid, "params": base, "regime": regime(base), "K_eff": k_eff(base),
-           "sigma_w": sigma_w(base), "wall_width_nm": wall_width(base) * 1e9, "u": u.tolist(), "names": list(names),
+           "sigma_w": sigma_w(base), "wall_width_nm": wall_width(base) * 1e9,
+           "spiral_period_nm": (4 * np.pi * base["A_ex"] / abs(base["D"]) * 1e9) if base["D"] else None, "u": u.tolist(), "names": list(names),
            "R": R, "deltas": list(deltas), "families": len(cpu),
            "cpu_s_per_family_median": float(np.nanmedian(cpu)), "cpu_s_per_family_mean": float(np.nanmean(cpu)),
            "failed_families": int(sum(not np.all(np.isfinite(v[0])) for v in loaded.values())),
