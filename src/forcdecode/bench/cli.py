@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop-args", default=None,
                         help="effects --independent: the `forcdecode loop` options measured, one string (default: "
                              "the README's first loop command, bench.effects_independent.USER_LOOP_ARGS); the "
-                             "bench adds --out and --Ms-kA-m; write --loop-args=\"...\" when it starts with --)")
+                             "bench adds --out and --Ms-kA-m; write --loop-args=\"...\" when it starts with --")
     parser.add_argument("--without-estimator", choices=["population-median"], default=None,
                         help="effects --independent: no trained estimator: hand the loop (--params) the median "
                              "film of the screened prior at the given M_s, what a user without one can do "
