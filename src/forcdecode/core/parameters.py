@@ -90,5 +90,154 @@ def denormalize(name: str, unit_value, bounds=None):
     return lo + unit_value * (hi - lo)
 
 
+# ---------------------------------------------------------------- derived combinations
+MU0 = 4e-7 * np.pi
+"""Vacuum permeability μ0 (T·m/A), as in ``micromag.constants``."""
+
+
+def _si(values: dict, name: str) -> np.ndarray:
+    if name not in values:
+        raise KeyError(f"the combination needs {name!r} (SI), got {', '.join(values) or 'nothing'}")
+    return np.asarray(values[name], dtype=float)
+
+
+def k_eff(values: dict) -> np.ndarray:
+    """Effective perpendicular anisotropy K_eff = K_u − μ0 M_s²/2 (J/m³), thin-film shape anisotropy;
+    ``values``: name -> SI array (``K_u``, ``Ms``), broadcast together."""
+    return _si(values, "K_u") - MU0 * _si(values, "Ms") ** 2 / 2
+
+
+def _where_keff_positive(values: dict, fn) -> np.ndarray:
+    """fn(K_eff > 0 part) where K_eff > 0, NaN elsewhere (no √ of a negative is ever taken)."""
+    keff = k_eff(values)
+    a = _si(values, "A_ex")
+    d = np.abs(_si(values, "D")) if "D" in values else np.zeros(())
+    keff, a, d = np.broadcast_arrays(keff, a, d)
+    out = np.full(keff.shape, np.nan)
+    ok = keff > 0
+    out[ok] = fn(a[ok], keff[ok], d[ok])
+    return out if out.ndim else float(out)
+
+
+def wall_energy(values: dict) -> np.ndarray:
+    """σ_w = 4√(A_ex K_eff) − π|D| (J/m²); NaN where K_eff ≤ 0."""
+    return _where_keff_positive(values, lambda a, k, d: 4.0 * np.sqrt(a * k) - np.pi * d)
+
+
+def wall_width(values: dict) -> np.ndarray:
+    """δ_w = π√(A_ex/K_eff) (m); NaN where K_eff ≤ 0."""
+    return _where_keff_positive({k: v for k, v in values.items() if k != "D"},
+                                lambda a, k, d: np.pi * np.sqrt(a / k))
+
+
+def critical_dmi(values: dict) -> np.ndarray:
+    """D_c = 4√(A_ex K_eff)/π (J/m²), the |D| at which σ_w = 0; NaN where K_eff ≤ 0."""
+    return _where_keff_positive({k: v for k, v in values.items() if k != "D"},
+                                lambda a, k, d: 4.0 * np.sqrt(a * k) / np.pi)
+
+
+def dmi_ratio(values: dict) -> np.ndarray:
+    """|D|/D_c (dimensionless); NaN where K_eff ≤ 0."""
+    return _where_keff_positive(values, lambda a, k, d: d * np.pi / (4.0 * np.sqrt(a * k)))
+
+
+def quality_factor(values: dict) -> np.ndarray:
+    """Q = 2K_u/(μ0 M_s²) (dimensionless), defined everywhere (M_s > 0); Q > 1 ⇔ K_eff > 0."""
+    out = 2.0 * _si(values, "K_u") / (MU0 * _si(values, "Ms") ** 2)
+    return out if np.ndim(out) else float(out)
+
+
+@dataclass(frozen=True)
+class Combination:
+    """A derived combination of the Hamiltonian's parameters (M_s given), reported like a parameter.
+
+    ``formula``: the definition, in words; ``needs``: the parameters it reads (SI); ``function``:
+    name -> SI array dict → array (vectorized, broadcast), NaN where ``undefined`` says;
+    ``scale``: "log" (positive wherever defined: normalized on a log scale) or "linear"; the
+    normalization's range is not a fixed bound but a reference set of values (see
+    :func:`combination_reference`)."""
+
+    name: str
+    unit: str
+    formula: str
+    needs: tuple
+    function: object
+    scale: str
+    undefined: str
+    description: str
+
+    def __post_init__(self):
+        if self.scale not in ("linear", "log"):
+            raise ValueError(f"scale of {self.name} must be 'linear' or 'log', got {self.scale!r}")
+
+    def __call__(self, values: dict):
+        return self.function(values)
+
+
+COMBINATIONS: tuple[Combination, ...] = (
+    Combination("sigma_w", "J/m^2", "σ_w = 4√(A_ex K_eff) − π|D|, K_eff = K_u − μ0 M_s²/2", ("A_ex", "K_u", "D", "Ms"),
+                wall_energy, "linear", "NaN where K_eff ≤ 0 (no perpendicular wall; the √ is not extended)",
+                "energy per area of a Néel wall (negative: spirals are favoured)"),
+    Combination("delta_w", "m", "δ_w = π√(A_ex/K_eff)", ("A_ex", "K_u", "Ms"), wall_width, "log",
+                "NaN where K_eff ≤ 0 (the wall width diverges as K_eff → 0⁺)", "domain-wall width"),
+    Combination("D_over_Dc", "1", "|D|/D_c, D_c = 4√(A_ex K_eff)/π", ("A_ex", "K_u", "D", "Ms"), dmi_ratio, "linear",
+                "NaN where K_eff ≤ 0 (D_c undefined)", "DMI relative to the critical DMI (σ_w = 0 at 1)"),
+    Combination("Q", "1", "Q = 2K_u/(μ0 M_s²)", ("K_u", "Ms"), quality_factor, "log",
+                "defined everywhere", "quality factor (Q > 1 ⇔ K_eff > 0)"),
+)
+"""The derived combinations, one source of truth for Alice's and the posterior's metrics.
+
+Undefined region: σ_w, δ_w and D/D_c are NaN where K_eff ≤ 0 (in-plane films have no perpendicular
+Néel wall); metrics skip a family whose true value is NaN and condition a posterior on the draws
+where the combination is defined (``learn.combinations``). Q is defined everywhere.
+
+Normalization for MAE tables (:func:`normalize_combination`): u_c = (g(c) − g(lo))/(g(hi) − g(lo)) with
+g = log for the positive-definite combinations (δ_w, Q: they span decades over the prior) and the
+identity for the signed or zero-touching ones (σ_w, D/D_c); [lo, hi] is the central 98 % (1st to 99th
+percentile) of the combination over a reference set of true values: the training split's families,
+i.e. screened draws of the prior, never test. So an MAE of a combination reads on the same scale as a
+parameter's normalized MAE (≈ 1 spans the prior); values outside [lo, hi] map outside [0, 1] (not
+clipped). Coverage and SBC do not depend on the normalization (monotone), skill ratios only on g."""
+
+COMBINATION_NAMES: tuple[str, ...] = tuple(c.name for c in COMBINATIONS)
+COMBINATION_BY_NAME: dict[str, Combination] = {c.name: c for c in COMBINATIONS}
+REFERENCE_PERCENTILES = (1.0, 99.0)
+
+
+def combination_values(values: dict, names=None) -> dict:
+    """name -> SI array of each combination in ``names`` (default all) whose parameters ``values`` holds."""
+    names = COMBINATION_NAMES if names is None else tuple(names)
+    return {n: COMBINATION_BY_NAME[n](values) for n in names if set(COMBINATION_BY_NAME[n].needs) <= set(values)}
+
+
+def combination_reference(name: str, values) -> list:
+    """[lo, hi] of the normalization of combination ``name``: the 1st and 99th percentiles of its finite
+    ``values`` (SI; positive ones only for a log-scale combination); NaN where fewer than two."""
+    c = COMBINATION_BY_NAME[name]
+    values = np.asarray(values, dtype=float).ravel()
+    values = values[np.isfinite(values) & ((values > 0) if c.scale == "log" else True)]
+    if values.size < 2:
+        return [float("nan"), float("nan")]
+    lo, hi = np.percentile(values, REFERENCE_PERCENTILES)
+    if not hi > lo:  # a degenerate reference: one unit around the value
+        lo, hi = (lo / np.e, hi * np.e) if c.scale == "log" else (lo - 0.5, hi + 0.5)
+    return [float(lo), float(hi)]
+
+
+def normalize_combination(name: str, value, reference) -> np.ndarray:
+    """Combination value (SI) → u_c by the ``reference`` [lo, hi] (log scale for log-scale combinations;
+    a non-positive value of a log-scale one → NaN); NaN stays NaN."""
+    c = COMBINATION_BY_NAME[name]
+    lo, hi = (float(v) for v in reference)
+    value = np.asarray(value, dtype=float)
+    if c.scale == "log":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logged = np.where(value > 0, np.log(np.where(value > 0, value, 1.0)), np.nan)
+        return (logged - np.log(lo)) / (np.log(hi) - np.log(lo))
+    return (value - lo) / (hi - lo)
+
+
 __all__ = ["Parameter", "PARAMETERS", "NAMES", "BY_NAME", "TARGETS", "DEFAULT_BOUNDS", "LOG_SCALE", "UNITS",
-           "normalize", "denormalize"]
+           "normalize", "denormalize", "MU0", "k_eff", "wall_energy", "wall_width", "critical_dmi", "dmi_ratio",
+           "quality_factor", "Combination", "COMBINATIONS", "COMBINATION_NAMES", "COMBINATION_BY_NAME",
+           "combination_values", "combination_reference", "normalize_combination"]

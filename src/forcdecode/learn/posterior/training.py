@@ -6,6 +6,7 @@ calibrates it on the held-out splits and writes the model, metrics.json and the 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -205,6 +206,35 @@ def _regression_summary(history: dict) -> dict | None:
 
 
 
+SHUFFLED_DRAWS = 200
+"""Draws per test family of the images-shuffled baseline (only its median is used)."""
+
+
+def _combinations_and_ridge(est, data, u, splits, samples, seed: int, levels, n_boot: int, ridge_path):
+    """The derived combinations' metrics on the test families (``learn.combinations``: transforms of the
+    scored test draws ``samples``, baselines prior / M_s-only / images shuffled) and the A_ex–D ridge
+    (per-family correlation, its median, the figure at ``ridge_path``); ({}, None) where the posterior
+    learns none of the combinations' parameters."""
+    from ..combinations import available, posterior_combination_metrics, ridge_figure, ridge_summary
+
+    names = tuple(est.names)
+    train, val, test = splits["train"], splits["validation"], splits["test"]
+    ridge = ridge_summary(samples, names, stream_rng(seed, "posterior", "ridge"), n_boot)
+    if ridge is not None:
+        ridge["ridge_figure"] = ridge_path.name if ridge_figure(samples, u[test], names, data.ms_norm[test],
+                                                                data.bounds, ridge_path) else None
+    if not available(names):
+        return {}, ridge
+    permuted = test[stream_rng(seed, "posterior", "shuffle").permutation(len(test))]
+    shuffled = est.sample(data.images[permuted], data.ms_norm[test], SHUFFLED_DRAWS,
+                          seed=stream_seed(seed, "posterior", "shuffled_draws"))
+    combinations = posterior_combination_metrics(
+        samples, u[test], names, data.ms_norm[test], data.bounds, train_u=u[train], train_ms_norm=data.ms_norm[train],
+        val_u=u[val], val_ms_norm=data.ms_norm[val], shuffled=shuffled, levels=levels, n_boot=n_boot,
+        rng_of=lambda *keys: stream_rng(seed, "posterior", "combinations", *keys))
+    return combinations, ridge
+
+
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
                     figure_path, log=print) -> dict:
     """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
@@ -285,6 +315,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                 calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
                 calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
     diagnostics = split_diagnostics(est, data, u, splits, draws, seed) if learning["protocol"] == "holdout" else None
+    combinations, ridge = _combinations_and_ridge(est, data, u, splits, samples, seed, levels,
+                                                  int(learning["bootstrap"]), Path(figure_path).with_name("posterior_ridge.png"))
     calibration_s = time.perf_counter() - started
     metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
                "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
@@ -303,7 +335,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "sample_id_test": [int(s) for s in data.sample_id[test]],
                "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
                "ood_alpha": est.metadata["ood"]["alpha"],
-               "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration}
+               "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration,
+               "combinations": combinations, **(ridge or {"A_ex_D_correlation_median": None})}
     metrics["wall_s"]["total"] = train_s + calibration_s
     fitted = np.union1d(train, val) if recalibration is None else np.union1d(np.union1d(train, val), splits["calibration"])
     fitted_ids = np.sort(np.asarray(data.sample_id[fitted], dtype=np.int64)).tolist()
