@@ -196,11 +196,13 @@ def ridge_summary(samples, names, rng: np.random.Generator, n_boot: int = 2000) 
             "A_ex_D_correlation": "Pearson r of the A_ex and D draws per test family, normalized coordinates"}
 
 
-def ridge_figure(samples, truth_u, names, ms_norm, bounds, out_path, n_families: int = RIDGE_FIGURE_FAMILIES) -> bool:
+def ridge_figure(samples, truth_u, names, ms_norm, bounds, out_path, n_families: int = RIDGE_FIGURE_FAMILIES,
+                 labels=None) -> bool:
     """The A_ex–D draws (SI: pJ/m, mJ/m²) of ``n_families`` test families, spread over the families'
-    correlation quantiles, with the truth and the σ_w = const lines (σ_w at the truth and at the 5/50/95 %
-    of the draws' σ_w) drawn at the family's median K_eff of the draws. False (nothing written) where
-    the posterior lacks A_ex, D or K_u."""
+    correlation quantiles, with the truth and the σ_w = const lines: the truth's σ_w at the true K_eff
+    (through the truth), and the 5/50/95 % of the draws' σ_w at the draws' median K_eff (none where that
+    is ≤ 0). ``labels``: the families' names in the titles (sample ids; default their index). False
+    (nothing written) where the posterior lacks A_ex, D or K_u."""
     if not {"A_ex", "D", "K_u"} <= set(names):
         return False
     import matplotlib
@@ -220,20 +222,23 @@ def ridge_figure(samples, truth_u, names, ms_norm, bounds, out_path, n_families:
         truth = si_values(truth_u[i][None], names, np.asarray([ms_norm[i]]), bounds)
         ax.scatter(draws["A_ex"] * 1e12, draws["D"] * 1e3, s=3, alpha=0.25, color="tab:blue", edgecolors="none")
         ax.plot(truth["A_ex"] * 1e12, truth["D"] * 1e3, "r*", ms=9, label="truth")
-        keff = float(np.median(k_eff(draws)))
-        sigma = wall_energy(draws)
-        levels = [float(wall_energy(truth)[0])] + [float(q) for q in np.nanquantile(sigma, [0.05, 0.5, 0.95])] \
-            if np.isfinite(sigma).any() else []
-        if keff > 0:
-            a = np.linspace(*np.quantile(draws["A_ex"], [0.0, 1.0]), 50)
-            for j, s in enumerate(levels):
-                if np.isfinite(s):
-                    ax.plot(a * 1e12, (4 * np.sqrt(a * keff) - s) / np.pi * 1e3, color="k" if j == 0 else "0.5",
-                            lw=1.0 if j == 0 else 0.7, ls="-" if j == 0 else "--")
+        a = np.linspace(*np.quantile(draws["A_ex"], [0.0, 1.0]), 50)
+        # the truth's σ_w at its own K_eff (through the star); the draws' 5/50/95 % σ_w at their median K_eff
+        keff_truth, sigma_truth = float(k_eff(truth)[0]), float(wall_energy(truth)[0])
+        if keff_truth > 0:
+            ax.plot(a * 1e12, (4 * np.sqrt(a * keff_truth) - sigma_truth) / np.pi * 1e3, "k-", lw=1.0,
+                    label=r"$\sigma_w$ of the truth")
+        keff, sigma = float(np.median(k_eff(draws))), wall_energy(draws)
+        if keff > 0 and np.isfinite(sigma).any():
+            for j, s in enumerate(np.nanquantile(sigma, [0.05, 0.5, 0.95])):
+                ax.plot(a * 1e12, (4 * np.sqrt(a * keff) - s) / np.pi * 1e3, color="0.5", lw=0.7, ls="--",
+                        label=r"draws' $\sigma_w$ 5/50/95 %" if j == 0 else None)
+        label = f"{labels[i]}" if labels is not None else f"{i}"
         ax.set(xlabel=r"$A_\mathrm{ex}$ (pJ/m)", ylabel=r"$D$ (mJ/m$^2$)",
-               title=f"family {i}: r = {r[i]:.2f}" if np.isfinite(r[i]) else f"family {i}")
-        ax.set_ylim(*np.quantile(draws["D"] * 1e3, [0.0, 1.0]) + np.array([-0.05, 0.05]))
-    axes[0][0].legend(fontsize=7, title=r"lines: $\sigma_w$ = const", title_fontsize=7)
+               title=f"family {label}: r = {r[i]:.2f}" if np.isfinite(r[i]) else f"family {label}")
+        span = np.append(draws["D"], truth["D"]) * 1e3
+        ax.set_ylim(span.min() - 0.05, span.max() + 0.05)
+    axes[0][0].legend(fontsize=6, title=r"lines: $\sigma_w$ = const", title_fontsize=6)
     fig.tight_layout()
     with io.atomic_path(out_path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")

@@ -222,7 +222,7 @@ def _combinations_and_ridge(est, data, u, splits, samples, seed: int, levels, n_
     ridge = ridge_summary(samples, names, stream_rng(seed, "posterior", "ridge"), n_boot)
     if ridge is not None:
         ridge["ridge_figure"] = ridge_path.name if ridge_figure(samples, u[test], names, data.ms_norm[test],
-                                                                data.bounds, ridge_path) else None
+                                                                data.bounds, ridge_path, labels=data.sample_id[test]) else None
     if not available(names):
         return {}, ridge
     permuted = test[stream_rng(seed, "posterior", "shuffle").permutation(len(test))]
