@@ -228,3 +228,79 @@ def test_alice_plug_in_combinations():
     assert rows["Q"]["mae"] == pytest.approx(float(np.mean(np.abs(g(q_hat[test]) - g(q_true[test])))), rel=1e-12)
     assert rows["Q"]["baselines"]["prior"] == pytest.approx(
         float(np.mean(np.abs(np.median(g(q_true[train])) - g(q_true[test])))), rel=1e-12)
+
+
+def test_alice_combinations_from_prediction_files_and_dataset(tmp_path):
+    import h5py
+    import pandas as pd
+
+    from forcdecode.learn.report import alice_combinations
+
+    data = wall_dataset(n=60, seed=6)
+    columns = ["Ms", "A_ex", "K_u", "D"]
+    with h5py.File(tmp_path / "dataset.h5", "w") as h5:
+        h5["parameters"] = np.stack([data.values[c] for c in columns], axis=1)
+        h5["parameters"].attrs["columns"] = columns
+        h5["images"], h5["sample_id"], h5["fields_T"] = data.images, data.sample_id, data.fields_T
+        h5.attrs["config_json"], h5.attrs["config_hash"] = json.dumps({"bounds": {}}), "walls"
+    split = np.array(["train", "validation", "calibration", "test"])[np.arange(60) % 4]
+    order = np.random.default_rng(0).permutation(60)       # the frames' rows in another order than the file's
+    noise = np.random.default_rng(1)
+    predictions = {n: pd.DataFrame({"sample_id": data.sample_id[order], "split": split[order],
+                                    "target": data.target(n)[order],
+                                    "prediction": np.clip(data.target(n)[order] + noise.normal(0, 0.05, 60), 0, 1)})
+                   for n in ("A_ex", "K_u", "D")}
+    rows = alice_combinations(predictions, tmp_path / "dataset.h5", seed=3, n_boot=200)
+    expected = alice_combination_metrics({n: f["prediction"].to_numpy() for n, f in predictions.items()},
+                                         {n: f["target"].to_numpy() for n, f in predictions.items()},
+                                         data.ms_norm[order], data.bounds, split[order],
+                                         lambda *k: np.random.default_rng(0), n_boot=200)
+    assert set(rows) == set(COMBINATION_NAMES)
+    for name in COMBINATION_NAMES:
+        assert rows[name]["mae"] == pytest.approx(expected[name]["mae"], rel=1e-12), name
+        assert rows[name]["baselines"] == pytest.approx(expected[name]["baselines"]), name
+        assert np.all(np.isfinite(rows[name]["skill_vs_ms_only_ci90"]))
+
+
+def test_alice_combinations_images_shuffled_baseline_from_the_model_files(tmp_path):
+    import h5py
+    import pandas as pd
+
+    from forcdecode.learn.models import build_network
+    from forcdecode.learn.predictor import ParameterModel
+    from forcdecode.learn.report import alice_combinations
+
+    data = wall_dataset(n=48, seed=7)
+    columns = ["Ms", "A_ex", "K_u", "D"]
+    with h5py.File(tmp_path / "dataset.h5", "w") as h5:
+        h5["parameters"] = np.stack([data.values[c] for c in columns], axis=1)
+        h5["parameters"].attrs["columns"] = columns
+        h5["images"], h5["sample_id"], h5["fields_T"] = data.images, data.sample_id, data.fields_T
+        h5.attrs["config_json"], h5.attrs["config_hash"] = json.dumps({"bounds": {}}), "walls"
+    torch.manual_seed(0)
+    models = tmp_path / "models"
+    models.mkdir()
+    for name in ("A_ex", "K_u", "D"):   # untrained networks: what matters is that the baseline runs them
+        net = build_network("small", width=4, image_size=SIDE)
+        torch.save({"format": "forcdecode-alice-bob/1", "parameter": name,
+                    "architecture": {"model": "small", "width": 4, "image_size": SIDE}, "readout": "parabola",
+                    "bounds": {k: list(v) for k, v in DEFAULT_BOUNDS.items()}, "alice_state": net.state_dict(),
+                    "bob_state": net.state_dict(), "validation_errors": [0.1, 0.2],
+                    "conformal": {"levels": [0.9], "quantiles": {"0.9": 1.0}, "sigma_floor": 1e-4}}, models / f"{name}.pt")
+    split = np.array(["train", "validation", "calibration", "test"])[np.arange(48) % 4]
+    # Alice's own predictions on the unshuffled test images: the same networks
+    predictions = {n: pd.DataFrame({"sample_id": data.sample_id, "split": split, "target": data.target(n),
+                                    "prediction": ParameterModel.load(models / f"{n}.pt").predict(
+                                        data.images, data.values["Ms"])["normalized"]}) for n in ("A_ex", "K_u", "D")}
+    without = alice_combinations(predictions, tmp_path / "dataset.h5", seed=1, n_boot=200)
+    rows = alice_combinations(predictions, tmp_path / "dataset.h5", seed=1, n_boot=200, models=models)
+    assert rows["Q"]["n_scored"] == 12                     # Q is defined for every test family
+    for name in COMBINATION_NAMES:
+        assert "images_shuffled" not in without[name]["baselines"]
+        if rows[name]["n_scored"] < 2:
+            continue
+        base = rows[name]["baselines"]
+        assert np.isfinite(base["images_shuffled"]) and base["images_shuffled_permutations"] == 5, name
+        assert rows[name]["skill_vs_images_shuffled"] == pytest.approx(1 - rows[name]["mae"] / base["images_shuffled"])
+        assert len(rows[name]["skill_vs_images_shuffled_ci90"]) == 2
+        assert rows[name]["mae"] == without[name]["mae"]

@@ -32,6 +32,9 @@ rule evaluate:
             f"{RESULTS}/learn/{{parameter}}_predictions.parquet",
             parameter=LEARN_PARAMETERS,
         ),
+        models=expand(f"{RESULTS}/models/{{parameter}}.pt", parameter=LEARN_PARAMETERS),
+        dataset=rules.merge.output.h5,
+        config=rules.resolve_learning.output,
     output:
         metrics=f"{RESULTS}/metrics.json",
         table=f"{RESULTS}/metrics.md",
@@ -75,9 +78,11 @@ rule evaluate:
     params:
         cli=FORCDECODE,
         figures=lambda wildcards, output: os.path.dirname(output.figure3),
+        models=lambda wildcards, input: os.path.dirname(input.models[0]),
     shell:
         "{params.cli} learn evaluate --metrics {input.metrics} --predictions {input.predictions} "
-        "--out {output.metrics} --learning-curve {output.learning_curve_json} --figures {params.figures} > {log} 2>&1"
+        "--out {output.metrics} --learning-curve {output.learning_curve_json} --figures {params.figures} "
+        "--dataset {input.dataset} --config {input.config} --models {params.models} > {log} 2>&1"
 
 
 rule closed_loop:

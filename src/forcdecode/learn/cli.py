@@ -2,6 +2,7 @@
 
     learn train     --config C --dataset dataset.h5 --parameter P --model M.pt --predictions X.parquet --metrics J.json
     learn evaluate  --metrics J.json... --predictions X.parquet... --out metrics.json --figures DIR
+                    [--dataset dataset.h5 --config learning.json --models results/models]
     learn posterior --config C --dataset dataset.h5 --model results/posterior/model.pt
                     --metrics results/posterior/metrics.json --figures DIR [--settings JSON]
     learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
@@ -42,6 +43,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="metrics.json")
     p.add_argument("--learning-curve", help="learning_curve.json (default: beside --out)")
     p.add_argument("--figures", required=True)
+    p.add_argument("--dataset", help="dataset.h5 the networks were trained on: adds the derived combinations "
+                                     "(sigma_w, delta_w, D/D_c, Q) of Alice's predictions to metrics.json")
+    p.add_argument("--config", help="resolved learning.json (seed and bootstrap of the combinations' intervals)")
+    p.add_argument("--models", help="directory of the <parameter>.pt files (with --dataset: the combinations' "
+                                    "images-shuffled baseline)")
     p = sub.add_parser("posterior", help="neural posterior estimate of all parameters, calibrated on the test split")
     p.add_argument("--config", required=True, help="resolved learning.json (seed, learning.split; a posterior section if any)")
     p.add_argument("--dataset", required=True)
@@ -210,7 +216,12 @@ def run(args) -> int:
     if args.step == "evaluate":
         from .report import evaluate, markdown
 
-        metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve)
+        from ..config import defaults
+
+        cfg = read_config(args.config) if args.config else {}
+        n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
+        metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
+                           dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models)
         print(markdown(metrics))
         return 0
     raise ValueError(f"unknown step {args.step}")  # argparse allows only train and evaluate

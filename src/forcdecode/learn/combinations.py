@@ -247,12 +247,15 @@ def ridge_figure(samples, truth_u, names, ms_norm, bounds, out_path, n_families:
 
 
 def alice_combination_metrics(prediction_u: dict, target_u: dict, ms_norm, bounds, split, rng_of,
-                              n_boot: int = 2000) -> dict:
+                              n_boot: int = 2000, shuffled_u=None) -> dict:
     """Alice's plug-in combinations: ``prediction_u``/``target_u`` name -> normalized array over every
     family (each network's readout and the truth), ``ms_norm`` per family, ``split`` per family
     ("train"/"validation"/"calibration"/"test"). The normalization range and baselines come from the
     training families, the figures from the test ones (MAE, Pearson r, skill vs prior and M_s-only with
-    90 % intervals); no coverage (Alice's marginal intervals make no joint)."""
+    90 % intervals); no coverage (Alice's marginal intervals make no joint). ``shuffled_u``: a list (one
+    per permutation of the test images, M_s kept) of name -> normalized predictions over every family
+    (only the test ones are read): the images-shuffled baseline, its MAE averaged over the permutations
+    (as Alice's per-parameter baseline), the skill interval paired per family on that average."""
     names = tuple(n for n in prediction_u if n in target_u)
     combinations = available(names)
     if not combinations:
@@ -265,6 +268,8 @@ def alice_combination_metrics(prediction_u: dict, target_u: dict, ms_norm, bound
     train, val, test = (np.flatnonzero(split == s) for s in ("train", "validation", "test"))
     reference = references(truth[train], combinations)
     predicted_c, truth_c = _normalized(predicted, combinations, reference), _normalized(truth, combinations, reference)
+    shuffled_c = [_normalized(combinations_of(stack(d), names, ms_norm, bounds, combinations), combinations, reference)
+                  for d in (shuffled_u or [])]
     out = {}
     for k, name in enumerate(combinations):
         c = COMBINATION_BY_NAME[name]
@@ -279,12 +284,24 @@ def alice_combination_metrics(prediction_u: dict, target_u: dict, ms_norm, bound
                "n_scored": int(len(scored)), "n_truth_undefined": int(len(test) - len(scored)),
                "n_plug_in_undefined": int(undefined.sum())}
         if len(scored) >= 2:
+            shuffled = None
+            if shuffled_c:
+                # per family the mean |error| over the permutations, as a prediction at that distance from
+                # the truth: its MAE is the permutations' mean MAE, and the bootstrap stays paired per family
+                errors = np.mean([np.abs(np.where(np.isfinite(sc[scored, k]), sc[scored, k], prior) - truth_c[scored, k])
+                                  for sc in shuffled_c], axis=0)
+                shuffled = truth_c[scored, k] + errors
             acc = accuracy_block(truth_c[scored, k], plug_in, (ms_norm[train], ms_norm[val], ms_norm[scored]),
-                                 (truth_c[train, k], truth_c[val, k]), None, np.zeros(0), rng_of("bootstrap", name),
+                                 (truth_c[train, k], truth_c[val, k]), shuffled, np.zeros(0), rng_of("bootstrap", name),
                                  n_boot)
-            for key in ("coverage_90", "coverage_90_ci90", "skill_vs_images_shuffled", "skill_vs_images_shuffled_ci90"):
+            for key in ("coverage_90", "coverage_90_ci90"):
                 acc.pop(key, None)
-            acc["baselines"].pop("images_shuffled", None)
+            if shuffled is None:
+                for key in ("skill_vs_images_shuffled", "skill_vs_images_shuffled_ci90"):
+                    acc.pop(key, None)
+                acc["baselines"].pop("images_shuffled", None)
+            else:
+                acc["baselines"]["images_shuffled_permutations"] = len(shuffled_c)
             row.update(acc)
         out[name] = row
     return out

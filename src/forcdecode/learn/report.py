@@ -233,7 +233,53 @@ def markdown(metrics: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None) -> dict:
+def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 2000, models=None) -> dict:
+    """``combinations`` of metrics.json: the derived combinations (``core.parameters.COMBINATIONS``) of
+    Alice's predicted parameters, plug-in (``learn.combinations.alice_combination_metrics``), on the test
+    families; ``predictions``: name -> predictions frame, ``dataset``: the dataset.h5 they were made on
+    (M_s and the bounds); ``models``: the directory of the ``<parameter>.pt`` files, for the images-shuffled
+    baseline (each network on the test images permuted among the test families, M_s kept, as many
+    permutations as Alice's per-parameter baseline); None: that baseline is left out."""
+    from ..core.streams import stream_rng
+    from .combinations import alice_combination_metrics
+    from .data import load_dataset
+
+    data = load_dataset(dataset)
+    position = {int(s): k for k, s in enumerate(data.sample_id)}
+    names = list(predictions)
+    frame = predictions[names[0]][["sample_id", "split"]]
+    ids = frame["sample_id"].to_numpy()
+    index = np.array([position[int(s)] for s in ids])
+    prediction_u, target_u = {}, {}
+    for name in names:
+        other = predictions[name].set_index("sample_id").loc[ids]
+        prediction_u[name], target_u[name] = other["prediction"].to_numpy(float), other["target"].to_numpy(float)
+    shuffled_u = None
+    if models is not None:
+        from .pipeline import N_SHUFFLES
+        from .predictor import ParameterModel
+
+        networks = {name: ParameterModel.load(Path(models) / f"{name}.pt") for name in names}
+        test = np.flatnonzero(frame["split"].to_numpy() == "test")
+        ms_si = data.values["Ms"][index]
+        rng = stream_rng(seed, "baseline_shuffle", "combinations")
+        shuffled_u = []
+        for _ in range(N_SHUFFLES):
+            permuted = test[rng.permutation(len(test))]
+            one = {name: np.full(len(ids), np.nan) for name in names}
+            for name, net in networks.items():
+                one[name][test] = net.predict(data.images[index[permuted]], ms_si[test])["normalized"]
+            shuffled_u.append(one)
+    return alice_combination_metrics(prediction_u, target_u, data.ms_norm[index], data.bounds, frame["split"].to_numpy(),
+                                     lambda *keys: stream_rng(seed, "bootstrap", "combinations", *keys), n_boot,
+                                     shuffled_u=shuffled_u)
+
+
+def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None, dataset=None,
+             seed: int = 0, n_boot: int = 2000, models=None) -> dict:
+    """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset.h5 Alice was
+    trained on) metrics.json also holds the derived combinations of Alice's predictions (with ``models``,
+    the directory of the model files, their images-shuffled baseline too)."""
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
@@ -242,6 +288,9 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
     for path in prediction_paths:
         name = Path(path).stem.replace("_predictions", "")
         predictions[name] = pd.read_parquet(path)
+    if dataset is not None:
+        metrics["combinations"] = alice_combinations(predictions, dataset, seed, n_boot, models)
+        io.write_json(out_metrics, json.loads(json.dumps(metrics, default=float)))
     figure3(predictions, figure_dir / "figure3.png")
     name = "D" if "D" in predictions else next(iter(predictions))
     figure5bc(predictions[name], figure_dir / "figure5bc.png", name=name)
