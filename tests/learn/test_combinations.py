@@ -304,3 +304,25 @@ def test_alice_combinations_images_shuffled_baseline_from_the_model_files(tmp_pa
         assert rows[name]["skill_vs_images_shuffled"] == pytest.approx(1 - rows[name]["mae"] / base["images_shuffled"])
         assert len(rows[name]["skill_vs_images_shuffled_ci90"]) == 2
         assert rows[name]["mae"] == without[name]["mae"]
+
+
+def test_prediction_summarizes_the_combinations_of_the_draws(stage):
+    from forcdecode.learn.combinations import summarize_draws
+    from forcdecode.learn.posterior import PosteriorEstimator, posterior_prediction
+
+    data, _, out = stage
+    est = PosteriorEstimator.load(out / "model.pt")
+    result = posterior_prediction(est, data.images[0], float(data.values["Ms"][0]), n_draws=200, seed=0)
+    assert set(result["combinations"]) == set(COMBINATION_NAMES)
+    q = result["combinations"]["Q"]
+    assert q["defined_fraction"] == 1.0 and q["interval_90"][0] <= q["value"] <= q["interval_90"][1]
+    # by hand on fixed draws: Q of the K_u draws, σ_w NaN (K_eff ≤ 0) for the draws with small K_u
+    names = ("A_ex", "K_u", "D")
+    draws = np.array([[0.5, 0.2, 0.5], [0.5, 0.9, 0.5], [0.5, 0.95, 0.5], [0.5, 1.0, 0.5]])
+    ms_norm = float(normalize("Ms", 8e5))
+    rows = summarize_draws(draws, names, ms_norm, DEFAULT_BOUNDS)
+    k_u = denormalize("K_u", draws[:, 1])
+    assert rows["Q"]["value"] == pytest.approx(float(np.median(quality_factor({"K_u": k_u, "Ms": 8e5}))))
+    sigma = wall_energy({"A_ex": denormalize("A_ex", 0.5), "K_u": k_u, "D": denormalize("D", 0.5), "Ms": 8e5})
+    assert np.isnan(sigma[0]) and rows["sigma_w"]["defined_fraction"] == 0.75
+    assert rows["sigma_w"]["value"] == pytest.approx(float(np.median(sigma[1:])))

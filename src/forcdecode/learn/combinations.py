@@ -172,6 +172,29 @@ def posterior_combination_metrics(samples, truth_u, names, ms_norm, bounds, *, t
     return out
 
 
+def summarize_draws(draws, names, ms_norm: float, bounds, levels=(0.68, 0.9)) -> dict:
+    """One observation's draws (n_draws, len(names)) → per computable combination: the median of its
+    defined draws (``value``, SI), central intervals ``interval_<level>`` (SI), ``unit``, ``formula`` and
+    ``defined_fraction`` (the posterior conditioned on the combination being defined, as in the metrics)."""
+    combinations = available(names)
+    if not combinations:
+        return {}
+    draws = np.asarray(draws, dtype=float)
+    values = combinations_of(draws[None], names, [ms_norm], bounds, combinations)[0]
+    out = {}
+    for k, name in enumerate(combinations):
+        c = COMBINATION_BY_NAME[name]
+        defined = values[np.isfinite(values[:, k]), k]
+        row = {"unit": c.unit, "formula": c.formula, "defined_fraction": float(defined.size / max(len(values), 1))}
+        if defined.size:
+            row["value"] = float(np.median(defined))
+            for level in levels:
+                row[f"interval_{int(round(level * 100))}"] = [float(q) for q in
+                                                               np.quantile(defined, [(1 - level) / 2, (1 + level) / 2])]
+        out[name] = row
+    return out
+
+
 def ridge_correlations(samples, names, pair=RIDGE_PAIR) -> np.ndarray | None:
     """Per family the Pearson correlation of the draws of ``pair`` (normalized coordinates); NaN where
     either has no spread; None where ``names`` lacks one of them."""
@@ -308,5 +331,6 @@ def alice_combination_metrics(prediction_u: dict, target_u: dict, ms_norm, bound
 
 
 __all__ = ["RIDGE_PAIR", "available", "si_values", "combinations_of", "condition_on_defined", "references",
+           "summarize_draws",
            "accuracy_block", "posterior_combination_metrics", "ridge_correlations", "ridge_summary", "ridge_figure",
            "alice_combination_metrics"]

@@ -218,7 +218,8 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     68 % and 90 % central credible intervals (SI and normalized), the same conformalized on the
     calibration split (``interval_90_conformal``; models trained with a calibration split), and the
     pairwise correlations of the draws (``posterior_correlation``): the format of
-    ``predict_parameters``, Bob's fields absent."""
+    ``predict_parameters``, Bob's fields absent; ``combinations``: the derived combinations of the draws
+    (``learn.combinations.summarize_draws``: median and intervals, SI)."""
     from ...core.parameters import normalize
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
@@ -244,4 +245,8 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
             result[name][f"interval_{tag}_conformal"] = [float(denormalize(name, lo, est.bounds)),
                                                          float(denormalize(name, hi, est.bounds))]
     result["posterior_correlation"] = summary["correlation"]
+    from ..combinations import summarize_draws
+
+    # the derived combinations (σ_w, δ_w, D/D_c, Q; core.parameters) as transforms of the same draws
+    result["combinations"] = summarize_draws(draws, est.names, ms_norm, est.bounds)
     return result
