@@ -113,10 +113,20 @@ def test_scoring_an_ambiguous_answer_is_partial_never_correct():
 def test_the_ambiguous_verdict_names_its_set():
     report = {"status": "analysed", "verdict": "ambiguous: background, additive_drift", "effect": "none",
               "analysis": {}}
-    assert bench._answer_of_report(report) == _answer("additive_drift", "background", ambiguous=True)
+    assert bench._answer_of_report(report) == {**_answer("additive_drift", "background", ambiguous=True),
+                                               "hedged": False}
     report["analysis"] = {"ambiguous_set": ["scale", "background"]}
     assert bench._answer_of_report(report)["named"] == ["background", "scale"]
     assert bench._answer_of_report({"status": "out of domain"})["refused"] == "out of domain"
+    # the loop's own form (analyse_residual's ambiguity stage): the set under analysis["ambiguous"], the
+    # Hamiltonian's change a member but not an effect
+    hedged = bench._answer_of_report({"status": "analysed", "verdict": "ambiguous", "effect": "none",
+                                      "analysis": {"ambiguous": ["K_u change", "second_phase"]}})
+    assert hedged["named"] == ["second_phase"] and hedged["ambiguous"] and hedged["hedged"]
+    assert score_answer("control", "none", hedged) == "wrong"
+    assert score_answer("library", "second_phase", hedged) == "partial"
+    assert score_answer("library", "K_2", hedged) == "wrong"
+    assert largest_gain_answer({"K_u change": {"relative_gain": 0.9}, "scale": {"relative_gain": 0.1}})["named"] == ["scale"]
     assert bench._answer_of_report({"status": "analysed", "verdict": "unexplained structured residual",
                                      "effect": "none"})["named"] == []
 
@@ -165,6 +175,11 @@ def _rows():
     rows.append(user_row(_case("control", "none", None, 5), _report("none", "none", {"scale": 0.01})))
     rows.append(user_row(_case("control", "none", None, 6), _report("scale", "scale", {"scale": 0.2}, after=0.08)))
     rows.append(user_row(_case("control", "none", None, 7), _report("unexplained structured residual", "none", {"K_2": 0.03})))
+    rows.append(user_row(_case("control", "none", None, 9),
+                         {**_report("ambiguous", "none", {"K_2": 0.05}),
+                          "analysis": {"ambiguous": ["K_u change", "K_2"], "candidates": {
+                              "none": {"heldout_rms": 0.1, "relative_gain": 0.0},
+                              "K_2": {"heldout_rms": 0.095, "relative_gain": 0.05}}}}))
     # outside: nothing forced
     rows.append(user_row(_case("outside", "outside: detector lag", 1.0, 8),
                          _report("unexplained structured residual", "none", {"field_offset": 0.3})))
@@ -173,22 +188,23 @@ def _rows():
 
 def test_the_summary_on_hand_made_rows():
     s = summarize_user(_rows())
-    assert (s["n_controls"], s["n_library"], s["n_outside"]) == (3, 5, 1)
+    assert (s["n_controls"], s["n_library"], s["n_outside"]) == (4, 5, 1)
     assert s["oracle_inputs"] is False
     assert s["correct_fraction"] == pytest.approx(3 / 5) and s["partial_fraction"] == pytest.approx(1 / 5)
-    assert s["false_attribution_controls"] == pytest.approx(1 / 3)
+    assert s["false_attribution_controls"] == pytest.approx(2 / 4) and s["hedged_controls_k"] == 1
     assert s["false_attribution_outside_library"] == 0.0
     assert s["correct_fraction_ci90"] == pytest.approx(clopper_pearson(3, 5))
-    assert s["false_attribution_controls_ci90"] == pytest.approx(clopper_pearson(1, 3))
+    assert s["false_attribution_controls_ci90"] == pytest.approx(clopper_pearson(2, 4))
     # where the loop names one effect: reductions 0.3, 0.5, 0.7 (background) and 0.2 (scale on a control)
     assert s["median_heldout_reduction"] == pytest.approx(np.median([0.3, 0.5, 0.7, 0.2]))
     none, largest = s["trivial"]["always_none"], s["trivial"]["always_largest_gain"]
     assert none["correct_fraction"] == 0 and none["false_attribution_controls"] == 0
     assert none["false_attribution_outside_library"] == 0 and none["median_heldout_reduction"] is None
-    # largest gain: K_2, background, K_2, background, field_offset -> 3 of 5 correct; all 3 controls named
-    assert largest["correct_fraction"] == pytest.approx(3 / 5)
+    # largest gain: K_2, background, K_2, background, field_offset -> 3 of 5 correct; all 4 controls named
+    assert largest["correct_fraction"] == pytest.approx(3 / 5) and largest["hedged_controls_k"] == 0
     assert largest["false_attribution_controls"] == 1.0 and largest["false_attribution_outside_library"] == 1.0
-    assert largest["median_heldout_reduction"] == pytest.approx(np.median([0.05, 0.3, 0.6, 0.7, 0.4, 0.01, 0.2, 0.03, 0.3]))
+    assert largest["median_heldout_reduction"] == pytest.approx(
+        np.median([0.05, 0.3, 0.6, 0.7, 0.4, 0.01, 0.2, 0.03, 0.05, 0.3]))
     for key in ("correct_fraction_ci90", "partial_fraction", "false_attribution_controls_ci90",
                 "false_attribution_outside_library_ci90"):
         assert key in none and key in largest and key in s

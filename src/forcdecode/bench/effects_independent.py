@@ -866,6 +866,11 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
                     loop_namespace(argv).estimator, sample_s=sample_s, loop_s=time.perf_counter() - start)
 
 
+HAMILTONIAN_CHANGE = "K_u change"
+"""The member an ambiguous set gives the decoded Hamiltonian's own neighbourhood
+(``loop.effects.HAMILTONIAN_CHANGE``): a change of the Hamiltonian, not an effect."""
+
+
 def _answer_of_report(report: dict) -> dict:
     """What the loop answered: {"named": [effects], "ambiguous": bool, "refused": status or None}. An
     "ambiguous" verdict names the set it lists (analysis "ambiguous_set"/"ambiguous", or "ambiguous: a, b")."""
@@ -879,14 +884,15 @@ def _answer_of_report(report: dict) -> dict:
         names = analysis.get("ambiguous_set") or analysis.get("ambiguous")
         if not isinstance(names, (list, tuple)):
             names = [n.strip() for n in verdict.partition(":")[2].strip(" ()").split(",") if n.strip()]
-        return {"named": sorted(names), "ambiguous": True, "refused": None}
+        return {"named": sorted(n for n in names if n != HAMILTONIAN_CHANGE), "ambiguous": True, "refused": None,
+                "hedged": HAMILTONIAN_CHANGE in names}
     return {"named": [report.get("effect") or verdict], "ambiguous": False, "refused": None}
 
 
 def largest_gain_answer(candidates: dict) -> dict:
     """``always_largest_gain``: the candidate with the largest held-out relative gain, no gate ("none"
     when no candidate gains)."""
-    gains = {k: v.get("relative_gain") for k, v in candidates.items() if k != "none"}
+    gains = {k: v.get("relative_gain") for k, v in candidates.items() if k not in ("none", HAMILTONIAN_CHANGE)}
     gains = {k: g for k, g in gains.items() if g is not None and np.isfinite(g)}
     best = max(gains, key=gains.get) if gains else None
     return {"named": [best] if best is not None and gains[best] > 0 else [], "ambiguous": False, "refused": None}
@@ -895,8 +901,10 @@ def largest_gain_answer(candidates: dict) -> dict:
 def score_answer(kind: str, true_class: str, answer: dict) -> str:
     """"correct", "partial" or "wrong". Library case: correct when the one effect named is the true one
     (or one no FORC measurement tells from it, ``SAME_OBSERVABLE``); partial when an ambiguous answer's
-    set holds it (never correct); else wrong. Control or outside case: correct when nothing is named
-    (none, an unexplained structured residual, or a refusal), else wrong (an ambiguous set is an attribution)."""
+    set holds it (never correct); else wrong. Control or outside case: correct when no effect is named
+    (none, an unexplained structured residual, or a refusal), else wrong: an ambiguous set naming an
+    effect is an attribution, also where it holds the Hamiltonian's own change ("hedged", counted
+    apart by ``rule_metrics``). ``named`` never holds ``HAMILTONIAN_CHANGE``."""
     named = answer["named"]
     if kind in ("control", "outside"):
         return "wrong" if named else "correct"
@@ -975,6 +983,9 @@ def rule_metrics(rows: list[dict], rule: str) -> dict:
                              ("false_attribution_controls", controls, lambda r: r["scores"][rule] == "wrong"),
                              ("false_attribution_outside_library", outside, lambda r: r["scores"][rule] == "wrong")):
         out[key], out[f"{key}_ci90"], out[f"{key}_k"] = _rate(group, test)
+    for key, group in (("hedged_controls_k", controls), ("hedged_outside_library_k", outside)):
+        # false attributions that were ambiguous sets holding the Hamiltonian's change beside the effect
+        out[key] = sum(r["scores"][rule] == "wrong" and bool(r["answers"][rule].get("hedged")) for r in group)
     reductions = [r["heldout_reduction"][rule] for r in rows if r["heldout_reduction"][rule] is not None]
     out["median_heldout_reduction"] = float(np.median(reductions)) if reductions else None
     out["n_named"] = len(reductions)
