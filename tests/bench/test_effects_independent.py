@@ -58,8 +58,17 @@ def test_one_control_case_end_to_end(tmp_path):
     pytest.importorskip("magnumnp")
     from forcdecode.bench.effects_independent import run_case
 
-    row = run_case({"case": "none", "hamiltonian": 0, "seed": 1}, tmp_path, cache_dir=tmp_path / "kernels")
-    assert row["kind"] == "control" and row["in_domain"] is not None
+    # CI runs it: a small magnum.np film (20 × 20 cells of 2.5 nm, 8 grains; the bench's is 58 × 58) and
+    # 16 curves, 2 null realisations (of 10) and 12 refit evaluations (of 24). The path is the bench's
+    # own (sample, instrument file, reader, grid, refit, candidates); what the bench measures needs its
+    # own film, so this checks the wiring and the refit's direction, not a rate
+    row = run_case({"case": "none", "hamiltonian": 0, "seed": 1}, tmp_path, cache_dir=tmp_path / "kernels",
+                   sample_curves=16, null_realisations=2, budget=12,
+                   sample_film={"nx": 20, "ny": 20, "cell_nm": 2.5, "n_grains": 8})
+    # H0 (K_u = 2.6e5 J/m³, Q = 1.15) switches well inside ±1 T: the file saturates at both ends and is in
+    # the domain (measured: 134 s on a loaded 2-core machine; held-out RMS 0.225 handed → 0.177 refitted)
+    assert row["kind"] == "control" and row["in_domain"] is True, row.get("out_of_domain_reason")
+    assert row["sample_curves"] == 16
     assert (tmp_path / "none_H0_s1.frc").exists() or (tmp_path / "none_H0_s1.csv").exists()
     assert row["heldout_rms_before"] < row["heldout_rms_prediction"]  # the refit moved towards the sample
 

@@ -213,7 +213,8 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
 
 def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
              null_realisations: int | None = None, patches: int = 1, profiles: int = 1,
-             sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None) -> dict:
+             sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None,
+             sample_film: dict | None = None) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
     measured rule, Hamiltonian refitted, candidates judged. ``row``: {"case", "hamiltonian", "seed"}
     and, for a case apart from ``CASES`` (``VALIDATION_CASES``), its "physics" and "instrument";
@@ -222,7 +223,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     realisation floor falls as 1/√n on each side); ``sample_curves``: FORCs in the file;
     ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``); ``analysis``:
     options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g. ``cross_fit``,
-    ``evidence_suffices``), kept in the row. Returns the JSON-ready row."""
+    ``evidence_suffices``), kept in the row; ``sample_film``: keys of ``SAMPLE`` replaced for this case (a
+    smaller magnum.np film for a test of the wiring). Returns the JSON-ready row."""
     from ..forc.raster import measured_image
     from ..loop.physics_effects import NULL_REALISATIONS
     from ..loop.refit import analyse_with_refit
@@ -235,7 +237,8 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     analysis = selection_options(analysis)
     truth = dict(HAMILTONIANS[h])
     physics = dict(physics)
-    film = IndependentFilm(**SAMPLE, anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
+    film = IndependentFilm(**{**SAMPLE, **(sample_film or {})},
+                           anisotropy_distribution=physics.pop("anisotropy_distribution", "gaussian"))
     start = time.perf_counter()
     sample = stored_sample(samples_dir, truth, physics, seed, cache_dir, measurement_protocol(sample_curves), film,
                            patches=patches)
