@@ -42,3 +42,22 @@ def test_training_is_deterministic():
     a = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
     b = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
     np.testing.assert_array_equal(a.outputs(images[:10], ms[:10]), b.outputs(images[:10], ms[:10]))
+
+
+def test_training_runs_in_float32_whatever_the_process_default():
+    """magnum.np sets torch's default dtype to float64 on import (a test session that imported it first
+    trained Bob in float64, and Bob collapsed to a constant): training entry points run in float32 and
+    restore the caller's default afterwards."""
+    import torch
+
+    from forcdecode.learn.train import with_float32_default
+
+    seen = []
+    wrapped = with_float32_default(lambda: seen.append(torch.get_default_dtype()) or torch.nn.Linear(2, 2).weight.dtype)
+    previous = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    try:
+        assert wrapped() == torch.float32 and seen == [torch.float32]
+        assert torch.get_default_dtype() == torch.float64
+    finally:
+        torch.set_default_dtype(previous)

@@ -46,7 +46,7 @@ from .data import PAPER_FIGURES, LearningData
 from .encoding import readout, readout_with_variance
 from .scoring import accuracy_with_intervals, binomial_band, fit_ms_only, knn_median, pearson
 from .splits import SPLITS, assign_splits, split_labels
-from .train import fit_alice
+from .train import fit_alice, with_float32_default
 from .uncertainty import (ConformalIntervals, coverage_and_width, error_quantile, gaussian_interval,
                           quantile_to_error, retention_curve, spearman)
 
@@ -105,6 +105,7 @@ def _finite_sigma(sigma) -> np.ndarray:
     return sigma
 
 
+@with_float32_default
 def train_parameter(data: LearningData, name: str, settings: dict, seed: int, model_path, predictions_path,
                     log=print) -> dict:
     """Fit Alice and Bob for ``name``; write the model file and the per-sample predictions; return metrics."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import functools
 import time
 
 import numpy as np
@@ -51,6 +52,25 @@ class Alice:
             draws = np.stack([readout(self.net(x, ms).numpy(), method) for _ in range(n_passes)])
         self.net.eval()
         return draws.mean(axis=0), draws.std(axis=0, ddof=1)
+
+
+
+def with_float32_default(function):
+    """Run ``function`` with torch's default dtype float32, restored afterwards. A package imported
+    earlier in the same process may have changed it for the whole process (magnum.np sets float64 on
+    import): the networks are then built, trained and compared in float32 whatever the caller's state
+    (in a test session that imported magnum.np first, Bob trained in float64 collapsed to a constant)."""
+
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        previous = torch.get_default_dtype()
+        torch.set_default_dtype(torch.float32)
+        try:
+            return function(*args, **kwargs)
+        finally:
+            torch.set_default_dtype(previous)
+
+    return wrapper
 
 
 def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str | None = None, width: int | None = None,

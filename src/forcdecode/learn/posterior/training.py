@@ -19,6 +19,7 @@ from ...core.parameters import LOG_SCALE, TARGETS
 from ...core.streams import stream_rng, stream_seed
 from ..scoring import binomial_band
 from ..splits import SPLITS, assign_splits
+from ..train import with_float32_default
 from .calibration import fit_held_out_recalibration, split_diagnostics
 from .estimator import PosteriorEstimator
 from .file_format import FORMAT
@@ -26,6 +27,7 @@ from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_emb
 
 
 @_float32
+@with_float32_default
 def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = None, seed: int = 0,
                   embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
     """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
