@@ -46,9 +46,9 @@ FILMS: dict[str, dict] = {
 """Film name -> cells and grain count (the grain size is box / sqrt(n_grains))."""
 
 
-def film_config(base_cfg: dict, film: str) -> dict:
-    """The config ``base_cfg`` with the mesh and grain count of ``film``."""
-    spec = FILMS[film]
+def film_config(base_cfg: dict, film: str, films: dict | None = None) -> dict:
+    """The config ``base_cfg`` with the mesh and grain count of ``film`` (in ``films``, default ``FILMS``)."""
+    spec = (FILMS if films is None else films)[film]
     cfg = copy.deepcopy(base_cfg)
     cfg["mesh"].update(nx=spec["nx"], ny=spec["ny"], nz=spec["nz"])
     cfg["n_grains"] = spec["n_grains"]

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.parameters import denormalize, normalize
+from .films import film_config
 from .information import (QUANT_STEP, _finite_list, best_direction, compressed_fisher, crb, fisher_from_families,
                           principal_angle_deg, stencil, upper_triangle)
 
@@ -179,16 +180,6 @@ def choose_fiducials(pool_rows: list[dict], n: int) -> dict:
 
 # --- simulation -------------------------------------------------------------------------------------------
 
-def film_cfg(base: dict, film: str) -> dict:
-    import copy
-
-    spec = FILMS[film]
-    cfg = copy.deepcopy(base)
-    cfg["mesh"].update(nx=spec["nx"], ny=spec["ny"], nz=spec["nz"])
-    cfg["n_grains"] = spec["n_grains"]
-    return cfg
-
-
 def points(u: np.ndarray, names, deltas) -> list[tuple[str, np.ndarray, float]]:
     """(label, u at the point, δ) of the stencil: the centre, then u ∓ δ e_i per parameter and δ."""
     out = [("c", u.copy(), 0.0)]
@@ -213,7 +204,7 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
     from ..forc.raster import rasterize_grid_family
     from ..micromag.build import build_film, sweep_options
 
-    fcfg = film_cfg(cfg, film)
+    fcfg = film_config(cfg, film, FILMS)
     if FILMS[film]["protocol"] != "quasistatic":
         raise NotImplementedError(f"film {film}: protocol {FILMS[film]['protocol']} not implemented here")
     cpu = time.process_time()

@@ -162,12 +162,13 @@ def ood_check(est, x, ms_norm, alpha: float | None = None) -> dict:
     scores = _scores(features, train, mean, scale, int(ref["k"]))
     p_feat = _p_values(scores, val)
     images = x[None] if single else x
-    if "image_basis" in ref and images.ndim == 3:
+    has_image = "image_basis" in ref and images.ndim == 3
+    if has_image:
         image_scores = _image_scores(images, np.asarray(ref["image_mean"], float), np.asarray(ref["image_basis"], float))
         p_img = _p_values(image_scores, ref["image_validation_scores"])
     else:
         image_scores, p_img = np.full(len(scores), np.nan), np.ones(len(scores))
-    power = ood_power(val.size, 2 if "image_basis" in ref and images.ndim == 3 else 1, alpha)
+    power = ood_power(val.size, 2 if has_image else 1, alpha)
     rows = []
     for s, si, pf, pi in zip(scores, image_scores, p_feat, p_img):
         p = min(1.0, 2.0 * min(pf, pi))
