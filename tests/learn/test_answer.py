@@ -120,6 +120,15 @@ def test_training_saves_the_validation_flag_with_the_model(alice):
         assert json.loads(json.dumps(again)) == block["parameter"], name
         assert block["records"]["validation"]["sample_id"] == val["sample_id"].tolist()
         assert block["seed"] == 3 and block["rule"] == RULE
+    # results/metrics.json carries the validation flag beside the test split's image_adds_information
+    from forcdecode.learn.report import aggregate
+
+    paths = []
+    for name in NAMES:
+        paths.append(out / f"{name}_metrics.json")
+        paths[-1].write_text(json.dumps(metrics[name], default=float))
+    table = aggregate(paths, out / "metrics.json")["parameters"]
+    assert {n: table[n]["validation_identification"]["read_from_image"] for n in NAMES} == flags
 
 
 def _image_and_ms(data, k=0):
