@@ -240,11 +240,15 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
                         help="alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
                              "neural posterior (medians, credible intervals, correlations)")
     parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
-    parser.add_argument("--draws", type=int, default=4000, help="posterior draws (--estimator posterior)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the posterior draws")
+    parser.add_argument("--draws", type=int, default=4000,
+                        help="posterior draws (--estimator posterior), or Monte-Carlo draws of Alice's intervals "
+                             "behind the combinations' intervals (alice)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the posterior draws or of Alice's Monte-Carlo draws")
 
 
 def run_predict(args) -> int:
+    """Print the prediction (``predictor.prediction_lines``, or JSON): each parameter with its intervals and
+    whether it is read from the image (``learn.answer``), and the derived combinations with theirs."""
     from .predictor import image_from_input, load_models, predict_parameters, prediction_lines
 
     if args.estimator == "posterior":
@@ -257,7 +261,9 @@ def run_predict(args) -> int:
         models = load_models(args.models)
         size = next(iter(models.values())).image_size
         image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
-        result = predict_parameters(models, image, args.ms_kA_m * 1e3)
+        from .answer import alice_answer
+
+        result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     if note:
         result["out_of_domain"] = note
     print(json.dumps(result, indent=2) if args.json else "\n".join(prediction_lines(result, args.input, args.ms_kA_m)))

@@ -22,7 +22,7 @@ SUMMARY_KEYS = ("mae", "mae_ci90", "pearson_r", "r_ci90", "skill", "skill_vs_pri
                 "skill_vs_ms_only", "skill_vs_ms_only_ci90", "coverage_90_ci90", "coverage_90_binomial_band",
                 "baselines", "seeds", "normalisation", "uncertainty_baselines", "n_test", "baseline_mae",
                 "mae_softmax_readout", "reported_on", "paper", "train_samples_per_s", "wall_s", "n_train",
-                "n_validation", "n_calibration", "best_epoch", "epochs_run")
+                "n_validation", "n_calibration", "best_epoch", "epochs_run", "validation_identification")
 
 
 def aggregate(metric_paths, out_path) -> dict:

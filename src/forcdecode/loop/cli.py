@@ -1,7 +1,9 @@
 """``forcdecode loop FILE --out DIR``: close the loop on a measured (or simulated-as-measured) file
 (``loop.measured_loop.close_loop_on_file``: domain check by physics, prediction or given
 Hamiltonian, re-simulation on the grid and on the file's own protocol, residual effects, optional
-Hamiltonian refit, structured-residual verdict). Writes DIR/report.json, DIR/report.md and figures.
+Hamiltonian refit, structured-residual verdict). Writes DIR/report.json, DIR/report.md and figures;
+prints the decoded Hamiltonian (each parameter and derived combination with its intervals, or "not read
+from the image: prior only", ``learn.answer``) and the verdict, or with ``--json`` the report itself.
 """
 
 from __future__ import annotations
@@ -71,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="thin the measured protocol to about this many points (default 5000)")
     parser.add_argument("--measured-max-step-mT", type=float, default=2.0,
                         help="largest field sub-step of the measured-protocol re-simulation, mT (default 2)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the report (report.json's content: the decoded Hamiltonian with each parameter's "
+                             "and combination's read_from_image flag and basis, the verdict) instead of the summary")
 
 
 def load_config(path=None) -> dict:
@@ -108,6 +113,25 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
+    if args.json:
+        import json
+
+        from .measured_loop import _json_ready
+
+        print(json.dumps(_json_ready(report), indent=2))
+        return 0
+    prediction = report.get("prediction")
+    if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
+        from ..learn.predictor import prediction_lines
+
+        ms = report.get("Ms_chosen_A_per_m", prediction.get("Ms"))
+        swept = report.get("Ms_source") == "swept"
+        for line in prediction_lines(prediction, f"{args.file}: decoded Hamiltonian", ms / 1e3,
+                                     "swept: the value whose re-simulation is closest" if swept else "given"):
+            print(line)
+        if report.get("refined"):
+            print(f"(the amortized prediction; refined by {report['refined']['budget']} simulations of this film, "
+                  "whose medians were re-simulated: see report.md)")
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":
