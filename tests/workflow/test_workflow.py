@@ -50,7 +50,7 @@ REPORTED = {"figure1.png", "figure3.png", "figure5bc.png", "learning_curve.png",
 
 def test_tiny_config_builds_the_dataset(tmp_path):
     out = tmp_path / "results"
-    run = snakemake(tmp_path)
+    run = snakemake(tmp_path, timeout=1200)  # the whole tiny main job: ~5 min on 2 idle cores
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     samples = pd.read_parquet(out / "samples.parquet")
     assert len(samples) == 40  # one row per drawn sample, rejected ones included
