@@ -276,10 +276,11 @@ def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 
 
 
 def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None, dataset=None,
-             seed: int = 0, n_boot: int = 2000, models=None) -> dict:
+             seed: int = 0, n_boot: int = 2000, models=None, sealed: dict | None = None) -> dict:
     """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset.h5 Alice was
     trained on) metrics.json also holds the derived combinations of Alice's predictions (with ``models``,
-    the directory of the model files, their images-shuffled baseline too)."""
+    the directory of the model files, their images-shuffled baseline too); with ``sealed`` (the frozen
+    networks' figures on the sealed set, ``learn.sealed``) they sit beside the test split's as ``sealed``."""
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
@@ -290,6 +291,11 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
         predictions[name] = pd.read_parquet(path)
     if dataset is not None:
         metrics["combinations"] = alice_combinations(predictions, dataset, seed, n_boot, models)
+    if sealed is not None:
+        from .sealed import attach_sealed
+
+        metrics = attach_sealed(metrics, sealed)
+    if dataset is not None or sealed is not None:
         io.write_json(out_metrics, json.loads(json.dumps(metrics, default=float)))
     figure3(predictions, figure_dir / "figure3.png")
     name = "D" if "D" in predictions else next(iter(predictions))
