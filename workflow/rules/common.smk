@@ -5,6 +5,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from forcdecode.config import dataset_config
 from forcdecode.core.io import write_json
 from snakemake.settings.types import DeploymentMethod
 from snakemake.utils import validate

@@ -6,8 +6,11 @@ rule resolve_config:
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
+        # dataset_config leaves `realisations` out when it is 1 (the schema's default): config.json, its
+        # hash and every family are then what they were before the key existed, so datasets and
+        # models already made stay valid and a running job reruns nothing
         cfg=json.dumps(
-            {k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS},
+            dataset_config({k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS}),
             sort_keys=True,
         ),
     run:
