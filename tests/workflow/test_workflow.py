@@ -92,6 +92,9 @@ def test_tiny_config_builds_the_dataset(tmp_path):
                                cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert predicted.returncode == 0, predicted.stderr
     result = json.loads(predicted.stdout)
+    # --estimator auto (the default): the estimator validation shows better, the posterior beside the models
+    choice = result["estimator_choice"]
+    assert choice["estimator"] in ("alice", "posterior") and set(choice["validation_mae"]["posterior"]) == set(metrics)
     assert result["Ms"] == 8e5 and 0 <= result["D"]["value"] <= 5e-3
     assert result["K_u"]["interval_90"][0] <= result["K_u"]["value"] <= result["K_u"]["interval_90"][1]
     # the head ablation rebuilds the workflow's split from learning.json
@@ -117,7 +120,8 @@ def test_tiny_config_builds_the_dataset(tmp_path):
                                                    rng=np.random.default_rng(0))
     measured = write_micromag_0015(tmp_path / "film.frc", reversal, curves)
     loop = subprocess.run([sys.executable, "-m", "forcdecode.cli", "loop", str(measured), "--out", str(tmp_path / "loop"),
-                           "--models", str(out / "models"), "--config", "config/test.yaml", "--Ms-sweep-kA-m", "500", "1100", "2",
+                           "--models", str(out / "models"), "--estimator", "alice", "--config", "config/test.yaml",
+                           "--Ms-sweep-kA-m", "500", "1100", "2",
                            "--sweep-profiles", "1", "--profiles", "1", "--every-k", "3", "--no-physics"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert loop.returncode == 0, loop.stderr[-2000:]

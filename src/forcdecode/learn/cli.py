@@ -279,10 +279,13 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training domain")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
-                        help="alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
+    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
+                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower mean validation "
+                             "MAE; Alice without a posterior model); "
+                             "alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
                              "neural posterior (medians, credible intervals, correlations)")
-    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
+    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
+                                            "directory, i.e. results/posterior/model.pt)")
     parser.add_argument("--draws", type=int, default=4000,
                         help="posterior draws (--estimator posterior), or Monte-Carlo draws of Alice's intervals "
                              "behind the combinations' intervals (alice)")
@@ -294,6 +297,15 @@ def run_predict(args) -> int:
     whether it is read from the image (``learn.answer``), and the derived combinations with theirs."""
     from .predictor import image_from_input, load_models, predict_parameters, prediction_lines
 
+    from .estimator_choice import default_posterior_path
+
+    args.posterior = args.posterior or default_posterior_path(args.models)
+    choice = None
+    if args.estimator == "auto":
+        from .estimator_choice import choose_estimator
+
+        choice = choose_estimator(args.models, args.posterior)
+        args.estimator = choice["estimator"]
     if args.estimator == "posterior":
         from .posterior import PosteriorEstimator, posterior_prediction
 
@@ -309,5 +321,9 @@ def run_predict(args) -> int:
         result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     if note:
         result["out_of_domain"] = note
+    if choice is not None:
+        result["estimator_choice"] = choice
+        if not args.json:
+            print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
     print(json.dumps(result, indent=2) if args.json else "\n".join(prediction_lines(result, args.input, args.ms_kA_m)))
     return 0

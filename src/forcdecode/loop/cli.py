@@ -18,12 +18,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
-    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
-                        help="alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
+    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
+                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower "
+                             "mean validation MAE; Alice without a posterior model; the posterior with --refine); "
+                             "alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
                              "68/90 %% intervals, correlations); either after a training-data (out-of-distribution) check")
     parser.add_argument("--dataset", help="the dataset the Alice networks were trained on, for their training-data "
                                           "check (default: dataset.h5 beside the --models directory)")
-    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
+    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
+                                            "directory, i.e. results/posterior/model.pt)")
     parser.add_argument("--refine", type=int, default=0, metavar="N",
                         help="with --estimator posterior: refine the posterior of this file by N simulations of the "
                              "film (forcdecode fit) and analyse the residual of the refined medians")
@@ -85,6 +88,26 @@ def load_config(path=None) -> dict:
     return load(shipped_config("config") if path is None else path)
 
 
+def resolve_estimator(args) -> dict | None:
+    """``--estimator auto`` resolved in place (``learn.estimator_choice``): the posterior where --refine asks
+    for it, else whichever validation shows better; returns the choice's record (None when the user chose),
+    and fills in the default posterior path (beside the --models directory)."""
+    from ..learn.estimator_choice import choose_estimator, default_posterior_path
+
+    args.posterior = args.posterior or default_posterior_path(args.models)
+    if args.estimator != "auto":
+        return None
+    if args.refine:
+        args.estimator = "posterior"
+        return {"estimator": "posterior", "basis": "--refine refines the posterior"}
+    if args.params:
+        args.estimator = "alice"
+        return {"estimator": "alice", "basis": "--params gives the Hamiltonian: no estimator is used"}
+    choice = choose_estimator(args.models, args.posterior)
+    args.estimator = choice["estimator"]
+    return choice
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -93,6 +116,7 @@ def run(args) -> int:
 
     cfg = load_config(args.config)
     params = read_json(args.params, what="Hamiltonian file") if args.params else None
+    choice = resolve_estimator(args)
     if args.ms_kA_m is not None:
         ms_values = [args.ms_kA_m * 1e3]
     else:
@@ -113,6 +137,16 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
+    if choice is not None:  # the report on disk says which estimator answered, and why
+        from pathlib import Path
+
+        from ..core.io import write_json
+        from .measured_loop import _json_ready
+
+        report["estimator_choice"] = choice
+        write_json(Path(args.out) / "report.json", _json_ready(report))
+        if not args.json:
+            print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
     if args.json:
         import json
 
