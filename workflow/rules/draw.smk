@@ -1,13 +1,19 @@
 rule resolve_config:
     """The schema-validated dataset configuration (defaults filled in), input of every stage. The
-    learning and loop sections go to their own file, so changing them never re-simulates the dataset."""
+    learning and loop sections go to their own file, so changing them never re-simulates the dataset.
+    The default prior class (`prior: paper`) is left out (absent reads as paper): a dataset made
+    before the key keeps its config.json, so nothing reruns, and its config hash."""
     output:
         f"{RESULTS}/config.json",
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
         cfg=json.dumps(
-            {k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS},
+            {
+                k: v
+                for k, v in config.items()
+                if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS and not (k == "prior" and v == "paper")
+            },
             sort_keys=True,
         ),
     run:

@@ -76,7 +76,19 @@ def validate_config(cfg: dict, source: str = "the configuration") -> dict:
     if error is not None:
         key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
         raise ConfigError(f"{source}: invalid value at {key}: {error.message}")
+    _check_prior(cfg, source)
     return cfg
+
+
+def _check_prior(cfg: dict, source: str) -> None:
+    """The prior class must have mass at every M_s of the bounds (``core.parameters.k_u_floor``)."""
+    from ..core.parameters import DEFAULT_BOUNDS, k_u_floor
+
+    bounds = {**DEFAULT_BOUNDS, **(cfg.get("bounds") or {})}
+    try:
+        k_u_floor(max(bounds["Ms"]), cfg.get("prior", "paper"), bounds)
+    except ValueError as error:
+        raise ConfigError(f"{source}: invalid value at prior: {error}") from None
 
 
 def load_config(path) -> dict:

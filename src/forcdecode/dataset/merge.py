@@ -13,6 +13,7 @@ import pandas as pd
 
 from .. import __version__
 from ..core import io
+from ..core.parameters import DEFAULT_PRIOR_CLASS
 from ..core.parameters import NAMES as PARAMETERS
 
 
@@ -96,8 +97,11 @@ SIZE_KEYS = ("n_samples", "chunk_size", "family_chunk_size", "results_dir", "fir
 
 def physics_config(cfg: dict) -> dict:
     """The part of a dataset config that decides what a family is (mesh, field grid, minimizer,
-    protocol, pinning, grains, screening, bounds, seed): runs merged into one dataset must agree on it."""
-    return {k: v for k, v in cfg.items() if k not in SIZE_KEYS}
+    protocol, pinning, grains, screening, bounds, prior class, seed): runs merged into one dataset must
+    agree on it. The default prior class (``paper``) counts as absent, so a run made before the
+    ``prior`` key and one that names ``prior: paper`` have the same physics config (and hash)."""
+    return {k: v for k, v in cfg.items()
+            if k not in SIZE_KEYS and not (k == "prior" and v == DEFAULT_PRIOR_CLASS)}
 
 
 def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
