@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputFileError, ModelFileError, OutOfDomainError
-from ..core.parameters import denormalize, normalize
+from ..core.parameters import denormalize, normalize, prior_class
 from .encoding import readout
 from .models import build_network, image_tensor
 from .uncertainty import ConformalIntervals, quantile_to_error
@@ -47,6 +47,11 @@ class ParameterModel:
     @property
     def bounds(self) -> dict:
         return self.payload["bounds"]
+
+    @property
+    def prior_class(self) -> str:
+        """The prior class of the training data (``core.parameters.PRIOR_CLASSES``; older files: paper)."""
+        return prior_class(self.payload.get("prior_class"))
 
     @property
     def image_size(self) -> int:
@@ -88,6 +93,15 @@ def load_models(directory, names=None) -> dict:
         model = ParameterModel.load(path)
         models[model.name] = model
     return models
+
+
+def models_prior_class(models: dict) -> str:
+    """The one prior class of a set of Alice models (ModelFileError when they were trained on several)."""
+    classes = sorted({m.prior_class for m in models.values()})
+    if len(classes) != 1:
+        raise ModelFileError("the models were trained on different prior classes ("
+                             + ", ".join(f"{n}: {m.prior_class}" for n, m in models.items()) + "); use one training run's models")
+    return classes[0]
 
 
 def predict_parameters(models: dict, image_uint8, Ms_A_per_m: float) -> dict:
@@ -154,11 +168,16 @@ def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, forc
 
 
 def prediction_lines(result: dict, source: str, Ms_kA_m: float) -> list[str]:
-    """The prediction as a table: value, 68 % and 90 % intervals, Bob's error and unit per parameter."""
+    """The prediction as a table: value, 68 % and 90 % intervals, Bob's error and unit per parameter
+    (after the prior class the model was trained on, when the result names it)."""
     from ..core.parameters import UNITS
+    from .prior_class import prior_class_line
 
-    lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m given)",
-             f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  unit"]
+    lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m given)"]
+    if result.get("prior_class"):
+        lines.append(prior_class_line(result["prior_class"], result.get("prior_check")))
+    lines.append(f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  "
+                 f"{'Bob |err| (norm.)':>18}  unit")
     for name, entry in result.items():
         if not isinstance(entry, dict) or "value" not in entry:
             continue
@@ -167,6 +186,9 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float) -> list[str]:
                      f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry.get('bob_error_normalized', np.nan):>18.3f}  {UNITS.get(name, '')}")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
+    check = result.get("prior_check")
+    if check and check.get("forced"):
+        lines.append(f"WARNING (decoded with --force): {check['reason']}")
     ood = result.get("ood")
     if ood:
         prefix = "WARNING: " if ood.get("out_of_distribution") else ""

@@ -49,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sweep-profiles", type=int, default=2, help="pinning profiles per M_s during the sweep")
     parser.add_argument("--every-k", type=int, default=4, help="hold out every k-th curve")
     parser.add_argument("--no-physics", action="store_true", help="skip the physics-side candidates (K_2, bias, second phase)")
-    parser.add_argument("--force", action="store_true", help="analyse even when the file is out of domain")
+    parser.add_argument("--force", action="store_true", help="analyse even when the file is out of domain, or its loop "
+                        "contradicts the prior class the model was trained on")
     parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
                                                           "before the effect selection, comma-separated (e.g. K_u,A_ex)")
     parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
@@ -108,6 +109,10 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
+    if report.get("prior_class"):
+        from ..learn.prior_class import prior_class_line
+
+        print(prior_class_line(report["prior_class"], report.get("prior_check")))
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":
