@@ -17,8 +17,9 @@ from forcdecode.core.errors import ModelFileError, OutOfDomainError, PriorClassE
 from forcdecode.core.parameters import DEFAULT_BOUNDS, k_eff, normalize
 from forcdecode.dataset.params import draw_prior_cdf
 from forcdecode.forc.raster import quantize
-from forcdecode.learn.prior_class import (PERPENDICULAR_MIN_REMANENCE, ascending_remanence, check_prior_class,
-                                         descending_remanence, loop_remanence)
+from forcdecode.learn.prior_class import (PERPENDICULAR_MAX_EXIT_FIELD_T, PERPENDICULAR_MIN_REMANENCE,
+                                         ascending_remanence, check_prior_class, descending_remanence, loop_remanence,
+                                         saturation_exit_field)
 
 SIDE = 16
 FIXTURE = Path(__file__).parent / "data" / "laptop_forc_32px.npz"
@@ -73,17 +74,31 @@ def test_a_perpendicular_model_refuses_an_in_plane_loop_with_the_numbers():
     assert check_prior_class(None, in_plane)["prior_class"] == "paper"
 
 
+def test_a_spiral_loop_is_not_refused_an_in_plane_one_is():
+    """Both unsaturated at remanence; the spiral film (|D| > D_c) leaves saturation only at low field."""
+    spiral = loop_image(lambda h: np.clip(h / 0.1, -1, 1), lambda h: np.clip(h / 0.1, -1, 1), side=64)
+    assert loop_remanence(spiral) < 0.05 and saturation_exit_field(spiral) < PERPENDICULAR_MAX_EXIT_FIELD_T
+    assert check_prior_class("perpendicular", spiral)["consistent"]
+    in_plane = loop_image(hard_axis, hard_axis, side=64)
+    assert saturation_exit_field(in_plane) == pytest.approx(0.54, abs=0.01)
+    assert saturation_exit_field(in_plane, B_max_T=2.0) == pytest.approx(1.08, abs=0.02)  # the grid's field scale
+    with pytest.raises(PriorClassError, match="H_n = 0.539 T > 0.15 T"):
+        check_prior_class("perpendicular", in_plane)
+    assert -0.31 < saturation_exit_field(loop_image(square, square_up)) < -0.15  # a step at -0.3 T on the 16-field grid
+
+
 def test_the_rule_on_simulated_laptop_families():
-    """148 simulated families of an earlier laptop film (32 × 32 images averaged from 64 × 64): the rule
-    refuses few K_eff > 0 families and catches nearly every K_eff < 0 one (docs/inference.md has the
-    rates on the current laptop film, forcdecode bench prior-class)."""
-    from forcdecode.bench.prior_class import family_remanence, rule_rates
+    """148 simulated families of an earlier laptop film (32 × 32 images averaged from 64 × 64; not used
+    for any choice of the rule): no K_eff > 0 family refused, 88 of 97 K_eff < 0 ones caught (m_r alone:
+    2 and 96). docs/inference.md has the rates on the current laptop film (forcdecode bench prior-class)."""
+    from forcdecode.bench.prior_class import family_observables, rule_rates
+    from forcdecode.learn.prior_class import contradicts_perpendicular
 
     data = np.load(FIXTURE)
-    rates = rule_rates(family_remanence(data["images"]), k_eff({"K_u": data["K_u"], "Ms": data["Ms"]}),
-                       PERPENDICULAR_MIN_REMANENCE)
+    m_r, h_n = family_observables(data["images"])
+    rates = rule_rates(contradicts_perpendicular(m_r, h_n), k_eff({"K_u": data["K_u"], "Ms": data["Ms"]}))
     assert rates["n_keff_positive"] == 51 and rates["n_keff_negative"] == 97
-    assert rates["false_refusal_rate"] <= 0.05 and rates["catch_rate"] >= 0.95, rates
+    assert rates["false_refusal_rate"] <= 0.05 and rates["catch_rate"] >= 0.85, rates
 
 
 # ---------------------------------------------------------------- model files

@@ -1,12 +1,15 @@
 """``forcdecode bench prior-class``: the rates of the prior-class rule (``learn.prior_class``) on simulated
 families whose true K_eff is known.
 
-Each family of a dataset.h5 (the merged workflow output, read only) gives the observable the rule reads,
-the major loop's remanence m_r of its FORC image, and the sign of its true K_eff = K_u − μ0 M_s²/2.
-Reported: the fraction of K_eff > 0 families the ``perpendicular`` rule refuses (false refusals: a
-perpendicular-class model would turn away a film of its own class) and the fraction of K_eff < 0 families
-it catches, with 90 % Clopper–Pearson intervals, at the shipped threshold and over a sweep of thresholds;
-and the refused K_eff > 0 families themselves (their K_eff and Q = 2K_u/(μ0 M_s²)).
+Each family of a dataset.h5 (the merged workflow output, read only; or a results directory whose families
+are not merged yet) gives the two observables the rule reads off its FORC image, the loop's remanence
+m_r and the field H_n where the descending branch leaves saturation, and the sign of its true
+K_eff = K_u − μ0 M_s²/2. Reported: the fraction of K_eff > 0 families the ``perpendicular`` rule refuses
+(false refusals: a perpendicular-class model would turn away a film of its own class) and the fraction
+of K_eff < 0 families it catches, with 90 % Clopper–Pearson intervals: for the shipped rule on every
+family and on the halves of even sample id (where its H_n threshold was chosen) and odd sample id (not
+used for that choice); for m_r alone; over sweeps of either threshold; and the K_eff > 0 families the
+rule refuses (K_eff, Q = 2K_u/(μ0 M_s²), |D|/D_c).
 """
 
 from __future__ import annotations
@@ -16,7 +19,10 @@ import json
 import numpy as np
 
 SWEEP = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
-"""Thresholds of m_r the bench reports beside the shipped one."""
+"""Thresholds of m_r the bench reports beside the shipped one (H_n threshold kept)."""
+
+EXIT_SWEEP = (None, 0.0, 0.05, 0.1, 0.125, 0.15, 0.2, 0.3)
+"""Thresholds of H_n (T) the bench reports (m_r threshold kept); None: m_r alone."""
 
 
 def _clopper_pearson(k: int, n: int, level: float = 0.9) -> list:
@@ -30,11 +36,12 @@ def _clopper_pearson(k: int, n: int, level: float = 0.9) -> list:
     return [low, high]
 
 
-def family_remanence(images) -> np.ndarray:
-    """m_r of each FORC image (``learn.prior_class.loop_remanence``)."""
-    from ..learn.prior_class import loop_remanence
+def family_observables(images, B_max_T: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(m_r, H_n in T) of each FORC image (``learn.prior_class.loop_remanence``, ``saturation_exit_field``)."""
+    from ..learn.prior_class import loop_remanence, saturation_exit_field
 
-    return np.array([loop_remanence(image) for image in images])
+    return (np.array([loop_remanence(image) for image in images]),
+            np.array([saturation_exit_field(image, B_max_T) for image in images]))
 
 
 def _run_directory(results) -> tuple:
@@ -65,96 +72,135 @@ def _run_directory(results) -> tuple:
 
 
 def read_families(dataset) -> dict:
-    """sample_id, m_r, K_eff, Q, M_s and K_u of every family of ``dataset``: a dataset.h5 or a workflow
-    results directory whose families are not merged yet (both opened read-only)."""
+    """sample_id, m_r, H_n, K_eff, Q, |D|/D_c, M_s and K_u of every family of ``dataset``: a dataset.h5 or
+    a workflow results directory whose families are not merged yet (both opened read-only)."""
     from pathlib import Path
 
     import h5py
 
     from ..core.errors import InputFileError
-    from ..core.parameters import k_eff, prior_class, quality_factor
+    from ..core.parameters import dmi_ratio
 
     if Path(dataset).is_dir():
         from ..dataset.merge import config_hash, physics_config
 
         sample_id, table, images, cfg = _run_directory(dataset)
-        values = {"K_u": table["K_u"].to_numpy(float), "Ms": table["Ms"].to_numpy(float)}
-        return {"sample_id": sample_id, "m_r": family_remanence(images), "K_eff": k_eff(values),
-                "Q": quality_factor(values), "Ms": values["Ms"], "K_u": values["K_u"], "prior_class": prior_class(cfg),
-                "config_hash": config_hash(physics_config(cfg))}
-    try:
-        h5 = h5py.File(dataset, "r")
-    except OSError as error:
-        raise InputFileError(f"cannot open dataset {dataset}: {error}") from None
-    with h5:
-        columns = list(h5["parameters"].attrs["columns"])
-        parameters = h5["parameters"][:]
-        sample_id = h5["sample_id"][:]
-        m_r = family_remanence(h5["images"][:])
-        cfg = json.loads(h5.attrs["config_json"])
-        config_hash = str(h5.attrs["config_hash"])
-    values = {"K_u": parameters[:, columns.index("K_u")], "Ms": parameters[:, columns.index("Ms")]}
-    return {"sample_id": sample_id, "m_r": m_r, "K_eff": k_eff(values), "Q": quality_factor(values),
-            "Ms": values["Ms"], "K_u": values["K_u"], "prior_class": prior_class(cfg), "config_hash": config_hash}
+        values = {k: table[k].to_numpy(float) for k in ("K_u", "Ms", "A_ex", "D")}
+        digest = config_hash(physics_config(cfg))
+    else:
+        try:
+            h5 = h5py.File(dataset, "r")
+        except OSError as error:
+            raise InputFileError(f"cannot open dataset {dataset}: {error}") from None
+        with h5:
+            columns = list(h5["parameters"].attrs["columns"])
+            parameters = h5["parameters"][:]
+            sample_id = h5["sample_id"][:]
+            images = h5["images"][:]
+            cfg = json.loads(h5.attrs["config_json"])
+            digest = str(h5.attrs["config_hash"])
+        values = {k: parameters[:, columns.index(k)] for k in ("K_u", "Ms", "A_ex", "D")}
+    from ..core.parameters import k_eff, prior_class, quality_factor
+
+    B_max = float((cfg.get("field") or {}).get("B_max_T", 1.0))
+    m_r, h_n = family_observables(images, B_max)
+    return {"sample_id": np.asarray(sample_id), "m_r": m_r, "H_n_T": h_n, "K_eff": k_eff(values),
+            "Q": quality_factor(values), "D_over_Dc": dmi_ratio(values), "Ms": values["Ms"], "K_u": values["K_u"],
+            "prior_class": prior_class(cfg), "config_hash": digest, "B_max_T": B_max}
 
 
-def rule_rates(m_r, keff, threshold: float) -> dict:
-    """Refusals of the rule m_r < ``threshold`` among the K_eff > 0 and the K_eff ≤ 0 families."""
-    m_r, keff = np.asarray(m_r, float), np.asarray(keff, float)
-    refused = ~(m_r >= threshold)
+def rule_rates(refused, keff, **rule) -> dict:
+    """Refusals (boolean per family) among the K_eff > 0 and the K_eff ≤ 0 families; ``rule`` is recorded."""
+    refused, keff = np.asarray(refused, bool), np.asarray(keff, float)
     pos, neg = keff > 0, keff <= 0
     k_pos, n_pos = int(np.sum(refused & pos)), int(np.sum(pos))
     k_neg, n_neg = int(np.sum(refused & neg)), int(np.sum(neg))
-    return {"threshold": float(threshold), "n_keff_positive": n_pos, "n_keff_negative": n_neg,
+    return {**rule, "n_keff_positive": n_pos, "n_keff_negative": n_neg,
             "refused_keff_positive": k_pos, "caught_keff_negative": k_neg,
             "false_refusal_rate": k_pos / n_pos if n_pos else float("nan"),
             "false_refusal_ci90": _clopper_pearson(k_pos, n_pos),
             "catch_rate": k_neg / n_neg if n_neg else float("nan"), "catch_ci90": _clopper_pearson(k_neg, n_neg)}
 
 
-def prior_class_bench(dataset, sweep=SWEEP) -> dict:
-    """The rates of the shipped rule and of the sweep on the families of ``dataset``, and the refused
-    K_eff > 0 families; quantiles of m_r in each regime."""
-    from ..learn.prior_class import OBSERVABLE, PERPENDICULAR_MIN_REMANENCE
+def _refused(m_r, h_n, min_remanence, max_exit_field):
+    low = ~(np.asarray(m_r, float) >= min_remanence)
+    return low if max_exit_field is None else low & (np.asarray(h_n, float) > max_exit_field)
+
+
+def prior_class_bench(dataset, sweep=SWEEP, exit_sweep=EXIT_SWEEP) -> dict:
+    """The rates of the shipped rule (every family, even and odd sample ids), of m_r alone and of the
+    sweeps on the families of ``dataset``; the refused K_eff > 0 families; quantiles of m_r and H_n in each
+    regime; the K_eff < 0 families the rule lets through (their K_eff)."""
+    from ..learn.prior_class import OBSERVABLE, PERPENDICULAR_MAX_EXIT_FIELD_T, PERPENDICULAR_MIN_REMANENCE
 
     fam = read_families(dataset)
-    m_r, keff = fam["m_r"], fam["K_eff"]
-    shipped = rule_rates(m_r, keff, PERPENDICULAR_MIN_REMANENCE)
-    refused = np.flatnonzero((keff > 0) & ~(m_r >= PERPENDICULAR_MIN_REMANENCE))
+    m_r, h_n, keff, ids = fam["m_r"], fam["H_n_T"], fam["K_eff"], fam["sample_id"]
+    shipped = {"min_remanence": PERPENDICULAR_MIN_REMANENCE, "max_exit_field_T": PERPENDICULAR_MAX_EXIT_FIELD_T}
+    refused = _refused(m_r, h_n, PERPENDICULAR_MIN_REMANENCE, PERPENDICULAR_MAX_EXIT_FIELD_T)
+    even = ids % 2 == 0
     quantiles = (0.0, 0.05, 0.5, 0.95, 1.0)
 
-    def q(mask):
-        return {str(p): float(np.quantile(m_r[mask], p)) for p in quantiles} if mask.any() else {}
+    def q(values, mask):
+        return {str(p): float(np.quantile(values[mask], p)) for p in quantiles} if mask.any() else {}
 
     return {"dataset": str(dataset), "config_hash": fam["config_hash"], "dataset_prior_class": fam["prior_class"],
-            "observable": OBSERVABLE, "n_families": int(len(m_r)), "rule": shipped,
-            "sweep": [rule_rates(m_r, keff, t) for t in sweep],
-            "m_r_quantiles": {"K_eff>0": q(keff > 0), "K_eff<0": q(keff <= 0)},
-            "refused_keff_positive": [{"sample_id": int(fam["sample_id"][i]), "m_r": float(m_r[i]),
+            "B_max_T": fam["B_max_T"], "observable": OBSERVABLE, "n_families": int(len(m_r)),
+            "rule": rule_rates(refused, keff, **shipped),
+            "rule_even_ids": rule_rates(refused[even], keff[even], **shipped),
+            "rule_odd_ids": rule_rates(refused[~even], keff[~even], **shipped),
+            "remanence_only": rule_rates(_refused(m_r, h_n, PERPENDICULAR_MIN_REMANENCE, None), keff,
+                                         min_remanence=PERPENDICULAR_MIN_REMANENCE, max_exit_field_T=None),
+            "sweep_remanence": [rule_rates(_refused(m_r, h_n, t, PERPENDICULAR_MAX_EXIT_FIELD_T), keff, min_remanence=t,
+                                           max_exit_field_T=PERPENDICULAR_MAX_EXIT_FIELD_T) for t in sweep],
+            "sweep_exit_field": [{"even_ids": rule_rates(_refused(m_r[even], h_n[even], PERPENDICULAR_MIN_REMANENCE, h),
+                                                         keff[even]),
+                                  "odd_ids": rule_rates(_refused(m_r[~even], h_n[~even], PERPENDICULAR_MIN_REMANENCE, h),
+                                                        keff[~even]),
+                                  "max_exit_field_T": h} for h in exit_sweep],
+            "quantiles": {"m_r": {"K_eff>0": q(m_r, keff > 0), "K_eff<0": q(m_r, keff <= 0)},
+                          "H_n_T": {"K_eff>0": q(h_n, keff > 0), "K_eff<0": q(h_n, keff <= 0)}},
+            "refused_keff_positive": [{"sample_id": int(ids[i]), "m_r": float(m_r[i]), "H_n_T": float(h_n[i]),
                                        "K_eff_kJ_m3": float(keff[i] / 1e3), "Q": float(fam["Q"][i]),
-                                       "Ms_kA_m": float(fam["Ms"][i] / 1e3)} for i in refused],
-            "largest_m_r_keff_negative": float(m_r[keff <= 0].max()) if (keff <= 0).any() else None}
+                                       "D_over_Dc": float(fam["D_over_Dc"][i]), "Ms_kA_m": float(fam["Ms"][i] / 1e3)}
+                                      for i in np.flatnonzero(refused & (keff > 0))],
+            "passed_keff_negative_K_eff_kJ_m3": sorted(float(keff[i] / 1e3) for i in np.flatnonzero(~refused & (keff <= 0)))}
+
+
+def _rates_line(label: str, r: dict) -> str:
+    return (f"  {label}: K_eff > 0 refused {r['refused_keff_positive']}/{r['n_keff_positive']} = "
+            f"{100 * r['false_refusal_rate']:.1f} % (90 % CI {100 * r['false_refusal_ci90'][0]:.1f}-"
+            f"{100 * r['false_refusal_ci90'][1]:.1f}); K_eff < 0 caught {r['caught_keff_negative']}/{r['n_keff_negative']} = "
+            f"{100 * r['catch_rate']:.1f} % (90 % CI {100 * r['catch_ci90'][0]:.1f}-{100 * r['catch_ci90'][1]:.1f})")
 
 
 def summary_lines(result: dict) -> list[str]:
     r = result["rule"]
-    lines = [f"prior-class rule on {result['n_families']} families of {result['dataset']} "
-             f"(drawn from prior class {result['dataset_prior_class']}): refuse when {result['observable']} "
-             f"< {r['threshold']:g}",
-             f"  K_eff > 0 refused (false refusals): {r['refused_keff_positive']}/{r['n_keff_positive']} = "
-             f"{100 * r['false_refusal_rate']:.1f} % (90 % CI {100 * r['false_refusal_ci90'][0]:.1f}-"
-             f"{100 * r['false_refusal_ci90'][1]:.1f} %)",
-             f"  K_eff < 0 caught: {r['caught_keff_negative']}/{r['n_keff_negative']} = {100 * r['catch_rate']:.1f} % "
-             f"(90 % CI {100 * r['catch_ci90'][0]:.1f}-{100 * r['catch_ci90'][1]:.1f} %)",
-             "  m_r quantiles (0, 5, 50, 95, 100 %): "
-             + "; ".join(f"{k}: " + ", ".join(f"{v:.3f}" for v in qs.values()) for k, qs in result["m_r_quantiles"].items()),
-             "  sweep (threshold: false refusals / catches): "
-             + "; ".join(f"{s['threshold']:g}: {100 * s['false_refusal_rate']:.1f} % / {100 * s['catch_rate']:.1f} %"
-                         for s in result["sweep"])]
+    lines = [f"prior-class rule on {result['n_families']} families of {result['dataset']} (drawn from prior class "
+             f"{result['dataset_prior_class']}): refuse when m_r < {r['min_remanence']:g} and H_n > "
+             f"{r['max_exit_field_T']:g} T ({result['observable']})",
+             _rates_line("every family", r), _rates_line("even sample ids (H_n threshold chosen here)", result["rule_even_ids"]),
+             _rates_line("odd sample ids (not used for the choice)", result["rule_odd_ids"]),
+             _rates_line("m_r alone", result["remanence_only"])]
+    for name, unit in (("m_r", ""), ("H_n_T", " T")):
+        lines.append(f"  {name} quantiles (0, 5, 50, 95, 100 %): " + "; ".join(
+            f"{k}: " + ", ".join(f"{v:.3f}" for v in qs.values()) + unit for k, qs in result["quantiles"][name].items()))
+    lines.append("  m_r threshold sweep (false refusals / catches): " + "; ".join(
+        f"{s['min_remanence']:g}: {100 * s['false_refusal_rate']:.1f} % / {100 * s['catch_rate']:.1f} %"
+        for s in result["sweep_remanence"]))
+    lines.append("  H_n threshold sweep, even | odd ids (false refusals / catches): " + "; ".join(
+        f"{'none' if s['max_exit_field_T'] is None else format(s['max_exit_field_T'], 'g')} T: "
+        f"{100 * s['even_ids']['false_refusal_rate']:.1f} / {100 * s['even_ids']['catch_rate']:.1f} | "
+        f"{100 * s['odd_ids']['false_refusal_rate']:.1f} / {100 * s['odd_ids']['catch_rate']:.1f}"
+        for s in result["sweep_exit_field"]))
     for row in result["refused_keff_positive"]:
-        lines.append(f"  refused K_eff > 0: sample {row['sample_id']}, m_r {row['m_r']:.3f}, K_eff "
-                     f"{row['K_eff_kJ_m3']:.1f} kJ/m3, Q {row['Q']:.3f}, M_s {row['Ms_kA_m']:.0f} kA/m")
+        lines.append(f"  refused K_eff > 0: sample {row['sample_id']}, m_r {row['m_r']:.3f}, H_n {row['H_n_T']:.3f} T, "
+                     f"K_eff {row['K_eff_kJ_m3']:.1f} kJ/m3, Q {row['Q']:.3f}, |D|/D_c {row['D_over_Dc']:.2f}, "
+                     f"M_s {row['Ms_kA_m']:.0f} kA/m")
+    passed = result["passed_keff_negative_K_eff_kJ_m3"]
+    if passed:
+        lines.append(f"  K_eff < 0 let through: {len(passed)}, K_eff from {min(passed):.1f} to {max(passed):.1f} kJ/m3")
     return lines
 
 
-__all__ = ["SWEEP", "family_remanence", "read_families", "rule_rates", "prior_class_bench", "summary_lines"]
+__all__ = ["SWEEP", "EXIT_SWEEP", "family_observables", "read_families", "rule_rates", "prior_class_bench",
+           "summary_lines"]

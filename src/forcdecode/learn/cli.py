@@ -257,14 +257,14 @@ def run_predict(args) -> int:
         estimator = PosteriorEstimator.load(args.posterior)
         trained_on = estimator.prior_class
         image, note = image_from_input(args.input, estimator.image_size, args.sample_id, args.B_max_T, args.force)
-        check = check_prior_class(trained_on, image, force=args.force, source=args.input)
+        check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
         result = posterior_prediction(estimator, image, args.ms_kA_m * 1e3, args.draws, args.seed)
     else:
         models = load_models(args.models)
         trained_on = models_prior_class(models)
         size = next(iter(models.values())).image_size
         image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
-        check = check_prior_class(trained_on, image, force=args.force, source=args.input)
+        check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
         result = predict_parameters(models, image, args.ms_kA_m * 1e3)
     result["prior_class"], result["prior_check"] = trained_on, check
     if note:

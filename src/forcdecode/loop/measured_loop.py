@@ -439,7 +439,8 @@ def prior_check(report: dict, trained_on: str, m: Measurement, s: LoopSettings, 
 
     report["prior_class"] = trained_on
     try:
-        report["prior_check"] = check_prior_class(trained_on, m.image, force=s.force, source=str(path))
+        report["prior_check"] = check_prior_class(trained_on, m.image, force=s.force, source=str(path),
+                                                  B_max_T=float(m.fields[-1]))
     except PriorClassError as error:
         report["prior_check"] = error.check
         stop(out, path, report, "contradicts the prior class", "\n".join(_prior_lines(report)))
