@@ -25,6 +25,7 @@ include: "workflow/rules/figures.smk"
 include: "workflow/rules/learn.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/fit.smk"
+include: "workflow/rules/sealed.smk"
 
 
 localrules:
@@ -41,3 +42,5 @@ rule all:
         rules.evaluate.output,
         rules.closed_loop.output,
         rules.report_tables.output,
+        # the joint posterior (its test and, with a sealed set, sealed figures)
+        f"{RESULTS}/posterior/metrics.json",

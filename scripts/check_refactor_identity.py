@@ -5,6 +5,9 @@ arrays as the sha256 of their bytes, other files as the sha256 of their bytes).
 
     PYTHONPATH=src python scripts/check_refactor_identity.py OUT.json [--cases loop,fit,...]
 
+The case ``bench_effects`` is one real bench, ``forcdecode bench effects --seeds 1 --json`` (about 2 min on one
+core); it is not in the default ``--cases`` (run it with ``--cases bench_effects``).
+
 Run it before and after a refactor and compare the two files (``cmp`` or ``diff``)."""
 
 from __future__ import annotations
@@ -268,13 +271,51 @@ def case_analyse(tmp: Path) -> dict:
     return {"base": sha(base), "candidates": _clean(candidates), "result": _clean(result)}
 
 
-CASES = {"loop": case_loop, "analyse": case_analyse, "inference": case_inference, "refit": case_refit}
+def case_bench_effects(tmp: Path) -> dict:
+    """`forcdecode bench effects --seeds 1 --json` (the own-simulator bench of the residual analysis: 50 cases,
+    each a MicroMag file read back and judged by ``analyse_residual``): its stdout (the two timings in the first
+    line masked) and the full result of ``bench.effects.effects_confusion`` with every case's row (captured by
+    wrapping the function the command calls; its ``setup_s`` and ``analysis_s`` masked)."""
+    import contextlib
+    import io
+    import re
+
+    from forcdecode.bench import effects
+    from forcdecode.cli import main
+
+    captured = []
+    original = effects.effects_confusion
+
+    def recording(*args, **kwargs):
+        captured.append(original(*args, **kwargs))
+        return captured[-1]
+
+    stdout = io.StringIO()
+    effects.effects_confusion = recording
+    try:
+        with contextlib.redirect_stdout(stdout):
+            code = main(["bench", "effects", "--seeds", "1", "--json"])
+    finally:
+        effects.effects_confusion = original
+    lines = stdout.getvalue().splitlines()
+    summary = json.loads(lines[-1])
+    masked = [re.sub(r"\(setup \d+ s, analysis \d+ s\)", "(setup <time> s, analysis <time> s)", line)
+              for line in lines[:-1]]
+    timings = ("setup_s", "analysis_s")
+    return {"exit": code, "stdout": masked, "json": {k: "<time>" if k in timings else v for k, v in summary.items()},
+            "result": {k: "<time>" if k in timings else _clean(v) for k, v in captured[0].items()}}
+
+
+CASES = {"loop": case_loop, "analyse": case_analyse, "inference": case_inference, "refit": case_refit,
+         "bench_effects": case_bench_effects}
+DEFAULT_CASES = ["loop", "analyse", "inference", "refit"]
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", help="JSON file written")
-    parser.add_argument("--cases", default=",".join(CASES), help="comma-separated, of " + ", ".join(CASES))
+    parser.add_argument("--cases", default=",".join(DEFAULT_CASES), help="comma-separated, of " + ", ".join(CASES)
+                        + " (default: all but bench_effects)")
     parser.add_argument("--work", default=str(Path(tempfile.gettempdir()) / "refactor_identity_work"),
                         help="working directory, emptied first (fixed, so that paths in the reports match)")
     args = parser.parse_args()

@@ -191,6 +191,7 @@ def test_the_summary_on_hand_made_rows():
     assert (s["n_controls"], s["n_library"], s["n_outside"]) == (4, 5, 1)
     assert s["oracle_inputs"] is False
     assert s["correct_fraction"] == pytest.approx(3 / 5) and s["partial_fraction"] == pytest.approx(1 / 5)
+    assert s["partial_set_sizes"] == [2] and s["partial_set_size_median"] == 2.0  # {field_offset, scale}
     assert s["false_attribution_controls"] == pytest.approx(2 / 4) and s["hedged_controls_k"] == 1
     assert s["false_attribution_outside_library"] == 0.0
     assert s["correct_fraction_ci90"] == pytest.approx(clopper_pearson(3, 5))

@@ -141,6 +141,24 @@ def test_saved_model_predicts_what_the_pipeline_recorded(trained):
 
 
 @pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
+def test_the_sealed_set_is_scored_by_the_frozen_model(trained):
+    """A sealed draw of the same synthetic physics (other ids) scored by the saved model: the baselines are
+    the pipeline's own (fitted on train, k on validation), the figures agree with the test split's."""
+    from forcdecode.learn.sealed import alice_sealed_metrics
+
+    data, metrics, out = trained
+    sealed = synthetic_dataset(n=120, seed=5)
+    sealed.sample_id = 100_000 + np.arange(120)
+    result = alice_sealed_metrics(load_models(out), data, sealed, seed=3, settings={**DEFAULT_SETTINGS, **SETTINGS},
+                                  n_boot=300)
+    row = result["parameters"]["D"]
+    assert row["n_sealed"] == 120 and row["baselines"]["ms_only_k"] == metrics["baselines"]["ms_only_k"]
+    assert metrics["mae_ci90"][0] - 0.05 <= row["mae"] <= metrics["mae_ci90"][1] + 0.05
+    assert row["skill_vs_best_trivial_ci90"][0] > 0 and row["mae"] < row["baselines"]["images_shuffled"]
+    assert 0.75 <= row["coverage_90"] <= 1.0
+
+
+@pytest.mark.slow  # the `trained` fixture: ~140 s of training on this 2-core machine
 def test_evaluate_writes_metrics_and_figures(trained, tmp_path):
     _, _, out = trained
     metrics = evaluate([out / "D_metrics.json"], [out / "D_predictions.parquet"], tmp_path / "metrics.json", tmp_path / "fig")

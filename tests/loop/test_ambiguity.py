@@ -4,8 +4,8 @@ held-out residual equally are reported together, on per-curve errors made by han
 import numpy as np
 
 from forcdecode.core.streams import stream_rng
-from forcdecode.loop.effects import (HAMILTONIAN_CHANGE, bootstrap_resamples, equivalent_candidates, nested,
-                                     separating_measurements)
+from forcdecode.loop.effects import (HAMILTONIAN_CHANGE, beats_floor, bootstrap_resamples, equivalent_candidates,
+                                     nested, separating_measurements)
 
 
 def _errors(level, n=24, spread=0.1, seed=0):
@@ -34,6 +34,23 @@ def test_a_clearly_better_chosen_candidate_stands_alone():
     errors = {"none": _errors(1.0, seed=1), "K_2": _errors(0.10, seed=2), HAMILTONIAN_CHANGE: _errors(0.5, seed=4)}
     assert equivalent_candidates(errors, "K_2", stream_rng(0, "bootstrap", "test")) == []
     assert equivalent_candidates(errors, "none", stream_rng(0, "bootstrap", "test")) == []
+
+
+def test_candidates_equal_within_their_null_gains_are_ambiguous():
+    """The refit path's rule (``refit.refit_ambiguity``): a difference no larger than what films without
+    an effect give either candidate (their null gains) does not tell them apart, and a candidate whose
+    gain over "none" is within its own null gain explains nothing."""
+    errors = {"none": _errors(1.0, seed=1), HAMILTONIAN_CHANGE: _errors(0.10, seed=2),
+              "field_tilt": _errors(0.30, seed=3)}
+    rng = stream_rng(0, "bootstrap", "test")
+    assert equivalent_candidates(errors, HAMILTONIAN_CHANGE, rng) == []  # beyond the noise the refit is better
+    floors = {HAMILTONIAN_CHANGE: {"relative": 0.5, "mse": 0.3}, "field_tilt": {"relative": 0.2, "mse": 0.1}}
+    assert equivalent_candidates(errors, HAMILTONIAN_CHANGE, rng, floors=floors) == ["field_tilt"]
+    within_its_floor = {**floors, "field_tilt": {"relative": 0.8, "mse": 0.1}}
+    assert equivalent_candidates(errors, HAMILTONIAN_CHANGE, rng, floors=within_its_floor) == []
+    assert beats_floor(errors["field_tilt"], errors["none"], None)
+    assert beats_floor(errors["field_tilt"], errors["none"], {"relative": 0.6, "mse": 0.6})
+    assert not beats_floor(errors["field_tilt"], errors["none"], {"relative": 0.6, "mse": 0.7})
 
 
 def test_the_same_observable_is_not_an_ambiguity():

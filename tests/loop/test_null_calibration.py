@@ -3,6 +3,7 @@ floor): ``analyse_residual(null_gain=...)`` and ``null_gains``."""
 
 import numpy as np
 
+from forcdecode.loop.effects import HAMILTONIAN_CHANGE
 from forcdecode.loop.physics_effects import analyse_residual, null_gains
 
 
@@ -51,3 +52,16 @@ def test_noise_makes_the_null_of_identical_films_harmless():
     measured = base + 0.1 * fields[None, :] + 0.003 * np.random.default_rng(5).normal(size=base.shape)
     result = analyse_residual(measured, base, fields, thermal=False, null_gain=gains)
     assert result["chosen"] == "background"
+
+
+def test_the_null_gain_of_a_hamiltonian_change():
+    """``null_gains(hamiltonian_floor=True)``: what K_u moved along its neighbourhood gains on films
+    without an effect (here realisations whose coercivity differs by a few per cent, which such a change
+    covers), the floor of the refit's own change (``refit.refit_ambiguity``); off by default."""
+    fields, base = family(0.3)
+    neighbourhood = {c: family(0.3 * (1 + c))[1] for c in (-0.12, -0.06, 0.06, 0.12)}
+    films = [realisation(s) for s in (1, 2)]
+    plain = null_gains(films, base, fields, thermal=False, hamiltonian_families=neighbourhood)
+    floor = null_gains(films, base, fields, thermal=False, hamiltonian_families=neighbourhood, hamiltonian_floor=True)
+    assert HAMILTONIAN_CHANGE not in plain and floor[HAMILTONIAN_CHANGE]["relative"] > 0.5
+    assert {k: v for k, v in floor.items() if k != HAMILTONIAN_CHANGE} == plain

@@ -1,5 +1,5 @@
-"""The posterior is an option of the workflow: `snakemake results/posterior/metrics.json` plans
-train_posterior, the default target does not, and its settings stay out of config.json and
+"""The posterior is trained by the main job (since 2026-11-28; issue 44 item 5), `snakemake
+results/posterior/metrics.json` plans it without Alice and Bob, and its settings stay out of config.json and
 learning.json (changing them re-simulates and retrains nothing else). Each run in a temporary
 directory."""
 
@@ -30,14 +30,16 @@ def planned_jobs(text: str) -> dict:
     return jobs
 
 
-def test_the_posterior_is_an_option_not_in_all(tmp_path):
+def test_the_main_job_trains_the_posterior_and_scores_it_on_the_sealed_set(tmp_path):
     run = snakemake(tmp_path, "-n", "results/posterior/metrics.json")
     assert run.returncode == 0, run.stderr[-3000:]
     jobs = planned_jobs(run.stdout)
     assert jobs.get("train_posterior") == 1 and "train_parameter" not in jobs, jobs
+    assert jobs.get("posterior_sealed") == 1 and jobs.get("posterior_report") == 1, jobs
     run = snakemake(tmp_path, "-n")
     assert run.returncode == 0, run.stderr[-3000:]
-    assert "train_posterior" not in planned_jobs(run.stdout)
+    jobs = planned_jobs(run.stdout)
+    assert jobs.get("train_posterior") == 1 and jobs.get("score_sealed") == 1 and jobs.get("merge_sealed") == 1, jobs
 
 
 def test_posterior_settings_stay_out_of_the_stage_configs(tmp_path):

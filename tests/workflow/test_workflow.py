@@ -42,15 +42,15 @@ def with_fit_posterior(workdir, fit_config, target):
 
 # rules that compute (everything but the two config writers and `all`): each leaves a benchmark
 BENCHMARKED = {"draw", "screen", "select", "simulate_family", "merge", "figure1", "train_parameter", "evaluate",
-               "closed_loop", "report_tables"}
+               "closed_loop", "report_tables", "train_posterior", "score_sealed", "posterior_sealed"}
 REPORTED = {"figure1.png", "figure3.png", "figure5bc.png", "learning_curve.png", "retention.png",
             "uncertainty_baselines.png", "figure4.png", "closed_loop_vs_bob.png", "closed_loop_floor_null.png",
-            "metrics.html", "samples.html", "closed_loop.html"}
+            "metrics.html", "samples.html", "closed_loop.html", "posterior_calibration.png", "posterior_sealed.png"}
 
 
 def test_tiny_config_builds_the_dataset(tmp_path):
     out = tmp_path / "results"
-    run = snakemake(tmp_path)
+    run = snakemake(tmp_path, timeout=1200)  # the whole tiny main job: ~5 min on 2 idle cores
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     samples = pd.read_parquet(out / "samples.parquet")
     assert len(samples) == 40  # one row per drawn sample, rejected ones included
@@ -72,6 +72,17 @@ def test_tiny_config_builds_the_dataset(tmp_path):
         assert m["n_test"] >= 1 and 0 <= m["mae"] <= 1 and {"pearson_r", "skill", "bob_spearman", "coverage_68", "coverage_90"} <= set(m)
     for name in ("figure3", "figure5bc", "learning_curve", "retention", "figure4", "closed_loop_vs_bob"):
         assert (out / "figures" / f"{name}.png").stat().st_size > 5_000, name
+    # the sealed set (ids 400-415): simulated apart, scored once by the frozen models, beside the test figures
+    with h5py.File(out / "sealed" / "dataset.h5", "r") as h5:
+        sealed_ids = h5["sample_id"][:]
+    with h5py.File(out / "dataset.h5", "r") as h5:
+        assert not set(sealed_ids.tolist()) & set(h5["sample_id"][:].tolist())
+    assert sealed_ids.min() >= 400 and sealed_ids.max() < 416
+    sealed = json.loads((out / "metrics.json").read_text())["sealed"]
+    assert sealed["n_sealed"] == len(sealed_ids) and set(sealed["parameters"]) == set(metrics)
+    assert all(0 <= row["mae"] <= 1 and len(row["skill_vs_best_trivial_ci90"]) == 2 for row in sealed["parameters"].values())
+    posterior = json.loads((out / "posterior" / "metrics.json").read_text())
+    assert posterior["sealed"]["n_fresh"] == len(sealed_ids) and "per_parameter" in posterior
     closed = json.loads((out / "closed_loop.json").read_text())
     assert 1 <= closed["n_resimulated"] <= 2 and 0 <= closed["observation_rms_mean"] < 2
     with h5py.File(out / "dataset.h5", "r") as h5:
@@ -81,6 +92,9 @@ def test_tiny_config_builds_the_dataset(tmp_path):
                                cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert predicted.returncode == 0, predicted.stderr
     result = json.loads(predicted.stdout)
+    # --estimator auto (the default): the estimator validation shows better, the posterior beside the models
+    choice = result["estimator_choice"]
+    assert choice["estimator"] in ("alice", "posterior") and set(choice["validation_mae"]["posterior"]) == set(metrics)
     assert result["Ms"] == 8e5 and 0 <= result["D"]["value"] <= 5e-3
     assert result["K_u"]["interval_90"][0] <= result["K_u"]["value"] <= result["K_u"]["interval_90"][1]
     # the head ablation rebuilds the workflow's split from learning.json
@@ -106,7 +120,8 @@ def test_tiny_config_builds_the_dataset(tmp_path):
                                                    rng=np.random.default_rng(0))
     measured = write_micromag_0015(tmp_path / "film.frc", reversal, curves)
     loop = subprocess.run([sys.executable, "-m", "forcdecode.cli", "loop", str(measured), "--out", str(tmp_path / "loop"),
-                           "--models", str(out / "models"), "--config", "config/test.yaml", "--Ms-sweep-kA-m", "500", "1100", "2",
+                           "--models", str(out / "models"), "--estimator", "alice", "--config", "config/test.yaml",
+                           "--Ms-sweep-kA-m", "500", "1100", "2",
                            "--sweep-profiles", "1", "--profiles", "1", "--every-k", "3", "--no-physics"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert loop.returncode == 0, loop.stderr[-2000:]
@@ -122,7 +137,7 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert report["drift_evidence"]["significant"] is False and report["field_shift"]["significant"] is False
     # runtime per job: one benchmark table per job of every computing rule
     assert {p.name for p in (out / "benchmarks").iterdir()} == BENCHMARKED
-    assert len(list((out / "benchmarks" / "screen").glob("chunk_*.tsv"))) == 5  # 40 samples, 8 per chunk
+    assert len(list((out / "benchmarks" / "screen").glob("chunk_*.tsv"))) == 7  # 40 + 16 sealed samples, 8 per chunk
     bench_table = pd.read_csv(out / "benchmarks" / "train_parameter" / "D.tsv", sep="\t")
     assert len(bench_table) == 1 and bench_table["s"].iloc[0] > 0
     # the report: every figure and table of the run, with its caption, in one browsable archive

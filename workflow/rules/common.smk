@@ -5,6 +5,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from forcdecode.config import dataset_config
 from forcdecode.core.io import write_json
 from snakemake.settings.types import DeploymentMethod
 from snakemake.utils import validate
@@ -16,7 +17,7 @@ validate(config, "../schemas/config.schema.yaml", set_default=True)
 STAGE_SECTIONS = ("learning", "loop")
 # sections that only optional rules read (kept out of config.json and learning.json: changing them
 # reruns only their own rule, passed to it as a parameter)
-OPTION_SECTIONS = ("posterior", "fit")
+OPTION_SECTIONS = ("posterior", "fit", "sealed")
 RESULTS = config["results_dir"].rstrip("/")
 LEARN_PARAMETERS = config["learning"]["parameters"]
 # Whole screening chunks of `chunk_size` consecutive sample ids, from first_sample_id on: a chunk's
@@ -58,6 +59,26 @@ def chunk_family_parts(wildcards):
 # one list of family files per screening chunk (families_of_chunk writes it); merge depends on these
 # statically, so a grown run schedules the new chunks' screening even when dataset.h5 exists
 FAMILY_LISTS = [f"{RESULTS}/families/chunk_{c}.json" for c in CHUNKS]
+
+# The sealed test set (learn/sealed.py): whole chunks of a separate id range, screened and simulated by
+# the same rules, merged apart (sealed/dataset.h5) and read only by the scoring rules at the end
+SEALED = config["sealed"]
+if SEALED["first_sample_id"] % config["chunk_size"]:
+    raise ValueError(
+        f"sealed.first_sample_id ({SEALED['first_sample_id']}) must be a multiple of chunk_size ({config['chunk_size']})"
+    )
+FIRST_SEALED_CHUNK = SEALED["first_sample_id"] // config["chunk_size"]
+SEALED_CHUNKS = [
+    f"{k:04d}" for k in range(FIRST_SEALED_CHUNK, FIRST_SEALED_CHUNK + -(-SEALED["n_samples"] // config["chunk_size"]))
+]
+if set(SEALED_CHUNKS) & set(CHUNKS):
+    raise ValueError(
+        f"the sealed id range ({SEALED['first_sample_id']}, {SEALED['n_samples']} samples) overlaps the training range "
+        f"({config['first_sample_id']}, {config['n_samples']} samples): move sealed.first_sample_id above it"
+    )
+SEALED_ON = bool(SEALED_CHUNKS)
+# the posterior's test figures; with a sealed set, posterior_report adds its figures in metrics.json
+POSTERIOR_TEST_METRICS = f"{RESULTS}/posterior/metrics_test.json" if SEALED_ON else f"{RESULTS}/posterior/metrics.json"
 
 
 # chunk numbers are written with four digits; a parameter is one of the learned ones

@@ -1,19 +1,16 @@
 rule resolve_config:
     """The schema-validated dataset configuration (defaults filled in), input of every stage. The
-    learning and loop sections go to their own file, so changing them never re-simulates the dataset.
-    The default prior class (`prior: paper`) is left out (absent reads as paper): a dataset made
-    before the key keeps its config.json, so nothing reruns, and its config hash."""
+    learning and loop sections go to their own file, so changing them never re-simulates the dataset."""
     output:
         f"{RESULTS}/config.json",
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
+        # dataset_config leaves `realisations` out when it is 1 and `prior` when it is paper (the schema's
+        # defaults): config.json, its hash and every family are then what they were before the keys
+        # existed, so datasets and models already made stay valid and a running job reruns nothing
         cfg=json.dumps(
-            {
-                k: v
-                for k, v in config.items()
-                if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS and not (k == "prior" and v == "paper")
-            },
+            dataset_config({k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS}),
             sort_keys=True,
         ),
     run:

@@ -35,6 +35,8 @@ rule evaluate:
         models=expand(f"{RESULTS}/models/{{parameter}}.pt", parameter=LEARN_PARAMETERS),
         dataset=rules.merge.output.h5,
         config=rules.resolve_learning.output,
+        # the frozen networks' sealed-set figures (sealed.smk), reported beside the test split's
+        sealed=[f"{RESULTS}/sealed/alice.json"] if SEALED_ON else [],
     output:
         metrics=f"{RESULTS}/metrics.json",
         table=f"{RESULTS}/metrics.md",
@@ -79,10 +81,11 @@ rule evaluate:
         cli=FORCDECODE,
         figures=lambda wildcards, output: os.path.dirname(output.figure3),
         models=lambda wildcards, input: os.path.dirname(input.models[0]),
+        sealed=lambda wildcards, input: f"--sealed {input.sealed}" if input.sealed else "",
     shell:
         "{params.cli} learn evaluate --metrics {input.metrics} --predictions {input.predictions} "
         "--out {output.metrics} --learning-curve {output.learning_curve_json} --figures {params.figures} "
-        "--dataset {input.dataset} --config {input.config} --models {params.models} > {log} 2>&1"
+        "--dataset {input.dataset} --config {input.config} --models {params.models} {params.sealed} > {log} 2>&1"
 
 
 rule closed_loop:
@@ -137,14 +140,15 @@ rule closed_loop:
 
 rule train_posterior:
     """Neural posterior of all learned parameters (CNN embedding + neural spline flow) on the train split,
-    early stopping on validation, calibrated on test (SBC ranks, coverage, MAE). Not in `all`: an option,
-    `snakemake results/posterior/metrics.json`."""
+    early stopping on validation, calibrated on test (SBC ranks, coverage, MAE). In `all` since
+    2026-11-28; its test figures go to posterior/metrics_test.json, and posterior_report (sealed.smk)
+    writes posterior/metrics.json with the sealed set's beside them (without a sealed set: metrics.json)."""
     input:
         config=rules.resolve_learning.output,
         dataset=rules.merge.output.h5,
     output:
         model=f"{RESULTS}/posterior/model.pt",
-        metrics=f"{RESULTS}/posterior/metrics.json",
+        metrics=POSTERIOR_TEST_METRICS,
         figure=report(
             f"{RESULTS}/posterior/figures/posterior_calibration.png",
             caption="../report/posterior_calibration.rst",

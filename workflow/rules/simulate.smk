@@ -1,5 +1,6 @@
 rule simulate_family:
-    """FORC families of one chunk of passing samples (failed samples are recorded, not dropped)."""
+    """FORC families of one chunk of passing samples (failed samples are recorded, not dropped); with
+    `realisations: R` each is the mean over R disorder realisations."""
     input:
         config=rules.resolve_config.output,
         params=f"{RESULTS}/params/chunk_{{chunk}}.parquet",
@@ -13,9 +14,10 @@ rule simulate_family:
     conda:
         CONDA_ENV
     threads: 1
+    # a family of R disorder realisations costs R families (run one after another: the memory stays)
     resources:
         mem_mb=4000,
-        runtime=600,
+        runtime=600 * config["realisations"],
     params:
         cli=FORCDECODE_1T,
         chunk=lambda wildcards: int(wildcards.chunk),

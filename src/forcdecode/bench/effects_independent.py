@@ -892,6 +892,12 @@ def _answer_of_report(report: dict) -> dict:
     return {"named": [report.get("effect") or verdict], "ambiguous": False, "refused": None}
 
 
+def answer_set_size(answer: dict) -> int:
+    """Members of an answer's set: the effects it names, plus the Hamiltonian's own change where the
+    set held it (``hedged``)."""
+    return len(answer["named"]) + int(bool(answer.get("hedged")))
+
+
 def largest_gain_answer(candidates: dict) -> dict:
     """``always_largest_gain``: the candidate with the largest held-out relative gain, no gate ("none"
     when no candidate gains)."""
@@ -989,6 +995,11 @@ def rule_metrics(rows: list[dict], rule: str) -> dict:
     for key, group in (("hedged_controls_k", controls), ("hedged_outside_library_k", outside)):
         # false attributions that were ambiguous sets holding the Hamiltonian's change beside the effect
         out[key] = sum(r["scores"][rule] == "wrong" and bool(r["answers"][rule].get("hedged")) for r in group)
+    # a partial answer's size: how many members the set holds (the Hamiltonian's change counted), so a
+    # set of two that holds the truth is told from one of five
+    sizes = [answer_set_size(r["answers"][rule]) for r in library if r["scores"][rule] == "partial"]
+    out["partial_set_sizes"] = sorted(sizes)
+    out["partial_set_size_median"] = float(np.median(sizes)) if sizes else None
     reductions = [r["heldout_reduction"][rule] for r in rows if r["heldout_reduction"][rule] is not None]
     out["median_heldout_reduction"] = float(np.median(reductions)) if reductions else None
     out["n_named"] = len(reductions)

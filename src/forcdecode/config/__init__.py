@@ -108,6 +108,29 @@ def load_config(path) -> dict:
     return validate_config(cfg if cfg is not None else {}, source=f"config file {path}")
 
 
+LATE_DEFAULTS = {"realisations": 1, "prior": "paper"}
+"""Dataset (physics) keys added after datasets had been made, with the value every earlier dataset
+implicitly had. A config that holds one of them at this value means what a config without the key
+meant, so the dataset's config.json and config hash leave it out (``dataset_config``)."""
+
+
+def dataset_config(cfg: dict) -> dict:
+    """``cfg`` (a copy) without the ``LATE_DEFAULTS`` keys that hold their default value.
+
+    Why: the schema fills ``realisations: 1`` into every config, but datasets made before the key
+    existed (and the models trained on them, which carry the dataset's config hash) have none; left
+    out at 1, a dataset's config.json, its config hash and (since realisation 0 is the sample's
+    original disorder stream) every family stay bit for bit what they were; the same for
+    ``prior: paper`` (the draw of every dataset before the key). Any other value is kept, so that it
+    changes the hash. Used by the workflow's ``resolve_config`` and by ``dataset.merge``."""
+    return {k: v for k, v in cfg.items() if not (k in LATE_DEFAULTS and v == LATE_DEFAULTS[k])}
+
+
+def realisations(cfg: dict) -> int:
+    """Disorder realisations averaged per sample (``realisations``; absent: 1)."""
+    return int(cfg.get("realisations", LATE_DEFAULTS["realisations"]))
+
+
 def shipped_config(name: str = "config") -> Path:
     """Path of the shipped configuration ``name``: config (laptop), paper (the seed paper's scale)
     or test (tiny, CI)."""
@@ -116,5 +139,5 @@ def shipped_config(name: str = "config") -> Path:
     return CONFIGS_DIR / f"{name}.yaml"
 
 
-__all__ = ["SCHEMA_PATH", "CONFIGS_DIR", "SHIPPED_CONFIGS", "schema", "defaults", "validate_config",
-           "load_config", "shipped_config"]
+__all__ = ["SCHEMA_PATH", "CONFIGS_DIR", "SHIPPED_CONFIGS", "LATE_DEFAULTS", "schema", "defaults",
+           "validate_config", "load_config", "dataset_config", "realisations", "shipped_config"]

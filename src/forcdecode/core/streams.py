@@ -40,6 +40,9 @@ _REGISTRY: dict[str, tuple[int, str]] = {
     "ablation": (17, "weights and batch order of the head ablation (keys: head, parameter)"),
     "posterior": (18, "weights, batch order, posterior draws and calibration of the neural posterior (keys: purpose)"),
     "null_noise": (19, "measurement noise added to the effect selection's null pseudo-measurements (key: purpose)"),
+    "propagation": (20, "Monte-Carlo draws propagating Alice's per-parameter intervals into the combinations (key: purpose)"),
+    "disorder_realisation": (21, "grains, anisotropy disorder and pinning sites of disorder realisation r >= 1 of one "
+                                 "dataset sample (keys: sample id, r); realisation 0 is the sample's `disorder` stream"),
 }
 
 _LEGACY_PER_SAMPLE = frozenset({"parameters", "disorder"})

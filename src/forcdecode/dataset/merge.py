@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from .. import __version__
+from ..config import dataset_config, realisations
 from ..core import io
-from ..core.parameters import DEFAULT_PRIOR_CLASS
 from ..core.parameters import NAMES as PARAMETERS
 
 
@@ -24,20 +24,30 @@ def config_hash(cfg: dict) -> str:
 def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -> None:
     """The workflow's chunks (parameter draws, screens, family files) into ``dataset.h5`` (families
     ordered by sample id, parameters SI, fields in T) and ``samples.parquet`` (every drawn sample).
-    ``config_hash`` is the hash of the physics config (``physics_config``): a grown run keeps it."""
+    ``config_hash`` is the hash of the physics config (``physics_config``): a grown run keeps it.
+    With ``realisations: R`` the families are means over R disorder realisations: ``curves_std_mz``
+    (float16, NaN below the diagonal) holds their spread, 0 for R = 1 (and for family files written
+    before the spread was recorded, all R = 1), and the attribute ``realisations`` says R. A family
+    file simulated with another R than ``cfg`` says raises DatasetError."""
+    from ..core.errors import DatasetError
+
     paths = [params_path] if isinstance(params_path, (str, bytes)) or not hasattr(params_path, "__iter__") else list(params_path)
     params = pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True)
     # the workflow's config.json leaves out how many samples were drawn (so that growing a dataset
     # reruns nothing): the dataset records the ids actually drawn, whole chunks
-    cfg = {**cfg}
+    cfg = dataset_config(cfg)  # `realisations: 1` left out, as resolve_config does: the hash of before
+    count = realisations(cfg)
     if len(params):
         cfg.setdefault("n_samples", int(len(params)))
         cfg.setdefault("first_sample_id", int(params["sample_id"].min()))
     screens = pd.concat([pd.read_parquet(p) for p in screen_paths], ignore_index=True)
     table = params.merge(screens.drop(columns=[c for c in ("traceback",) if c in screens]), on="sample_id", how="left")
-    family_rows, images, curves, descending, ok_ids, raw_sources = [], [], [], [], [], []
+    family_rows, images, curves, descending, spread, ok_ids, raw_sources = [], [], [], [], [], [], []
     for path in family_paths:
         with h5py.File(path, "r") as h5:
+            found = int(h5.attrs.get("realisations", 1))  # files written before R existed: 1
+            if found != count:
+                raise DatasetError(f"{path} holds families of {found} disorder realisations, the config says {count}")
             ids = h5["sample_id"][:]
             status = h5["status"].asstr()[:]
             reason = h5["reason"].asstr()[:]
@@ -55,6 +65,8 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
                     images.append(h5["images"][k])
                     curves.append(h5["curves_mz"][k])
                     descending.append(h5["descending_mz"][k])
+                    spread.append(h5["curves_std_mz"][k] if "curves_std_mz" in h5
+                                  else np.where(np.isnan(curves[-1]), np.nan, 0.0))
     families = pd.DataFrame(family_rows, columns=["sample_id", "family_status", "family_reason", "family_s",
                                                   "family_cpu_s"])
     table = table.merge(families, on="sample_id", how="left")
@@ -70,6 +82,8 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
             h5.create_dataset("images", data=stack(images, (n_fields, n_fields), np.uint8), compression="gzip")
             h5.create_dataset("curves_mz", data=stack(curves, (n_fields, n_fields), np.float32), compression="gzip")
             h5.create_dataset("descending_mz", data=stack(descending, (n_fields,), np.float32), compression="gzip")
+            h5.create_dataset("curves_std_mz", data=stack(spread, (n_fields, n_fields), np.float16).astype(np.float16),
+                              compression="gzip")
             h5["sample_id"] = ok_ids
             h5["fields_T"] = np.linspace(-cfg["field"]["B_max_T"], cfg["field"]["B_max_T"], n_fields)
             values = indexed.loc[ok_ids, list(PARAMETERS)].to_numpy(dtype=float) if len(ok_ids) else np.zeros((0, len(PARAMETERS)))
@@ -82,6 +96,7 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
             h5.attrs["config_hash"] = config_hash(physics_config(cfg))  # the same for a grown run
             h5.attrs["config_json"] = json.dumps(cfg, sort_keys=True)
             h5.attrs["seed"] = cfg["seed"]
+            h5.attrs["realisations"] = count
             h5.attrs["package_version"] = __version__
             h5.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
             h5.attrs["image_rule"] = "rows: reversal field ascending; columns: field ascending; H<H_r filled with m(H_r,H_r); uint8=round(127.5(m+1))"
@@ -97,11 +112,11 @@ SIZE_KEYS = ("n_samples", "chunk_size", "family_chunk_size", "results_dir", "fir
 
 def physics_config(cfg: dict) -> dict:
     """The part of a dataset config that decides what a family is (mesh, field grid, minimizer,
-    protocol, pinning, grains, screening, bounds, prior class, seed): runs merged into one dataset must
-    agree on it. The default prior class (``paper``) counts as absent, so a run made before the
-    ``prior`` key and one that names ``prior: paper`` have the same physics config (and hash)."""
-    return {k: v for k, v in cfg.items()
-            if k not in SIZE_KEYS and not (k == "prior" and v == DEFAULT_PRIOR_CLASS)}
+    protocol, pinning, grains, screening, bounds, prior class, seed, realisations): runs merged into one
+    dataset must agree on it. ``realisations: 1`` and ``prior: paper`` are left out
+    (``config.dataset_config``), so the hash of a config that says them is the hash of the same config
+    from before the keys existed."""
+    return {k: v for k, v in dataset_config(cfg).items() if k not in SIZE_KEYS}
 
 
 def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
@@ -117,7 +132,7 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
     if len(paths) < 1:
         raise DatasetError("no run to merge")
     runs, reference = [], None
-    images, curves, descending, params, ids, run_of = [], [], [], [], [], []
+    images, curves, descending, spread, params, ids, run_of = [], [], [], [], [], [], []
     seen: dict[int, np.ndarray] = {}
     fields = columns = None
     for r, path in enumerate(paths):
@@ -156,6 +171,9 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
                 images.append(h5["images"][k])
                 curves.append(h5["curves_mz"][k])
                 descending.append(h5["descending_mz"][k])
+                # runs merged before the spread was recorded were all one realisation: spread 0
+                spread.append(h5["curves_std_mz"][k] if "curves_std_mz" in h5
+                              else np.where(np.isnan(curves[-1]), np.nan, 0.0).astype(np.float16))
                 params.append(values[k])
                 ids.append(sid)
                 run_of.append(r)
@@ -166,6 +184,7 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
             h5.create_dataset("images", data=np.stack(images)[order], compression="gzip")
             h5.create_dataset("curves_mz", data=np.stack(curves)[order], compression="gzip")
             h5.create_dataset("descending_mz", data=np.stack(descending)[order], compression="gzip")
+            h5.create_dataset("curves_std_mz", data=np.stack(spread)[order].astype(np.float16), compression="gzip")
             h5["sample_id"] = np.asarray(ids, dtype=np.int64)[order]
             h5["fields_T"] = fields
             dset = h5.create_dataset("parameters", data=np.stack(params)[order])
@@ -179,6 +198,7 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
             h5.attrs["config_json"] = json.dumps(merged_cfg, sort_keys=True)
             h5.attrs["config_hash"] = config_hash(physics_config(merged_cfg))
             h5.attrs["seed"] = int(reference.get("seed", -1))
+            h5.attrs["realisations"] = realisations(reference)
             h5.attrs["package_version"] = __version__
             h5.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
             h5.attrs["image_rule"] = "rows: reversal field ascending; columns: field ascending; H<H_r filled with m(H_r,H_r); uint8=round(127.5(m+1))"

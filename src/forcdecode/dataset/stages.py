@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ..config import realisations
 from ..core.errors import InputFileError
 from ..core.io import atomic_path, write_json, write_parquet
 from ..core.parameters import prior_class
@@ -100,6 +101,8 @@ def select_stage(cfg: dict, screens, out, log=_quiet) -> dict:
 def simulate_stage(cfg: dict, params_path, screen_path, chunk: int, out, log=_quiet, part: int = 0) -> list[dict]:
     """Simulate the FORC families of one family job (``simulate.simulate``) and write them (HDF5): part
     ``part`` of screening chunk ``chunk`` (its screen parquet ``screen_path``, ``family_parts``).
+    With ``realisations: R`` each family is the mean of R disorder realisations (R times the cost;
+    ``family_s``/``family_cpu_s`` cover all R) and ``curves_std_mz`` their spread.
     InputFileError if that chunk has no such part."""
     import h5py
 
@@ -128,18 +131,27 @@ def simulate_stage(cfg: dict, params_path, screen_path, chunk: int, out, log=_qu
             h5["family_cpu_s"] = np.array([r.get("family_cpu_s", np.nan) for r in results])
             images = np.zeros((count, n_fields, n_fields), dtype=np.uint8)
             curves = np.full((count, n_fields, n_fields), np.nan, dtype=np.float32)
+            spread = np.full((count, n_fields, n_fields), np.nan, dtype=np.float32)
             descending = np.full((count, n_fields), np.nan, dtype=np.float32)
             for k, r in enumerate(results):
                 if r["status"] == "ok":
                     images[k], curves[k], descending[k] = r["image"], r["curves_mz"], r["descending_mz"]
+                    spread[k] = r["curves_std_mz"]
             h5.create_dataset("images", data=images, compression="gzip")
             h5.create_dataset("curves_mz", data=curves, compression="gzip")
             h5.create_dataset("descending_mz", data=descending, compression="gzip")
+            # the realisation spread (std of the R realisations' curves; 0 for R = 1) and R itself
+            h5.create_dataset("curves_std_mz", data=spread, compression="gzip")
+            h5.attrs["realisations"] = realisations(cfg)
             # raw recorded points of the LLG protocol (not on the grid), per sample: the closed loop uses them
+            # (with R > 1 realisations, one subgroup per realisation: raw/<sample>/<r>)
             for r in results:
                 if r["status"] == "ok" and r.get("raw_curves") is not None:
                     group = h5.create_group(f"raw/{r['sample_id']}")
                     write_raw_curves(group, r["raw_curves"])
+                elif r["status"] == "ok" and r.get("raw_realisations") is not None:
+                    for k, raw in enumerate(r["raw_realisations"]):
+                        write_raw_curves(h5.create_group(f"raw/{r['sample_id']}/{k}"), raw)
     return results
 
 

@@ -8,6 +8,9 @@
     learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
     learn posterior-check --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out J.json
     learn posterior-recalibrate --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out M.pt
+    learn sealed    --models results/models --dataset dataset.h5 --sealed sealed/dataset.h5 --config learning.json
+                    --out sealed/alice.json   (the frozen networks on the sealed set, once, at the end)
+    learn attach-sealed --metrics J.json --sealed S.json --out metrics.json
                     --report J.json [--training-dataset dataset.h5 --config learning.json]
     predict INPUT --Ms-kA-m 800 --models results/models [--json]
     predict INPUT --Ms-kA-m 800 --estimator posterior --posterior results/posterior/model.pt [--json]
@@ -48,6 +51,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="resolved learning.json (seed and bootstrap of the combinations' intervals)")
     p.add_argument("--models", help="directory of the <parameter>.pt files (with --dataset: the combinations' "
                                     "images-shuffled baseline)")
+    p.add_argument("--sealed", help="the sealed set's figures (learn sealed): metrics.json gains them as `sealed`")
+    p = sub.add_parser("sealed", help="the frozen networks scored once on the sealed set (a separate id range)")
+    p.add_argument("--models", required=True, help="directory of the <parameter>.pt files")
+    p.add_argument("--dataset", required=True, help="dataset.h5 the networks were trained on (baselines, splits)")
+    p.add_argument("--sealed", required=True, help="dataset.h5 of the sealed families")
+    p.add_argument("--config", required=True, help="resolved learning.json (seed, split, bootstrap)")
+    p.add_argument("--out", required=True, help="output JSON")
+    p = sub.add_parser("attach-sealed", help="a metrics JSON with the sealed set's figures added as `sealed`")
+    p.add_argument("--metrics", required=True, help="metrics JSON of the test split")
+    p.add_argument("--sealed", required=True, help="the sealed set's figures (JSON)")
+    p.add_argument("--out", required=True, help="output metrics JSON")
     p = sub.add_parser("posterior", help="neural posterior estimate of all parameters, calibrated on the test split")
     p.add_argument("--config", required=True, help="resolved learning.json (seed, learning.split; a posterior section if any)")
     p.add_argument("--dataset", required=True)
@@ -70,6 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                               "without the ids they were fitted on)")
     p.add_argument("--seed", type=int, help="seed of the posterior draws (default: the model's)")
     p.add_argument("--draws", type=int, default=1000)
+    p.add_argument("--config", help="resolved learning.json: with --training-dataset, the derived combinations "
+                                    "(sigma_w, ...) are scored too, their baselines fitted on its train split")
     p.add_argument("--threads", type=int, default=1)
     p = sub.add_parser("posterior-recalibrate", help="refit the posterior's quantile recalibration on a fresh draw "
                                                      "(another id range of the same configuration) and save the model")
@@ -99,7 +115,7 @@ def run(args) -> int:
     import torch
 
     from ..core.errors import ConfigError
-    from ..core.io import read_config, write_json
+    from ..core.io import read_config, read_json, write_json
 
     if args.step == "train":
         from ..core.parameters import TARGETS
@@ -143,8 +159,14 @@ def run(args) -> int:
         training = load_dataset(args.training_dataset) if args.training_dataset else None
         seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
         levels = (est.metadata.get("settings") or {}).get("levels")  # None: the posterior section's default
+        learning, split_seed = None, None
+        if args.config:
+            from ..config import defaults
+
+            cfg = read_config(args.config)
+            learning, split_seed = {**defaults("learning"), **(cfg.get("learning") or {})}, int(cfg["seed"])
         metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
-                                    training_data=training)
+                                    training_data=training, learning=learning, split_seed=split_seed)
         write_check(metrics, args.out, args.figure)
         for line in check_lines(metrics):
             print(line)
@@ -221,10 +243,31 @@ def run(args) -> int:
         cfg = read_config(args.config) if args.config else {}
         n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
         metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
-                           dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models)
+                           dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models,
+                           sealed=read_json(args.sealed, what="sealed figures") if args.sealed else None)
         print(markdown(metrics))
         return 0
-    raise ValueError(f"unknown step {args.step}")  # argparse allows only train and evaluate
+    if args.step == "sealed":
+        from ..config import defaults
+        from .data import load_dataset
+        from .predictor import load_models
+        from .sealed import alice_sealed_metrics, sealed_lines
+
+        cfg = read_config(args.config)
+        settings = {**defaults("learning"), **(cfg.get("learning") or {})}
+        metrics = alice_sealed_metrics(load_models(args.models), load_dataset(args.dataset), load_dataset(args.sealed),
+                                       seed=int(cfg["seed"]), settings=settings, n_boot=int(settings["bootstrap"]))
+        write_json(args.out, json.loads(json.dumps(metrics, default=float)))
+        for line in sealed_lines(metrics):
+            print(line)
+        return 0
+    if args.step == "attach-sealed":
+        from .sealed import attach_sealed
+
+        write_json(args.out, attach_sealed(read_json(args.metrics, what="metrics"),
+                                           read_json(args.sealed, what="sealed figures")))
+        return 0
+    raise ValueError(f"unknown step {args.step}")  # argparse allows only the steps above
 
 
 # ---------------------------------------------------------------- predict
@@ -237,20 +280,37 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training "
                         "domain or its loop contradicts the prior class the model was trained on")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
-                        help="alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
+    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
+                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower mean validation "
+                             "MAE; Alice without a posterior model); "
+                             "alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
                              "neural posterior (medians, credible intervals, correlations)")
-    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
-    parser.add_argument("--draws", type=int, default=4000, help="posterior draws (--estimator posterior)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the posterior draws")
+    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
+                                            "directory, i.e. results/posterior/model.pt)")
+    parser.add_argument("--draws", type=int, default=4000,
+                        help="posterior draws (--estimator posterior), or Monte-Carlo draws of Alice's intervals "
+                             "behind the combinations' intervals (alice)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the posterior draws or of Alice's Monte-Carlo draws")
 
 
 def run_predict(args) -> int:
-    """Predict; first the prior-class check (``learn.prior_class``): a file whose loop contradicts the
-    class the model was trained on raises PriorClassError (exit 2) unless ``--force``."""
+    """Print the prediction (``predictor.prediction_lines``, or JSON): each parameter with its intervals and
+    whether it is read from the image (``learn.answer``), and the derived combinations with theirs. First
+    the prior-class check (``learn.prior_class``): a file whose loop contradicts the class the model was
+    trained on raises PriorClassError (exit 2) unless ``--force``; the class is printed (JSON:
+    ``prior_class``, ``prior_check``)."""
     from .predictor import image_from_input, load_models, models_prior_class, predict_parameters, prediction_lines
     from .prior_class import check_prior_class
 
+    from .estimator_choice import default_posterior_path
+
+    args.posterior = args.posterior or default_posterior_path(args.models)
+    choice = None
+    if args.estimator == "auto":
+        from .estimator_choice import choose_estimator
+
+        choice = choose_estimator(args.models, args.posterior)
+        args.estimator = choice["estimator"]
     if args.estimator == "posterior":
         from .posterior import PosteriorEstimator, posterior_prediction
 
@@ -265,9 +325,15 @@ def run_predict(args) -> int:
         size = next(iter(models.values())).image_size
         image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
         check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
-        result = predict_parameters(models, image, args.ms_kA_m * 1e3)
+        from .answer import alice_answer
+
+        result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     result["prior_class"], result["prior_check"] = trained_on, check
     if note:
         result["out_of_domain"] = note
+    if choice is not None:
+        result["estimator_choice"] = choice
+        if not args.json:
+            print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
     print(json.dumps(result, indent=2) if args.json else "\n".join(prediction_lines(result, args.input, args.ms_kA_m)))
     return 0

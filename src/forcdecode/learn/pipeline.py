@@ -41,6 +41,7 @@ from ..core import io
 from ..core.errors import DatasetError
 from ..core.parameters import DEFAULT_PRIOR_CLASS, LOG_SCALE, denormalize
 from ..core.streams import stream_rng, stream_seed
+from .answer import alice_identification
 from .curve import learning_curve_fit
 from .data import PAPER_FIGURES, LearningData
 from .encoding import readout, readout_with_variance
@@ -181,6 +182,9 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
     prior = float(np.median(u[train]))
     ms_k = fit_ms_only(data.ms_norm[train], u[train], data.ms_norm[val], u[val])
     ms_only = knn_median(data.ms_norm[train], u[train], data.ms_norm, ms_k)
+    # read from the image, or prior only? decided on validation (never test) and saved with the model
+    identification = alice_identification(name, u, prediction, data.ms_norm, data.sample_id, train, val, seed,
+                                          int(settings["bootstrap"]))
 
     # 6. learning curve: nested random subsets of train, one subset and weight seed per seed. Each fit is
     # scored on validation (where choices such as the laptop film are made) and on test (reported)
@@ -241,7 +245,8 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
                "mae_softmax_readout": float(np.abs(prediction_softmax[test] - u[test]).mean()),
                "paper": paper, "best_epoch": int(alice.best_epoch),
                "epochs_run": len(alice.history["val_loss"]), "train_samples_per_s": float(throughput),
-               "wall_s": {k: float(v) for k, v in timings.items()}, "learning_curve": curve}
+               "wall_s": {k: float(v) for k, v in timings.items()}, "learning_curve": curve,
+               "validation_identification": identification["parameter"]}
     if name in LOG_SCALE:  # the paper does not say on which scale its K_u MAE is; report both
         lo, hi = data.bounds[name]
         linear = lambda x: (denormalize(name, x, data.bounds) - lo) / (hi - lo)  # noqa: E731
@@ -285,19 +290,24 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
                           **{f"prediction_seed_{k}": member_predictions[k] for k in range(1, n_seeds)}, **interval_rows})
     io.write_parquet(predictions_path, frame)
     save_model(model_path, name=name, alice=alice, bob=bob, settings=settings, data=data,
-               validation_errors=validation_errors, conformal=conformal, metrics=metrics)
+               validation_errors=validation_errors, conformal=conformal, metrics=metrics, identification=identification)
     base = metrics["baselines"]
     log(f"{name}: test MAE {metrics['mae']:.3f} [{metrics['mae_ci90'][0]:.3f}, {metrics['mae_ci90'][1]:.3f}] "
         f"(M_s only {base['ms_only']:.3f}, prior {base['prior']:.3f}, shuffled images {base['images_shuffled']:.3f}); "
         f"skill vs M_s only {metrics['skill_vs_ms_only']:.2f} {np.round(metrics['skill_vs_ms_only_ci90'], 2).tolist()}; "
         f"r {metrics['pearson_r']:.2f}; Bob Spearman {bob_metrics['bob_spearman']:.2f}; "
         f"coverage 68/90 % {bob_metrics['coverage_68']:.2f}/{bob_metrics['coverage_90']:.2f}")
+    log(f"{name}: read from the image? {identification['parameter']['read_from_image']} "
+        f"({identification['parameter']['basis']})")
     return metrics
 
 
-def save_model(path, *, name, alice, bob, settings, data, validation_errors, conformal, metrics) -> None:
-    """Everything ``predict`` needs: both networks, the normalization, the error mapping, the config hash
-    and the prior class of the training data (``prior_class``; files without it: paper)."""
+def save_model(path, *, name, alice, bob, settings, data, validation_errors, conformal, metrics,
+               identification=None) -> None:
+    """Everything ``predict`` needs: both networks, the normalization, the error mapping, the config hash,
+    the prior class of the training data (``prior_class``; files without it: paper), and whether the
+    parameter is read from the image (``learn.answer.alice_identification``: validation figures and the
+    validation records a combination's flag needs)."""
     payload = {
         "format": "forcdecode-alice-bob/1", "parameter": name,
         "architecture": {"model": settings["model"], "width": int(settings["width"]),
@@ -311,6 +321,8 @@ def save_model(path, *, name, alice, bob, settings, data, validation_errors, con
                       "sigma_floor": conformal.sigma_floor},
         "metrics": _plain(metrics),
     }
+    if identification is not None:
+        payload["identification"] = _plain(identification)
     with io.atomic_path(path) as tmp:
         torch.save(payload, tmp)
 

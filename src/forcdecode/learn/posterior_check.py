@@ -62,9 +62,12 @@ def _fresh_targets(est, data, training_data=None) -> tuple[tuple, np.ndarray]:
     return names, np.stack([data.target(name) for name in names], axis=1)
 
 
-def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, training_data=None) -> dict:
+def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, training_data=None,
+                      learning: dict | None = None, split_seed: int | None = None) -> dict:
     """Calibration metrics of posterior ``est`` on every family of ``data`` (a ``LearningData``) at the
-    credibility ``levels`` (default: the posterior section's)."""
+    credibility ``levels`` (default: the posterior section's). With ``training_data`` and ``learning``
+    (the learning section: its split) and ``split_seed`` (the config seed that split the training dataset)
+    the derived combinations too (``fresh_combinations``)."""
     if int(draws) < 2:
         raise ConfigError(f"the posterior check needs at least 2 draws per family (got {draws})")
     names, u = _fresh_targets(est, data, training_data)
@@ -87,11 +90,41 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     else:
         metrics["ood_false_alarm_fraction"] = float(np.mean([r["out_of_distribution"] for r in flags]))
         metrics["ood_alpha"] = est.metadata.get("ood", {}).get("alpha")
+    if training_data is not None and learning is not None and split_seed is not None:
+        metrics["combinations"] = fresh_combinations(est, data, samples, u, training_data, learning, seed=seed,
+                                                     split_seed=split_seed, levels=levels,
+                                                     n_boot=int(learning.get("bootstrap", 2000)))
     ids = np.asarray(data.sample_id, dtype=np.int64)
     metrics.update({"reported_on": "fresh families (never seen by the posterior)", "n_fresh": int(len(u)),
                     "sample_id_range": [int(ids.min()), int(ids.max())], "config_hash": data.config_hash,
                     "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]}})
     return metrics
+
+
+def fresh_combinations(est, data, samples, u, training_data, learning: dict, *, seed: int, split_seed: int, levels,
+                       n_boot: int = 2000) -> dict:
+    """The derived combinations (sigma_w, delta_w, D/D_c, Q: ``core.parameters.COMBINATIONS``) of the
+    posterior's draws on the fresh families, scored as ``train_posterior`` scores them on test
+    (``learn.combinations.posterior_combination_metrics``: coverage, SBC, MAE, skill over the prior,
+    M_s-only and images-shuffled baselines with bootstrap intervals). Normalization and trivial baselines
+    come from ``training_data``'s train and validation splits (hash of (seed, sample id), ``learning``'s
+    split); the images-shuffled draws permute the fresh images among the fresh families."""
+    from .combinations import available, posterior_combination_metrics
+    from .splits import assign_splits
+
+    names = tuple(est.names)
+    if not available(names):
+        return {}
+    splits = assign_splits(training_data.sample_id, int(split_seed), learning["split"], learning["protocol"])
+    train, val = splits["train"], splits["validation"]
+    train_u = np.stack([training_data.target(n) for n in names], axis=1)
+    permuted = stream_rng(seed, "posterior", "fresh_shuffle").permutation(len(u))
+    shuffled = est.sample(data.images[permuted], data.ms_norm, samples.shape[1],
+                          seed=stream_seed(seed, "posterior", "fresh_shuffled_draws"), recalibrated=False)
+    return posterior_combination_metrics(
+        samples, u, names, data.ms_norm, data.bounds, train_u=train_u[train], train_ms_norm=training_data.ms_norm[train],
+        val_u=train_u[val], val_ms_norm=training_data.ms_norm[val], shuffled=shuffled, levels=levels, n_boot=n_boot,
+        rng_of=lambda *keys: stream_rng(seed, "posterior", "fresh_combinations", *keys))
 
 
 def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_data=None,

@@ -22,7 +22,7 @@ SUMMARY_KEYS = ("mae", "mae_ci90", "pearson_r", "r_ci90", "skill", "skill_vs_pri
                 "skill_vs_ms_only", "skill_vs_ms_only_ci90", "coverage_90_ci90", "coverage_90_binomial_band",
                 "baselines", "seeds", "normalisation", "uncertainty_baselines", "n_test", "baseline_mae",
                 "mae_softmax_readout", "reported_on", "paper", "train_samples_per_s", "wall_s", "n_train",
-                "n_validation", "n_calibration", "best_epoch", "epochs_run")
+                "n_validation", "n_calibration", "best_epoch", "epochs_run", "validation_identification")
 
 
 def aggregate(metric_paths, out_path) -> dict:
@@ -350,11 +350,13 @@ def regime_markdown(by_regime: dict) -> str:
 
 
 def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None, dataset=None,
-             seed: int = 0, n_boot: int = 2000, models=None) -> dict:
+             seed: int = 0, n_boot: int = 2000, models=None, sealed: dict | None = None) -> dict:
     """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset.h5 Alice was
     trained on) metrics.json also holds the derived combinations of Alice's predictions (with ``models``,
     the directory of the model files, their images-shuffled baseline too), the figures per regime of the
-    true K_eff (``by_regime``, :func:`regime_metrics`) and the dataset's ``prior_class``."""
+    true K_eff (``by_regime``, :func:`regime_metrics`) and the dataset's ``prior_class``; with ``sealed``
+    (the frozen networks' figures on the sealed set, ``learn.sealed``) they sit beside the test split's as
+    ``sealed``."""
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
@@ -367,6 +369,11 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
         metrics["combinations"] = alice_combinations(predictions, dataset, seed, n_boot, models)
         metrics["by_regime"] = regime_metrics(predictions, dataset)
         metrics["prior_class"] = metrics["by_regime"]["prior_class"]
+    if sealed is not None:
+        from .sealed import attach_sealed
+
+        metrics = attach_sealed(metrics, sealed)
+    if dataset is not None or sealed is not None:
         io.write_json(out_metrics, json.loads(json.dumps(metrics, default=float)))
     figure3(predictions, figure_dir / "figure3.png")
     name = "D" if "D" in predictions else next(iter(predictions))

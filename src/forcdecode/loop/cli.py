@@ -1,7 +1,9 @@
 """``forcdecode loop FILE --out DIR``: close the loop on a measured (or simulated-as-measured) file
 (``loop.measured_loop.close_loop_on_file``: domain check by physics, prediction or given
 Hamiltonian, re-simulation on the grid and on the file's own protocol, residual effects, optional
-Hamiltonian refit, structured-residual verdict). Writes DIR/report.json, DIR/report.md and figures.
+Hamiltonian refit, structured-residual verdict). Writes DIR/report.json, DIR/report.md and figures;
+prints the decoded Hamiltonian (each parameter and derived combination with its intervals, or "not read
+from the image: prior only", ``learn.answer``) and the verdict, or with ``--json`` the report itself.
 """
 
 from __future__ import annotations
@@ -16,12 +18,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
-    parser.add_argument("--estimator", choices=("alice", "posterior"), default="alice",
-                        help="alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
+    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
+                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower "
+                             "mean validation MAE; Alice without a posterior model; the posterior with --refine); "
+                             "alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
                              "68/90 %% intervals, correlations); either after a training-data (out-of-distribution) check")
     parser.add_argument("--dataset", help="the dataset the Alice networks were trained on, for their training-data "
                                           "check (default: dataset.h5 beside the --models directory)")
-    parser.add_argument("--posterior", default="results/posterior/model.pt", help="posterior model (--estimator posterior)")
+    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
+                                            "directory, i.e. results/posterior/model.pt)")
     parser.add_argument("--refine", type=int, default=0, metavar="N",
                         help="with --estimator posterior: refine the posterior of this file by N simulations of the "
                              "film (forcdecode fit) and analyse the residual of the refined medians")
@@ -72,6 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="thin the measured protocol to about this many points (default 5000)")
     parser.add_argument("--measured-max-step-mT", type=float, default=2.0,
                         help="largest field sub-step of the measured-protocol re-simulation, mT (default 2)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the report (report.json's content: the decoded Hamiltonian with each parameter's "
+                             "and combination's read_from_image flag and basis, the verdict) instead of the summary")
 
 
 def load_config(path=None) -> dict:
@@ -79,6 +87,26 @@ def load_config(path=None) -> dict:
     from ..config import load_config as load, shipped_config
 
     return load(shipped_config("config") if path is None else path)
+
+
+def resolve_estimator(args) -> dict | None:
+    """``--estimator auto`` resolved in place (``learn.estimator_choice``): the posterior where --refine asks
+    for it, else whichever validation shows better; returns the choice's record (None when the user chose),
+    and fills in the default posterior path (beside the --models directory)."""
+    from ..learn.estimator_choice import choose_estimator, default_posterior_path
+
+    args.posterior = args.posterior or default_posterior_path(args.models)
+    if args.estimator != "auto":
+        return None
+    if args.refine:
+        args.estimator = "posterior"
+        return {"estimator": "posterior", "basis": "--refine refines the posterior"}
+    if args.params:
+        args.estimator = "alice"
+        return {"estimator": "alice", "basis": "--params gives the Hamiltonian: no estimator is used"}
+    choice = choose_estimator(args.models, args.posterior)
+    args.estimator = choice["estimator"]
+    return choice
 
 
 def run(args) -> int:
@@ -89,6 +117,7 @@ def run(args) -> int:
 
     cfg = load_config(args.config)
     params = read_json(args.params, what="Hamiltonian file") if args.params else None
+    choice = resolve_estimator(args)
     if args.ms_kA_m is not None:
         ms_values = [args.ms_kA_m * 1e3]
     else:
@@ -109,10 +138,39 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
+    if choice is not None:  # the report on disk says which estimator answered, and why
+        from pathlib import Path
+
+        from ..core.io import write_json
+        from .measured_loop import _json_ready
+
+        report["estimator_choice"] = choice
+        write_json(Path(args.out) / "report.json", _json_ready(report))
+        if not args.json:
+            print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
+    if args.json:
+        import json
+
+        from .measured_loop import _json_ready
+
+        print(json.dumps(_json_ready(report), indent=2))
+        return 0
     if report.get("prior_class"):
         from ..learn.prior_class import prior_class_line
 
         print(prior_class_line(report["prior_class"], report.get("prior_check")))
+    prediction = report.get("prediction")
+    if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
+        from ..learn.predictor import prediction_lines
+
+        ms = report.get("Ms_chosen_A_per_m", prediction.get("Ms"))
+        swept = report.get("Ms_source") == "swept"
+        for line in prediction_lines(prediction, f"{args.file}: decoded Hamiltonian", ms / 1e3,
+                                     "swept: the value whose re-simulation is closest" if swept else "given"):
+            print(line)
+        if report.get("refined"):
+            print(f"(the amortized prediction; refined by {report['refined']['budget']} simulations of this film, "
+                  "whose medians were re-simulated: see report.md)")
     if report["status"] == "out of domain":
         print(f"{args.file}: out of domain ({report['out_of_domain_reason']}); report in {args.out}")
     elif report["status"] == "out of distribution":

@@ -380,8 +380,33 @@ def nested(a: str, b: str) -> bool:
     return ca <= cb or cb <= ca
 
 
+def beats_floor(challenger_mse, none_mse, floor: dict | None, margin: float = 0.05) -> bool:
+    """The challenger's held-out gain over "none" exceeds its null gain ``floor`` ({"relative": 1 −
+    MSE_c/MSE_none, "mse": MSE_none − MSE_c}, m² in units of the saturation moment; what it reaches on
+    films without an effect) in both senses, by ``margin``: the realisation floor of
+    ``physics_effects.analyse_residual(null_gain=)``. No floor: True."""
+    if floor is None:
+        return True
+    none = float(np.nanmean(none_mse))
+    gain = none - float(np.nanmean(challenger_mse))
+    relative = gain / none if none > 0 else 0.0
+    return bool(relative > max(floor["relative"], 0.0) + margin and gain > max(floor["mse"], 0.0) * (1 + margin))
+
+
+def _beats_beyond_floors(challenger_mse, current_mse, floors: list, rng, n_boot, min_relative_gain, equivalence,
+                         margin: float) -> bool:
+    """``_beats``, and by a mean-square margin larger than the larger of the two candidates' null gains
+    (``floors``: their {"relative", "mse"} or None): a difference no larger than what films without an
+    effect give either of them does not tell them apart."""
+    if not _beats(challenger_mse, current_mse, rng, n_boot, min_relative_gain, equivalence):
+        return False
+    floor = max([f["mse"] for f in floors if f is not None] + [0.0])
+    return float(np.nanmean(current_mse)) - float(np.nanmean(challenger_mse)) > floor * (1 + margin)
+
+
 def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 2000, min_relative_gain: float = 0.05,
-                          equivalence: float = 0.05, same_observable=()) -> list[str]:
+                          equivalence: float = 0.05, same_observable=(), floors: dict | None = None,
+                          floor_margin: float = 0.05) -> list[str]:
     """The candidates that explain the held-out residual as well as ``chosen``.
 
     ``heldout_mse``: {name: per-held-out-curve mean-square misfit} of the candidates still offered
@@ -393,19 +418,29 @@ def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 200
     combination containing the other) and candidates that are one observable with ``chosen``
     (``same_observable``: groups of names) are not counted: the first are told apart by parsimony,
     the second by no FORC measurement at all. Returns the sorted names (empty: ``chosen`` stands
-    alone)."""
+    alone).
+
+    ``floors`` ({name: null gain {"relative", "mse"}}, ``physics_effects.null_gains``): equal within
+    their null gains. A candidate must then also beat "none" beyond its own floor (``beats_floor``, by
+    ``floor_margin``), and one of the two beats the other only by a mean-square difference above the
+    larger of their floors (``refit.refit_ambiguity``). None: as before."""
     if chosen == "none" or chosen not in heldout_mse:
         return []
     same = set().union(*[set(g) for g in same_observable if chosen in g]) if same_observable else set()
+    floors = floors or {}
+    options = dict(rng=rng, n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence,
+                   margin=floor_margin)
     out = []
     for name, mse in heldout_mse.items():
         if name in ("none", chosen) or name in same or nested(name, chosen):
             continue
-        if not _beats(mse, heldout_mse["none"], rng, n_boot, min_relative_gain, equivalence):
+        if not (_beats(mse, heldout_mse["none"], rng, n_boot, min_relative_gain, equivalence)
+                and beats_floor(mse, heldout_mse["none"], floors.get(name), floor_margin)):
             continue
-        if _beats(heldout_mse[chosen], mse, rng, n_boot, min_relative_gain, equivalence):
+        pair = [floors.get(name), floors.get(chosen)]
+        if _beats_beyond_floors(heldout_mse[chosen], mse, pair, **options):
             continue
-        if _beats(mse, heldout_mse[chosen], rng, n_boot, min_relative_gain, equivalence):
+        if _beats_beyond_floors(mse, heldout_mse[chosen], pair, **options):
             continue
         out.append(name)
     return sorted(out)

@@ -239,7 +239,7 @@ def fit_thermal(measured, base_family, fields, train, bounds=(0.0, 0.6)):
 
 
 def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, noise_sigma: float | None = None,
-               seed: int = 0, **analysis) -> dict:
+               seed: int = 0, hamiltonian_floor: bool = False, **analysis) -> dict:
     """The largest held-out gains (relative and in mean-square error) of every candidate over
     ``pseudo_measurements``: families of the base model's own Hamiltonian on other disorder
     realisations (no effect in them), analysed against ``base_family`` with the same candidates and
@@ -249,7 +249,12 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     only shrink) must not pass because the few realisations drawn happened to deviate the other way.
     ``noise_sigma`` (m units): the measurement's noise, added to every pseudo-measurement (stream
     ``null_noise`` of ``seed``); without it two near-identical realisations leave a residual of almost
-    nothing, and a relative gain over it means nothing. Returns {candidate: {"relative": largest 1 − MSE_c/MSE_none, "mse": largest MSE_none − MSE_c}}."""
+    nothing, and a relative gain over it means nothing. Returns {candidate: {"relative": largest 1 − MSE_c/MSE_none, "mse": largest MSE_none − MSE_c}}.
+
+    ``hamiltonian_floor``: where ``analysis`` gives ``hamiltonian_families``, also the gain of K_u moved
+    along them (the neighbourhood of ``analyse_residual``), under ``effects.HAMILTONIAN_CHANGE``: what a
+    change of the Hamiltonian alone gains on films that need none (``refit.refit_ambiguity``'s floor
+    for the refit's own change). Off: the neighbourhood is not fitted (it gates nothing here)."""
     base_family = np.asarray(base_family, float)
     pseudo = [np.asarray(p, float) for p in pseudo_measurements]
     if mirror:
@@ -258,14 +263,26 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
         rng = stream_rng(seed, "null_noise", "null_gains")
         pseudo = [p + float(noise_sigma) * rng.normal(size=p.shape) for p in pseudo]
     # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here
-    analysis = {**analysis, "hamiltonian_families": None, "moment_tolerance": 0.0, "saturation_gate": False,
-                "saturation_points": None}
+    analysis = {**analysis, "moment_tolerance": 0.0, "saturation_gate": False, "saturation_points": None}
+    if not hamiltonian_floor:
+        analysis["hamiltonian_families"] = None
     gains: dict = {}
     for family in pseudo:
         result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
-        gains = merge_null_gains(gains, {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"]}
-                                         for name, record in result["candidates"].items()})
+        found = {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"]}
+                 for name, record in result["candidates"].items()}
+        if result["hamiltonian_neighbourhood"] is not None:
+            found[HAMILTONIAN_CHANGE] = _neighbourhood_gain(result)
+        gains = merge_null_gains(gains, found)
     return gains
+
+
+def _neighbourhood_gain(result: dict) -> dict:
+    """The held-out gain of K_u's neighbourhood over "none" in an ``analyse_residual`` result, as a
+    null gain {"relative", "mse"} (mean-square, m² in units of the saturation moment)."""
+    none = result["candidates"]["none"]["heldout_rms"] ** 2
+    knob = result["hamiltonian_neighbourhood"]["heldout_rms"] ** 2
+    return {"relative": 1 - knob / none if none > 0 else 0.0, "mse": none - knob}
 
 
 def merge_null_gains(a: dict, b: dict) -> dict:
@@ -706,6 +723,42 @@ def residual_report(p: ResidualProblem, fits: CandidateFits, base: Baselines, ch
             }
 
 
+@dataclass
+class Gated:
+    """The stages of ``analyse_residual`` up to the gates: the problem, every candidate's fit, the
+    baselines and the candidates offered to the selection."""
+
+    problem: ResidualProblem
+    fits: CandidateFits
+    baselines: Baselines
+    offered: Offered
+
+
+def gated_candidates(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
+                     measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
+                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05, thermal: bool = True,
+                     null_gain: dict | None = None, null_margin: float = 0.05, field_shift: dict | None = None,
+                     drift: dict | None = None, physics_reference_family=None, hamiltonian_families=None,
+                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
+                     saturation_gate: bool = True, saturation_points=None) -> Gated:
+    """Every candidate fitted and scored on held-out curves (per-curve mean-square misfit, m in units
+    of the saturation moment) and put through the gates: the first stages of ``analyse_residual``,
+    whose keyword arguments (and units) these are. ``refit.refit_ambiguity`` reads the candidates
+    offered on the unrefitted prediction from it."""
+    p = residual_problem(measured, base_family, fields, order, every_k, cross_fit)
+    library = candidate_library(p, physics_families=physics_families, soft_phase_families=soft_phase_families,
+                                measured_candidates=measured_candidates, thermal=thermal,
+                                physics_reference_family=physics_reference_family,
+                                hamiltonian_families=hamiltonian_families)
+    fits = fit_candidates(p, library)
+    base = baselines(p, library.hamiltonian_families, moment_tolerance)
+    offered = gate_candidates(p, fits, base, GateSettings(
+        seed=seed, n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence, null_gain=null_gain,
+        null_margin=null_margin, field_shift=field_shift, drift=drift, moment_tolerance=moment_tolerance,
+        evidence_suffices=evidence_suffices, saturation_gate=saturation_gate, saturation_points=saturation_points))
+    return Gated(p, fits, base, offered)
+
+
 def analyse_residual(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
                      measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
                      seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
@@ -812,17 +865,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     saturation test then run on them (``signatures.saturation_residual_points``) instead of on the
     deep-saturated grid points.
     """
-    p = residual_problem(measured, base_family, fields, order, every_k, cross_fit)
-    library = candidate_library(p, physics_families=physics_families, soft_phase_families=soft_phase_families,
-                                measured_candidates=measured_candidates, thermal=thermal,
-                                physics_reference_family=physics_reference_family,
-                                hamiltonian_families=hamiltonian_families)
-    fits = fit_candidates(p, library)
-    base = baselines(p, library.hamiltonian_families, moment_tolerance)
-    offered = gate_candidates(p, fits, base, GateSettings(
-        seed=seed, n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence, null_gain=null_gain,
-        null_margin=null_margin, field_shift=field_shift, drift=drift, moment_tolerance=moment_tolerance,
-        evidence_suffices=evidence_suffices, saturation_gate=saturation_gate, saturation_points=saturation_points))
+    g = gated_candidates(measured, base_family, fields, order, physics_families=physics_families,
+                         soft_phase_families=soft_phase_families, measured_candidates=measured_candidates,
+                         every_k=every_k, cross_fit=cross_fit, n_boot=n_boot, seed=seed,
+                         min_relative_gain=min_relative_gain, equivalence=equivalence, thermal=thermal,
+                         null_gain=null_gain, null_margin=null_margin, field_shift=field_shift, drift=drift,
+                         physics_reference_family=physics_reference_family, hamiltonian_families=hamiltonian_families,
+                         moment_tolerance=moment_tolerance, evidence_suffices=evidence_suffices,
+                         saturation_gate=saturation_gate, saturation_points=saturation_points)
+    p, fits, base, offered = g.problem, g.fits, g.baselines, g.offered
     choice = choose(p, fits, offered, seed, n_boot, min_relative_gain, equivalence)
     verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
                     n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,

@@ -17,13 +17,24 @@ selection (``physics_effects.analyse_residual``, the same split) with the refitt
 base model "none": a candidate earns its place only by beating the Hamiltonian refitted without it.
 When a measured-side effect is chosen the Hamiltonian is refitted once more with it (the Hamiltonian
 with the effect); both are reported.
+
+``refit_ambiguity``: where the refitted Hamiltonian alone is the answer (nothing beats it), the refit's
+change of the Hamiltonian is itself one explanation of the prediction's residual among others: an
+effect on the unrefitted prediction (a field tilt lowers the switching field as a lower K_u does) may
+explain the held-out curves as well. Both are then reported, as the verdict "ambiguous" with the set
+and the measurement that would separate them (the keys of ``analyse_residual``'s ``ambiguity`` stage).
 """
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 
 from ..core.errors import ConfigError
+from ..core.streams import stream_rng
+from .effects import (HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors, _per_curve_mse, beats_floor,
+                      equivalent_candidates, separating_measurements)
 from .signatures import calibrated_shift
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
@@ -39,10 +50,13 @@ def _training_mse(measured, model, rows):
 
 def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("K_u",), relative_bounds: float = 0.3,
                       n_profiles: int = 1, budget: int = 20, key: str = "refit", effect=None, fields=None, order=None,
-                      progress=None) -> dict:
+                      progress=None, families: dict | None = None) -> dict:
     """The search of the module docstring. ``measured``: the grid family (n × n, NaN below the
     diagonal); ``train_rows``: the curves (rows) fitted; ``effect``: an ``effects.Effect`` fitted on
     top at every evaluation (needs ``fields``; ``order`` default ``effects.measurement_clock``).
+    ``families``: a store {multipliers: re-simulated family} shared by searches of the same ``cfg``,
+    ``params``, ``names``, ``n_profiles`` and ``key`` (e.g. on other training curves): a family in it
+    is not re-simulated again, and each one re-simulated is added (the result is the same without it).
     Returns {"params", "multipliers", "objective", "objective_at_prediction", "evaluations",
     "history" [(multipliers, objective)], "family" (the refitted re-simulation), "model" (with the
     effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
@@ -66,7 +80,11 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
         if multipliers in cache:
             return cache[multipliers][0]
         trial = {**params, **{n: float(params[n]) * m for n, m in zip(names, multipliers)}}
-        family = resimulate(cfg, trial, n_profiles=n_profiles, key=key)
+        family = None if families is None else families.get(multipliers)
+        if family is None:
+            family = resimulate(cfg, trial, n_profiles=n_profiles, key=key)
+            if families is not None:
+                families[multipliers] = family
         model, theta = family, {}
         if effect is not None and effect.parameters:
             values, _ = fit_effect(effect, measured, family, fields, order, list(train_rows))
@@ -177,6 +195,145 @@ def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "ma
     return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key))
 
 
+AMBIGUITY_VERDICTS = ("none", "ambiguous")
+"""The verdicts (with nothing chosen against the refitted Hamiltonian) after which ``refit_ambiguity``
+asks whether an effect on the prediction explains the residual as well as the refit's change. Not after
+"unexplained structured residual": there the refit's change leaves a structure and is not the answer."""
+
+
+def _selection_settings(options: dict) -> dict:
+    """The selection rule's settings in ``analyse_residual``'s keyword arguments (its defaults)."""
+    defaults = {"n_boot": 2000, "min_relative_gain": 0.05, "equivalence": 0.05}
+    return {k: options.get(k, v) for k, v in defaults.items()}
+
+
+def hamiltonian_change_explains(prediction_mse, refit_mse, rng, floor: dict | None, *, n_boot: int = 2000,
+                                min_relative_gain: float = 0.05, equivalence: float = 0.05,
+                                null_margin: float = 0.05) -> bool:
+    """Whether the refitted Hamiltonian (no effect) explains the prediction's held-out residual
+    (per-curve mean-square misfits, m² in units of the saturation moment): it beats the prediction by
+    the selection's rule (``effects._beats``: a held-out error lower by more than ``equivalence`` and a
+    paired-bootstrap 5 % bound of the relative gain above ``min_relative_gain``, common random numbers
+    from ``rng``) and beyond the null gain ``floor`` of a change of the Hamiltonian
+    (``effects.beats_floor``; None: no floor)."""
+    return bool(_beats(refit_mse, prediction_mse, rng, n_boot, min_relative_gain, equivalence)
+                and beats_floor(refit_mse, prediction_mse, floor, null_margin))
+
+
+def crossfit_refit_mse(cfg: dict, params: dict, measured, folds, *, names=("K_u",), relative_bounds: float = 0.3,
+                       n_profiles: int = 1, budget: int = 20, families: dict | None = None) -> np.ndarray:
+    """The Hamiltonian refitted without an effect (``refit_hamiltonian`` from ``params``) on each fold's
+    training curves and scored on its held-out curves: per-curve mean-square misfit (m² in units of the
+    saturation moment), concatenated in the order of ``folds`` (that of ``effects.heldout_mse``).
+    ``families``: the store shared with the refit already made (the grid nodes and most of the search
+    are the same in every fold: each fold costs the re-simulations it does not share)."""
+    return np.concatenate([
+        _per_curve_mse(measured, refit_hamiltonian(cfg, params, measured, train, names=names,
+                                                   relative_bounds=relative_bounds, n_profiles=n_profiles,
+                                                   budget=budget, families=families)["family"], held)
+        for train, held in folds])
+
+
+def _offered_on_prediction(cfg: dict, params: dict, measured, fields, prediction_family, options: dict, *,
+                           physics: bool, physics_grids: dict | None, n_profiles: int):
+    """The candidates fitted on the unrefitted prediction's family and put through every gate
+    (``physics_effects.gated_candidates``), cross-fitted (every curve held out once, the folds of
+    ``crossfit_refit_mse``), with the physics-side families re-simulated around the prediction on the
+    refit's disorder (key "refit": common random numbers) and without K_u's neighbourhood (the refit
+    is the Hamiltonian's change). Cost: one re-simulation per physics grid value, plus one."""
+    from .physics_effects import gated_candidates, physics_candidate_families
+
+    accepted = set(inspect.signature(gated_candidates).parameters)
+    dropped = {"physics_families", "soft_phase_families", "physics_reference_family", "hamiltonian_families"}
+    kwargs = {k: v for k, v in options.items() if k in accepted and k not in dropped}
+    if physics:
+        kwargs.update(physics_candidate_families(cfg, params, n_profiles=n_profiles, key="refit",
+                                                 **{**(physics_grids or {}), "K_u_changes": ()}))
+        kwargs.pop("hamiltonian_families", None)
+    return gated_candidates(measured, prediction_family, fields, **{**kwargs, "cross_fit": True})
+
+
+def refit_ambiguity(cfg: dict, params: dict, measured, fields, prediction_family, refit: dict, options: dict, *,
+                    null: dict | None, search: dict, physics: bool = True, physics_grids: dict | None = None,
+                    families: dict | None = None) -> dict:
+    """Is the refit's change of the Hamiltonian the only explanation of the prediction's residual?
+
+    Against the prediction's family ("none"), on every curve held out once (``options["every_k"]``
+    folds; per-curve mean-square misfit, m in units of the saturation moment), the Hamiltonian refitted
+    alone on each fold's training curves (``crossfit_refit_mse`` with the refit's ``search`` settings
+    {"names", "relative_bounds", "n_profiles", "budget"}: the member ``effects.HAMILTONIAN_CHANGE``)
+    and every candidate offered on the unrefitted prediction (``_offered_on_prediction``: the same
+    gates, realisation floor included) are compared by ``effects.equivalent_candidates`` with the null
+    gains ``null`` as ``floors``: the members that explain the held-out residual equally within their
+    null gains. The Hamiltonian change's floor is ``null[HAMILTONIAN_CHANGE]`` (K_u moved along its
+    neighbourhood on the null films, ``physics_effects.null_gains(hamiltonian_floor=True)``); none
+    without it. Only where the refit's change explains the residual (``hamiltonian_change_explains``)
+    are the candidates around the prediction built.
+
+    Why cross-fitted: on the refit's single split the gain of a Hamiltonian change sits on the few
+    held-out curves that cross the switching field (on the 32-curve test film 2 of 8: K_u 10 % off,
+    held-out RMS 0.19 → 0.003, a 5 % bootstrap bound of the relative gain of 0.007), where no
+    bootstrap over curves bounds it; held out in turn, every such curve counts.
+
+    Draws on its own bootstrap stream (``refit_ambiguity`` of ``options["seed"]``; every comparison
+    resamples the same curves, ``effects.bootstrap_resamples``). Returns {"members" (sorted; empty:
+    the refit's change stands alone), "explains" (whether the refit's change beats the prediction),
+    "hamiltonian_change" {"names", "multipliers" (of the refit on the analysis's split)}, "reference":
+    "prediction", "heldout_rms" {name: RMS over the held-out curves}, "offered_on_prediction" [names],
+    "beat_the_refit" [those that beat the refit's change beyond the floors: reported, the choice is not
+    changed]}."""
+    from .effects import heldout_folds
+    from .physics_effects import SAME_OBSERVABLE
+
+    settings = _selection_settings(options)
+    null_margin = options.get("null_margin", 0.05)
+    rng = stream_rng(options["seed"], "bootstrap", "refit_ambiguity")
+    folds = heldout_folds(measured, options.get("every_k", 4), cross_fit=True)
+    prediction_mse = np.concatenate([_per_curve_mse(measured, prediction_family, held) for _, held in folds])
+    refit_mse = crossfit_refit_mse(cfg, params, measured, folds, families=families, **search)
+    floors = dict(null or {})
+    record = {"reference": "prediction", "members": [], "offered_on_prediction": [], "beat_the_refit": [],
+              "hamiltonian_change": {"names": list(refit["multipliers"]), "multipliers": dict(refit["multipliers"])},
+              "explains": hamiltonian_change_explains(prediction_mse, refit_mse, rng, floors.get(HAMILTONIAN_CHANGE),
+                                                      null_margin=null_margin, **settings)}
+    pool = {"none": prediction_mse, HAMILTONIAN_CHANGE: refit_mse}
+    if record["explains"]:
+        gated = _offered_on_prediction(cfg, params, measured, fields, prediction_family, options, physics=physics,
+                                       physics_grids=physics_grids, n_profiles=search.get("n_profiles", 1))
+        offered = {k: v for k, v in gated.offered.mse.items() if k != "none"}
+        pool.update(offered)
+        record["offered_on_prediction"] = sorted(offered)
+        equal = equivalent_candidates(pool, HAMILTONIAN_CHANGE, rng, same_observable=SAME_OBSERVABLE, floors=floors,
+                                      floor_margin=null_margin, **settings)
+        record["members"] = sorted(set(equal) | {HAMILTONIAN_CHANGE}) if equal else []
+        # reported, not acted on: an effect on the prediction that explains more than the refit's change
+        record["beat_the_refit"] = sorted(
+            k for k, v in offered.items()
+            if _beats_beyond_floors(v, refit_mse, [floors.get(k), floors.get(HAMILTONIAN_CHANGE)], rng,
+                                    margin=null_margin, **settings))
+    record["heldout_rms"] = {k: float(np.sqrt(np.nanmean(v))) for k, v in pool.items()}
+    return record
+
+
+def with_refit_ambiguity(result: dict, record: dict) -> dict:
+    """``result`` (``analyse_with_refit``'s analysis) with the refit path's ambiguity ``record``
+    (``refit_ambiguity``) under ``refit_ambiguity``; where it has members, the verdict "ambiguous" with
+    the set (``ambiguous``: merged with any the selection found against the refitted Hamiltonian) and
+    each member's separating measurement (``separating_measurements``), the keys of
+    ``physics_effects.ambiguity``. The choice (``chosen``) is unchanged."""
+    result["refit_ambiguity"] = record
+    if not record["members"]:
+        return result
+    members = sorted(set(result.get("ambiguous") or []) | set(record["members"]))
+    separating = separating_measurements(members)
+    change = ", ".join(f"{n} × {m:.3f}" for n, m in record["hamiltonian_change"]["multipliers"].items())
+    result.update(verdict="ambiguous", ambiguous=members, separating_measurements=separating, verdict_text=(
+        f"ambiguous: {', '.join(members)} explain the held-out residual equally (neither beats the other beyond "
+        f"its noise and null gain; {HAMILTONIAN_CHANGE} is the refit's change of the prediction: {change}); "
+        "to tell them apart: " + "; ".join(f"{k}: {v}" for k, v in separating.items())))
+    return result
+
+
 def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
                        relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
                        physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
@@ -192,6 +349,12 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     fitted together, also ``heldout_rms_after_joint``: the chosen candidate's own ``heldout_rms_after``
     where no joint refit is made)}, ``refit`` (objective at the prediction and refitted, held-out
     RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}.
+
+    Ambiguity: where nothing is chosen against the refitted Hamiltonian (verdict "none", or "ambiguous"
+    with K_u's neighbourhood), ``refit_ambiguity`` compares the refit's change with the candidates on
+    the unrefitted prediction; where one explains the held-out residual as well (within the null gains),
+    the verdict is "ambiguous" (``ambiguous``: the set, the refit's change as ``effects.HAMILTONIAN_CHANGE``;
+    ``separating_measurements``), its record under ``refit_ambiguity`` (None where it did not run).
 
     ``null_realisations`` R > 0: the refitted Hamiltonian is also simulated on R other disorder
     realisations (stream key "refit_null"; with ``null_refit`` each refitted from the same start on the
@@ -242,8 +405,9 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     measured = np.asarray(measured, float)
     fields = np.asarray(fields, float)
     train, held = heldout_folds(measured, every_k, cross_fit=False)[0]
+    families = {}  # the refit's re-simulations, shared with the ambiguity stage's refits on other folds
     refit = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
-                              n_profiles=n_profiles, budget=budget, progress=progress)
+                              n_profiles=n_profiles, budget=budget, progress=progress, families=families)
     base = refit["family"]
     if field_shift is not None and shift_protocol is not None:
         field_shift = calibrated_shift(field_shift, simulated_shift_offsets(
@@ -270,7 +434,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                 n_profiles=n_profiles, budget=budget)["family"]
             null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
                                                      **{k: v for k, v in options.items() if k != "seed"},
-                                                     seed=options["seed"] + r))
+                                                     seed=options["seed"] + r, hamiltonian_floor=True))
         if "floor_variance" not in options:
             options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
     if measured_points is not None:
@@ -291,6 +455,14 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                        "generalises": joint_generalises(joint_rms, result["heldout_rms_after"])}
     prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
     held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
+    ambiguity = None
+    if result["chosen"] == "none" and result["verdict"] in AMBIGUITY_VERDICTS:
+        ambiguity = refit_ambiguity(cfg, params, measured, fields, prediction_family, refit,
+                                    {**options, "field_shift": field_shift, "drift": drift, "null_gain": null},
+                                    null=null, physics=physics, physics_grids=physics_grids, families=families,
+                                    search=dict(names=names, relative_bounds=relative_bounds, n_profiles=n_profiles,
+                                                budget=budget))
+    result = with_refit_ambiguity(result, ambiguity) if ambiguity else {**result, "refit_ambiguity": None}
     result.update(
         heldout_rms_after_joint=with_effect["heldout_rms"] if with_effect else result["heldout_rms_after"],
         hamiltonian={"prediction": dict(params), "refit_without_effect": refit["params"],
@@ -303,6 +475,6 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit", "joint_generalises",
-           "measured_saturation",
-           "refit_hamiltonian", "simulated_shift_offsets"]
+__all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit",
+           "crossfit_refit_mse", "hamiltonian_change_explains", "joint_generalises", "measured_saturation",
+           "refit_ambiguity", "refit_hamiltonian", "simulated_shift_offsets", "with_refit_ambiguity"]

@@ -222,7 +222,9 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     calibration split (``interval_90_conformal``; models trained with a calibration split), and the
     pairwise correlations of the draws (``posterior_correlation``): the format of
     ``predict_parameters``, Bob's fields absent; ``combinations``: the derived combinations of the draws
-    (``learn.combinations.summarize_draws``: median and intervals, SI)."""
+    (``learn.combinations.summarize_draws``: median and intervals, SI); per parameter and combination
+    ``read_from_image`` and its ``basis`` (``learn.answer.posterior_flags``: None for a model saved
+    before the flag)."""
     from ...core.parameters import normalize
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
@@ -252,4 +254,7 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
 
     # the derived combinations (σ_w, δ_w, D/D_c, Q; core.parameters) as transforms of the same draws
     result["combinations"] = summarize_draws(draws, est.names, ms_norm, est.bounds)
-    return result
+    from ..answer import posterior_flags
+
+    # read from the image, or prior only: the validation figures saved with the model (learn.answer)
+    return posterior_flags(est.metadata, result, est.bounds)

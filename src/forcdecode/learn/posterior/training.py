@@ -319,6 +319,12 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                 calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
                 calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
     diagnostics = split_diagnostics(est, data, u, splits, draws, seed) if learning["protocol"] == "holdout" else None
+    # read from the image, or prior only: the validation families' draws (as predict draws them), never test
+    from ..answer import posterior_identification
+
+    val_draws = est.sample(data.images[val], data.ms_norm[val], draws, seed=stream_seed(seed, "posterior", "validation_draws"))
+    identification = posterior_identification(val_draws, u, names, data.ms_norm, data.bounds, train, val, seed,
+                                              int(learning["bootstrap"]))
     combinations, ridge = _combinations_and_ridge(est, data, u, splits, samples, seed, levels,
                                                   int(learning["bootstrap"]), Path(figure_path).with_name("posterior_ridge.png"))
     calibration_s = time.perf_counter() - started
@@ -341,20 +347,24 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "ood_test_flagged_fraction": float(np.mean([r["out_of_distribution"] for r in test_ood])),
                "ood_alpha": est.metadata["ood"]["alpha"],
                "settings": settings, "wall_s": {"train": train_s, "calibration": calibration_s}, **calibration,
-               "combinations": combinations, **(ridge or {"A_ex_D_correlation_median": None})}
+               "combinations": combinations, **(ridge or {"A_ex_D_correlation_median": None}),
+               "identification": identification}
     metrics["wall_s"]["total"] = train_s + calibration_s
     fitted = np.union1d(train, val) if recalibration is None else np.union1d(np.union1d(train, val), splits["calibration"])
     fitted_ids = np.sort(np.asarray(data.sample_id[fitted], dtype=np.int64)).tolist()
     est.save(model_path, config_hash=data.config_hash, seed=int(seed), settings=settings, sample_ids_fitted=fitted_ids,
              summary={k: metrics[k] for k in ("n_train", "n_validation", "n_test", "best_epoch")},
              per_parameter=metrics["per_parameter"], ood=est.metadata["ood"], conformal=conformal,
-             recalibration=recalibration)
+             recalibration=recalibration, identification=identification)
     io.write_json(metrics_path, metrics)
     calibration_figure(metrics, figure_path)
     for name, row in metrics["per_parameter"].items():
         log(f"posterior {name}: MAE mean {row['mae_mean']:.3f} median {row['mae_median']:.3f}; SBC KS p {row['sbc_ks_p']:.3f}; "
             f"coverage 50/68/90 {row.get('coverage_50', float('nan')):.2f}/{row.get('coverage_68', float('nan')):.2f}/"
             f"{row.get('coverage_90', float('nan')):.2f}; width 90 {row.get('width_90', float('nan')):.3f}")
+    log("posterior read from the image? " + "; ".join(
+        f"{n} {r['read_from_image']} ({r.get('skill', float('nan')):+.2f} {r.get('skill_ci90')})"
+        for n, r in {**identification["parameters"], **identification["combinations"]}.items()))
     if diagnostics and "train_vs_held_out_ks_p" in diagnostics:
         log("posterior split diagnostics (train vs held-out marginal KS p; PIT KS p train/validation/calibration/test): "
             + "; ".join(f"{n} {diagnostics['train_vs_held_out_ks_p'][n]:.3f} ("
