@@ -53,3 +53,20 @@ def test_everyone_reads_the_table():
     assert params.PARAMETERS == NAMES and merge.PARAMETERS == NAMES
     assert data.TARGETS is TARGETS and data.UNITS is UNITS
     assert params.DEFAULT_BOUNDS is DEFAULT_BOUNDS
+
+
+def test_prior_classes_are_the_schemas():
+    """The schema's ``prior`` enum and default are the table's classes and default; absent reads as paper."""
+    from forcdecode.core.parameters import DEFAULT_PRIOR_CLASS, PRIOR_CLASSES, k_u_floor, prior_class
+
+    schema = yaml.safe_load(SCHEMA_PATH.read_text())["properties"]["prior"]
+    assert tuple(schema["enum"]) == tuple(PRIOR_CLASSES) == ("paper", "perpendicular")
+    assert schema["default"] == DEFAULT_PRIOR_CLASS == "paper"
+    assert prior_class(None) == prior_class({}) == prior_class({"seed": 1}) == "paper"
+    assert prior_class({"prior": "perpendicular"}) == prior_class({"prior_class": "perpendicular"}) == "perpendicular"
+    with pytest.raises(ValueError, match="unknown prior class"):
+        prior_class("inplane")
+    assert k_u_floor(8e5) == 1e3  # paper: the bound
+    assert k_u_floor(8e5, "perpendicular") == pytest.approx(4e-7 * math.pi * 8e5**2 / 2)
+    with pytest.raises(ValueError, match="K_eff > 0"):
+        k_u_floor(1.6e6, "perpendicular")

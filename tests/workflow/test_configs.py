@@ -28,3 +28,37 @@ def test_a_wrong_learning_value_is_refused():
     config["learning"]["model"] = "resnet"
     with pytest.raises(WorkflowError, match="resnet"):
         validate(config, SCHEMA)
+
+
+@pytest.mark.slow  # two Snakemake runs: 62 s on the 2-core machine while a main job runs
+def test_the_prior_class_reaches_the_draw_and_the_default_stays_out_of_config_json(tmp_path):
+    """`prior: paper` (the default) is left out of results/config.json, so a dataset made before the key
+    keeps its config.json (nothing reruns) and its config hash; `prior: perpendicular` is written there
+    and the draw follows it (every K_eff > 0)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    import pandas as pd
+
+    from forcdecode.core.parameters import k_eff
+
+    def run(workdir, *config):
+        workdir.mkdir()
+        done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
+                               str(workdir), "--cores", "1", "--configfile", str(ROOT / "config" / "test.yaml"),
+                               *(("--config", *config) if config else ()), "--", "results/params/chunk_0000.parquet"],
+                              cwd=workdir, capture_output=True, text=True, timeout=300,
+                              env={**os.environ, "PYTHONUNBUFFERED": "1",  # the jobs run this checkout's package
+                                   "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
+        assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+        return (json.loads((workdir / "results" / "config.json").read_text()),
+                pd.read_parquet(workdir / "results" / "params" / "chunk_0000.parquet"))
+
+    cfg, paper = run(tmp_path / "paper")
+    assert "prior" not in cfg
+    cfg, perpendicular = run(tmp_path / "perpendicular", "prior=perpendicular")
+    assert cfg["prior"] == "perpendicular"
+    assert (k_eff({"K_u": perpendicular["K_u"].to_numpy(), "Ms": perpendicular["Ms"].to_numpy()}) > 0).all()
+    assert perpendicular["Ms"].equals(paper["Ms"]) and not perpendicular["K_u"].equals(paper["K_u"])

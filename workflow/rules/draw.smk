@@ -6,9 +6,9 @@ rule resolve_config:
     log:
         f"{RESULTS}/logs/resolve_config.log",
     params:
-        # dataset_config leaves `realisations` out when it is 1 (the schema's default): config.json, its
-        # hash and every family are then what they were before the key existed, so datasets and
-        # models already made stay valid and a running job reruns nothing
+        # dataset_config leaves `realisations` out when it is 1 and `prior` when it is paper (the schema's
+        # defaults): config.json, its hash and every family are then what they were before the keys
+        # existed, so datasets and models already made stay valid and a running job reruns nothing
         cfg=json.dumps(
             dataset_config({k: v for k, v in config.items() if k not in STAGE_SECTIONS + OPTION_SECTIONS + SIZE_KEYS}),
             sort_keys=True,

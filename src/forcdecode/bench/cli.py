@@ -1,4 +1,4 @@
-"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|fit [--json]``: prints figures; with --json the last
+"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
 line is one JSON object."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import os
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..infer.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood", "information"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood", "information",
+                                           "prior-class"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -129,7 +130,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       "fiducials.json, one JSON per fiducial, summary.json (resumable)")
     info.add_argument("--stop-at", default=None, help="information: start no fiducial after this UTC time (HH:MM)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
-    learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge)")
+    learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge); "
+                       "prior-class: the families whose rates the prior-class rule is measured on (read only)")
     learn.add_argument("--learning-config", help="the workflow's learning.json (seed, split, lr, batch size; "
                        "default: learning.json beside the dataset)")
     learn.add_argument("--parameters", nargs="+", default=["K_u", "D"], help="targets to train")
@@ -138,7 +140,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     learn.add_argument("--patience", type=int, default=10, help="early-stopping patience (both heads)")
     learn.add_argument("--seed", type=int, default=1, help="weight/shuffle seed (both heads; the split is the workflow's)")
     learn.add_argument("--threads", type=int, default=2, help="torch threads")
-    learn.add_argument("--out", help="also write the rows and ratios to this JSON file (atomically)")
+    learn.add_argument("--out", help="also write the rows and ratios to this JSON file (atomically; prior-class: "
+                       "the rates)")
 
 
 def run(args) -> int:
@@ -163,6 +166,8 @@ def run(args) -> int:
         from .information_cli import bench_information
 
         return bench_information(args, say)
+    if args.target == "prior-class":
+        return _bench_prior_class(args, say)
     from . import engine
 
     if args.target == "effects" and args.independent:
@@ -589,6 +594,21 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
     write_json(f"{args.ood_dir}/predictive_reference.json", reference)
     say(f"predictive check: validation T median {np.median(values):.2f}, max {np.max(values):.2f}")
     return {**settings, "reference": reference, "cases": tuple(args.predictive_cases or args.ood_cases or ())}
+
+
+def _bench_prior_class(args, say) -> int:
+    """Rates of the prior-class rule (``learn.prior_class``) on the families of --dataset (read only)."""
+    from ..core.io import write_json
+    from .prior_class import prior_class_bench, summary_lines
+
+    result = prior_class_bench(args.dataset)
+    for line in summary_lines(result):
+        say(line)
+    if args.out:
+        write_json(args.out, result)
+    if args.json:
+        print(json.dumps(result))
+    return 0
 
 
 def _bench_ood(args, say) -> int:

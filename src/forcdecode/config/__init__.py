@@ -76,7 +76,19 @@ def validate_config(cfg: dict, source: str = "the configuration") -> dict:
     if error is not None:
         key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
         raise ConfigError(f"{source}: invalid value at {key}: {error.message}")
+    _check_prior(cfg, source)
     return cfg
+
+
+def _check_prior(cfg: dict, source: str) -> None:
+    """The prior class must have mass at every M_s of the bounds (``core.parameters.k_u_floor``)."""
+    from ..core.parameters import DEFAULT_BOUNDS, k_u_floor
+
+    bounds = {**DEFAULT_BOUNDS, **(cfg.get("bounds") or {})}
+    try:
+        k_u_floor(max(bounds["Ms"]), cfg.get("prior", "paper"), bounds)
+    except ValueError as error:
+        raise ConfigError(f"{source}: invalid value at prior: {error}") from None
 
 
 def load_config(path) -> dict:
@@ -96,7 +108,7 @@ def load_config(path) -> dict:
     return validate_config(cfg if cfg is not None else {}, source=f"config file {path}")
 
 
-LATE_DEFAULTS = {"realisations": 1}
+LATE_DEFAULTS = {"realisations": 1, "prior": "paper"}
 """Dataset (physics) keys added after datasets had been made, with the value every earlier dataset
 implicitly had. A config that holds one of them at this value means what a config without the key
 meant, so the dataset's config.json and config hash leave it out (``dataset_config``)."""
@@ -108,8 +120,9 @@ def dataset_config(cfg: dict) -> dict:
     Why: the schema fills ``realisations: 1`` into every config, but datasets made before the key
     existed (and the models trained on them, which carry the dataset's config hash) have none; left
     out at 1, a dataset's config.json, its config hash and (since realisation 0 is the sample's
-    original disorder stream) every family stay bit for bit what they were. Any other value is kept,
-    so that it changes the hash. Used by the workflow's ``resolve_config`` and by ``dataset.merge``."""
+    original disorder stream) every family stay bit for bit what they were; the same for
+    ``prior: paper`` (the draw of every dataset before the key). Any other value is kept, so that it
+    changes the hash. Used by the workflow's ``resolve_config`` and by ``dataset.merge``."""
     return {k: v for k, v in cfg.items() if not (k in LATE_DEFAULTS and v == LATE_DEFAULTS[k])}
 
 

@@ -28,9 +28,19 @@ class OutOfDomainError(ForcdecodeError):
     """An input outside the training domain of the networks."""
 
 
+class PriorClassError(OutOfDomainError):
+    """A measured file whose loop contradicts the prior class the model was trained on (e.g. an in-plane
+    loop given to a model of the ``perpendicular`` class); the message gives the reason and the measured
+    numbers, ``check`` the whole check (``learn.prior_class.check_prior_class``)."""
+
+    def __init__(self, message: str, check: dict | None = None):
+        super().__init__(message)
+        self.check = dict(check or {})
+
+
 class SimulationError(ForcdecodeError, RuntimeError):
     """A micromagnetic simulation that diverged or did not converge (raised by the engine)."""
 
 
 __all__ = ["ForcdecodeError", "ConfigError", "InputFileError", "DatasetError", "ModelFileError",
-           "OutOfDomainError", "SimulationError"]
+           "OutOfDomainError", "PriorClassError", "SimulationError"]

@@ -95,6 +95,49 @@ MU0 = 4e-7 * np.pi
 """Vacuum permeability μ0 (T·m/A), as in ``micromag.constants``."""
 
 
+# ---------------------------------------------------------------- prior classes
+PRIOR_CLASSES: dict[str, str] = {
+    "paper": "the seed paper's draw (Table I): every film of the bounds, in-plane (K_eff < 0) ones included",
+    "perpendicular": "the paper's draw with K_u restricted to K_eff = K_u − μ0 M_s²/2 > 0 given M_s "
+                     "(perpendicular films, what a thin-film lab measures); the other parameters as in paper",
+}
+"""The named prior classes a dataset can be drawn from (config key ``prior``; the schema's enum lists the
+same names). The draw of each is ``dataset.params.draw_parameters``; a model records the class it was
+trained on (``prior_class`` of its file; a file without one was trained on ``paper``)."""
+
+DEFAULT_PRIOR_CLASS = "paper"
+"""The class of a config or model that names none (every dataset and model made before the key)."""
+
+
+def prior_class(source=None) -> str:
+    """The prior class named by ``source``: a config or model metadata dict (its ``prior`` or
+    ``prior_class`` key), a class name, or None; absent → ``DEFAULT_PRIOR_CLASS``. ValueError for a
+    name that is not a class."""
+    if isinstance(source, dict):
+        source = source.get("prior_class", source.get("prior"))
+    name = DEFAULT_PRIOR_CLASS if source is None else str(source)
+    if name not in PRIOR_CLASSES:
+        raise ValueError(f"unknown prior class {name!r} (one of {', '.join(PRIOR_CLASSES)})")
+    return name
+
+
+def k_u_floor(Ms, prior: str = DEFAULT_PRIOR_CLASS, bounds=None) -> np.ndarray:
+    """The smallest K_u (J/m³) the prior class allows at M_s (A/m): the K_u bound for ``paper``;
+    for ``perpendicular`` max(bound, μ0 M_s²/2), where K_eff = 0 (the draw stays strictly above it).
+    ValueError where that floor reaches the K_u upper bound (no perpendicular film of that M_s in
+    the bounds)."""
+    lo, hi = _bounds("K_u", bounds)
+    Ms = np.asarray(Ms, dtype=float)
+    if prior_class(prior) == "paper":
+        return np.full(Ms.shape, lo) if Ms.ndim else lo
+    floor = np.maximum(lo, MU0 * Ms**2 / 2)
+    if np.any(floor >= hi):
+        worst = float(np.max(Ms))
+        raise ValueError(f"prior 'perpendicular': no K_u ≤ {hi:g} J/m³ gives K_eff > 0 at M_s = {worst:g} A/m "
+                         f"(μ0 M_s²/2 = {MU0 * worst**2 / 2:g} J/m³); lower the M_s bound or raise the K_u bound")
+    return floor if floor.ndim else float(floor)
+
+
 def _si(values: dict, name: str) -> np.ndarray:
     if name not in values:
         raise KeyError(f"the combination needs {name!r} (SI), got {', '.join(values) or 'nothing'}")
@@ -238,6 +281,6 @@ def normalize_combination(name: str, value, reference) -> np.ndarray:
 
 
 __all__ = ["Parameter", "PARAMETERS", "NAMES", "BY_NAME", "TARGETS", "DEFAULT_BOUNDS", "LOG_SCALE", "UNITS",
-           "normalize", "denormalize", "MU0", "k_eff", "wall_energy", "wall_width", "critical_dmi", "dmi_ratio",
+           "normalize", "denormalize", "MU0", "PRIOR_CLASSES", "DEFAULT_PRIOR_CLASS", "prior_class", "k_u_floor", "k_eff", "wall_energy", "wall_width", "critical_dmi", "dmi_ratio",
            "quality_factor", "Combination", "COMBINATIONS", "COMBINATION_NAMES", "COMBINATION_BY_NAME",
            "combination_values", "combination_reference", "normalize_combination"]

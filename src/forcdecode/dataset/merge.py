@@ -112,9 +112,10 @@ SIZE_KEYS = ("n_samples", "chunk_size", "family_chunk_size", "results_dir", "fir
 
 def physics_config(cfg: dict) -> dict:
     """The part of a dataset config that decides what a family is (mesh, field grid, minimizer,
-    protocol, pinning, grains, screening, bounds, seed, realisations): runs merged into one dataset
-    must agree on it. ``realisations: 1`` is left out (``config.dataset_config``), so the hash of a
-    config that says it is the hash of the same config from before the key existed."""
+    protocol, pinning, grains, screening, bounds, prior class, seed, realisations): runs merged into one
+    dataset must agree on it. ``realisations: 1`` and ``prior: paper`` are left out
+    (``config.dataset_config``), so the hash of a config that says them is the hash of the same config
+    from before the keys existed."""
     return {k: v for k, v in dataset_config(cfg).items() if k not in SIZE_KEYS}
 
 

@@ -6,13 +6,26 @@ sampling: a target exchange length l_ex ~ N(10 nm, 1 nm) gives A_ex = l_ex² μ0
 outside 1–35 pJ/m, A_ex is drawn uniformly there instead, redrawn until l_ex = √(2A/(μ0 M_s²)) > 5 nm.
 Names, units, default bounds and scales come from the parameter table (``core.parameters``); the
 draw uses the ``parameters`` random stream of the sample.
+
+Prior classes (config key ``prior``, ``core.parameters.PRIOR_CLASSES``). ``paper``: the draw above,
+bit for bit as it always was. ``perpendicular``: the same draw with K_u conditional on M_s, ln K_u
+triangular with its mode at the maximum *truncated* to K_u > K_floor(M_s) = max(K_lo, μ0 M_s²/2)
+(``core.parameters.k_u_floor``): in the normalized log coordinate u of K_u, with u_f = u(K_floor),
+p(u | M_s) = 2u / (1 − u_f²) on (u_f, 1], CDF (u² − u_f²)/(1 − u_f²). Every draw has K_eff > 0.
+It is drawn by the inverse CDF from the same single uniform of the ``parameters`` stream that the
+paper draw's triangular variate consumes, so M_s, A_ex, D, N_pin, σ_θ and σ_K of a sample are the
+paper draw's exactly (same values for the same (seed, sample id); their marginals unchanged) and only
+K_u moves up into the perpendicular range. This is not the paper's joint prior conditioned on
+K_eff > 0 (that would also tilt M_s towards small values): M_s keeps its uniform law.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..core.parameters import DEFAULT_BOUNDS, LOG_SCALE, NAMES, denormalize, normalize
+from ..core.errors import ConfigError
+from ..core.parameters import DEFAULT_BOUNDS, DEFAULT_PRIOR_CLASS, LOG_SCALE, NAMES, denormalize, k_u_floor, normalize
+from ..core.parameters import prior_class as _prior_class
 from ..core.streams import stream_rng
 from ..micromag.constants import MU0
 
@@ -28,14 +41,33 @@ def sample_rng(seed: int, sample_id: int, stream: int | str = 0) -> np.random.Ge
     return stream_rng(seed, _STREAM_NAMES.get(stream, stream), sample_id)
 
 
+def perpendicular_floor(Ms, bounds=None) -> np.ndarray:
+    """u_f(M_s): the normalized (log) K_u below which the ``perpendicular`` class has no mass
+    (``core.parameters.k_u_floor``); ConfigError where the bounds leave no perpendicular film."""
+    try:
+        floor = k_u_floor(Ms, "perpendicular", bounds)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+    return np.clip(normalize("K_u", floor, bounds), 0.0, 1.0)
+
+
 def draw_parameters(seed: int, sample_id: int, bounds=None, exchange_length_nm=(10.0, 1.0),
-                    min_exchange_length_nm: float = 5.0) -> dict:
-    """One sample's Hamiltonian parameters (SI)."""
+                    min_exchange_length_nm: float = 5.0, prior: str = DEFAULT_PRIOR_CLASS) -> dict:
+    """One sample's Hamiltonian parameters (SI) under the prior class ``prior`` (module docstring)."""
+    prior = _prior_class(prior)
     b = {**DEFAULT_BOUNDS, **(bounds or {})}
     rng = stream_rng(seed, "parameters", sample_id)
     Ms = rng.uniform(*b["Ms"])
     log_lo, log_hi = np.log(b["K_u"][0]), np.log(b["K_u"][1])
-    K_u = float(np.exp(rng.triangular(log_lo, log_hi, log_hi)))
+    if prior == "paper":
+        K_u = float(np.exp(rng.triangular(log_lo, log_hi, log_hi)))
+    else:  # the same one uniform as the triangular variate, through the truncated law's inverse CDF
+        floor_u = float(perpendicular_floor(Ms, b))
+        u = np.sqrt(floor_u**2 + rng.random() * (1.0 - floor_u**2))
+        K_u = float(np.exp(log_lo + u * (log_hi - log_lo)))
+        K_min = MU0 * Ms**2 / 2
+        if not K_u > K_min:  # u at the floor itself (probability 0) or rounding there
+            K_u = float(np.nextafter(K_min, np.inf))
     D = rng.uniform(*b["D"])
     N_pin = int(rng.integers(b["N_pin"][0], b["N_pin"][1] + 1))
     sigma_theta = rng.uniform(*b["sigma_theta_deg"])
@@ -59,13 +91,14 @@ UNIFORM_DRAWS = ("N_pin", "D", "sigma_theta_deg", "sigma_K")
 
 
 def draw_log_density(u, names, Ms, bounds=None, exchange_length_nm=(10.0, 1.0),
-                     min_exchange_length_nm: float = 5.0) -> np.ndarray:
+                     min_exchange_length_nm: float = 5.0, prior: str = DEFAULT_PRIOR_CLASS) -> np.ndarray:
     """log p(u | M_s) of :func:`draw_parameters` in normalized units u ∈ [0, 1] (rows of ``u`` in the
     order of ``names``): the prior the dataset was drawn from, given the film's M_s (A/m; one value,
     or one per row).
 
     Per parameter: uniform (``UNIFORM_DRAWS``) → 0; K_u, ln K_u triangular
-    with its mode at the top → p(u) = 2u (u on the log scale); A_ex | M_s, a mixture of the
+    with its mode at the top → p(u) = 2u (u on the log scale); under the ``perpendicular`` class
+    p(u | M_s) = 2u / (1 − u_f²) above the floor u_f(M_s) (K_eff = 0) and 0 below; A_ex | M_s, a mixture of the
     exchange-length branch, A = l² μ0 M_s²/2 with l ~ N(l₀, σ_l) (density φ(l) / (2√(A c)) per J/m,
     c = μ0 M_s²/2; the branch's in-bounds part is kept) and, with the probability P_out that l falls
     out of bounds, the fallback: A uniform on the bounds where √(A/c) > l_min. Densities are per unit
@@ -73,6 +106,7 @@ def draw_log_density(u, names, Ms, bounds=None, exchange_length_nm=(10.0, 1.0),
     function of the simulated family, which an observation has passed, so it is not a prior factor."""
     from scipy.stats import norm
 
+    prior = _prior_class(prior)
     b = {**DEFAULT_BOUNDS, **(bounds or {})}
     u = np.atleast_2d(np.asarray(u, float))
     out = np.zeros(len(u))
@@ -80,8 +114,13 @@ def draw_log_density(u, names, Ms, bounds=None, exchange_length_nm=(10.0, 1.0),
     for j, name in enumerate(names):
         x = np.clip(u[:, j], 0.0, 1.0)
         if name == "K_u":
-            with np.errstate(divide="ignore"):
-                out += np.log(2.0 * x)
+            if prior == "paper":
+                with np.errstate(divide="ignore"):
+                    out += np.log(2.0 * x)
+            else:
+                floor_u = perpendicular_floor(np.broadcast_to(np.asarray(Ms, float), (len(u),)), b)
+                with np.errstate(divide="ignore"):
+                    out += np.where(x > floor_u, np.log(2.0 * x / (1.0 - floor_u**2)), -np.inf)
         elif name == "A_ex":
             lo, hi = (float(v) for v in b["A_ex"])
             c = MU0 * np.broadcast_to(np.asarray(Ms, float), (len(u),)) ** 2 / 2
@@ -99,27 +138,35 @@ def draw_log_density(u, names, Ms, bounds=None, exchange_length_nm=(10.0, 1.0),
     return np.where(inside, out, -np.inf)
 
 
-def draw_prior_quantiles(name: str, Ms: float, qs, bounds=None, grid: int = 4001) -> np.ndarray:
+def draw_prior_quantiles(name: str, Ms: float, qs, bounds=None, grid: int = 4001,
+                         prior: str = DEFAULT_PRIOR_CLASS) -> np.ndarray:
     """Quantiles (normalized u) of one parameter's draw prior given M_s: the density of
     :func:`draw_log_density` is a product over parameters, so each marginal is its own factor
     (integrated on ``grid`` midpoints). The median is the trivial predictor that reads M_s alone."""
-    edges, cdf = _cdf_table(name, Ms, bounds, grid)
+    if name == "K_u" and _prior_class(prior) != "paper":  # closed form (the floor cuts the midpoint table)
+        return _prior_transform(name, np.asarray(qs, float), Ms, bounds, inverse=True, prior=prior)
+    edges, cdf = _cdf_table(name, Ms, bounds, grid, prior)
     return np.interp(np.asarray(qs, float), cdf, edges)
 
 
-def _cdf_table(name: str, Ms: float, bounds, grid: int = 4001):
+def _cdf_table(name: str, Ms: float, bounds, grid: int = 4001, prior: str = DEFAULT_PRIOR_CLASS):
     """(u edges, CDF at the edges) of one parameter's draw prior given M_s (midpoint rule)."""
     mid = (np.arange(grid) + 0.5) / grid
-    density = np.exp(draw_log_density(mid[:, None], (name,), Ms, bounds))
+    density = np.exp(draw_log_density(mid[:, None], (name,), Ms, bounds, prior=prior))
     cdf = np.concatenate([[0.0], np.cumsum(density)])
     return np.linspace(0.0, 1.0, grid + 1), cdf / cdf[-1]
 
 
-def _prior_transform(name: str, values, Ms, bounds, inverse: bool) -> np.ndarray:
+def _prior_transform(name: str, values, Ms, bounds, inverse: bool, prior: str = DEFAULT_PRIOR_CLASS) -> np.ndarray:
     """F(u | M_s) (``inverse`` False) or its inverse, per row's M_s (see :func:`draw_prior_cdf`)."""
     x, Ms = np.broadcast_arrays(np.clip(np.asarray(values, float), 0.0, 1.0), np.asarray(Ms, float))
     if name == "K_u":
-        return np.sqrt(x) if inverse else x**2
+        if _prior_class(prior) == "paper":
+            return np.sqrt(x) if inverse else x**2
+        f2 = perpendicular_floor(Ms, bounds) ** 2
+        if inverse:
+            return np.sqrt(f2 + x * (1.0 - f2))
+        return np.clip((x**2 - f2) / (1.0 - f2), 0.0, 1.0)
     if name in UNIFORM_DRAWS:
         return x.copy()
     if name != "A_ex":
@@ -127,23 +174,24 @@ def _prior_transform(name: str, values, Ms, bounds, inverse: bool) -> np.ndarray
     out = np.empty(x.shape)
     for value in np.unique(Ms):
         at = Ms == value
-        edges, cdf = _cdf_table(name, float(value), bounds)
+        edges, cdf = _cdf_table(name, float(value), bounds, prior=prior)
         out[at] = np.interp(x[at], cdf, edges) if inverse else np.interp(x[at], edges, cdf)
     return out
 
 
-def draw_prior_cdf(name: str, u, Ms, bounds=None) -> np.ndarray:
+def draw_prior_cdf(name: str, u, Ms, bounds=None, prior: str = DEFAULT_PRIOR_CLASS) -> np.ndarray:
     """F(u | M_s) of one parameter's draw prior (the probability integral transform: a drawn value
     maps to a uniform v). ``u`` and ``Ms`` broadcast (one M_s per row). Closed forms where they exist
-    (uniform: v = u; K_u: v = u²), a 4001-point table for A_ex | M_s."""
-    return _prior_transform(name, u, Ms, bounds, inverse=False)
+    (uniform: v = u; K_u: v = u², perpendicular (u² − u_f²)/(1 − u_f²)), a 4001-point table for A_ex | M_s."""
+    return _prior_transform(name, u, Ms, bounds, inverse=False, prior=prior)
 
 
-def draw_prior_ppf(name: str, v, Ms, bounds=None) -> np.ndarray:
+def draw_prior_ppf(name: str, v, Ms, bounds=None, prior: str = DEFAULT_PRIOR_CLASS) -> np.ndarray:
     """Inverse of :func:`draw_prior_cdf`: v ∈ [0, 1] → u (where the prior has no mass the CDF is flat
     and the inverse jumps across the gap)."""
-    return _prior_transform(name, v, Ms, bounds, inverse=True)
+    return _prior_transform(name, v, Ms, bounds, inverse=True, prior=prior)
 
 
-__all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "draw_parameters", "draw_log_density",
+__all__ = ["PARAMETERS", "DEFAULT_BOUNDS", "LOG_SCALE", "MU0", "sample_rng", "perpendicular_floor", "draw_parameters",
+           "draw_log_density",
            "UNIFORM_DRAWS", "draw_prior_quantiles", "draw_prior_cdf", "draw_prior_ppf", "normalize", "denormalize"]

@@ -11,6 +11,7 @@ import pandas as pd
 from ..config import realisations
 from ..core.errors import InputFileError
 from ..core.io import atomic_path, write_json, write_parquet
+from ..core.parameters import prior_class
 from ..core.progress import progress
 from .params import draw_parameters
 
@@ -36,14 +37,16 @@ def chunk_ids(cfg: dict, chunk: int) -> list[int]:
 
 def draw_stage(cfg: dict, out, log=_quiet, chunk: int | None = None) -> pd.DataFrame:
     """Draw the parameters of the samples of screening chunk ``chunk`` (or of all ``n_samples``) and
-    write them (Parquet, one row each). Draws come from (seed, sample id) alone: chunk by chunk or all
-    at once, a sample's parameters are the same."""
+    write them (Parquet, one row each). Draws come from (seed, sample id) and the prior class
+    (``cfg["prior"]``, absent: paper) alone: chunk by chunk or all at once, a sample's parameters are
+    the same."""
     first = cfg.get("first_sample_id", 0)
     ids = chunk_ids(cfg, chunk) if chunk is not None else range(first, first + cfg["n_samples"])
-    rows = [{"sample_id": i, **draw_parameters(cfg["seed"], i, cfg.get("bounds"))} for i in ids]
+    prior = prior_class(cfg)  # absent (every config.json of the paper class): paper
+    rows = [{"sample_id": i, **draw_parameters(cfg["seed"], i, cfg.get("bounds"), prior=prior)} for i in ids]
     table = pd.DataFrame(rows)
     write_parquet(out, table)
-    log(f"drew {len(rows)} samples (seed {cfg['seed']})")
+    log(f"drew {len(rows)} samples (seed {cfg['seed']}, prior {prior})")
     return table
 
 

@@ -187,11 +187,12 @@ def fit_round(state, cfg, est, workers: int = 1) -> None:
     take = state.propose()
     families = simulate(take)
     state.update(take, families, _proposal_logpdf(est, state)(take), wall_s=time.perf_counter() - started,
-                 log_prior=prior_logpdf(state, est.bounds)(take))
+                 log_prior=prior_logpdf(state, est.bounds, getattr(est, "prior_class", "paper"))(take))
 
 
-def prior_logpdf(state, bounds):
-    """log p(u) of the refinement's prior (the state's ``context["prior"]``; older states: uniform)."""
+def prior_logpdf(state, bounds, prior_class: str = "paper"):
+    """log p(u) of the refinement's prior (the state's ``context["prior"]``; older states: uniform);
+    "draw": the draw prior of the posterior's prior class ``prior_class``."""
     from ..dataset.params import draw_log_density
 
     ctx = state.context
@@ -200,7 +201,7 @@ def prior_logpdf(state, bounds):
         return lambda u: np.where(np.all(np.atleast_2d(u) <= scale, axis=1), 0.0, -np.inf)
     # an extended parameter is drawn uniformly: its density continues past the bound, so the draw
     # density is evaluated with that coordinate brought back into [0, 1] (a constant factor)
-    return lambda u: draw_log_density(np.atleast_2d(u) / scale, state.names, ctx["Ms"], bounds)
+    return lambda u: draw_log_density(np.atleast_2d(u) / scale, state.names, ctx["Ms"], bounds, prior=prior_class)
 
 
 def finish_fit(state) -> dict:
@@ -428,7 +429,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
         if log:
             log(f"simulated {len(summaries)}/{budget}")
     log_q0 = _proposal_logpdf(est, _Context(image, ms_norm))(u)
-    log_p = np.zeros(len(u)) if prior == "uniform" else draw_log_density(u, names, Ms, est.bounds)
+    log_p = np.zeros(len(u)) if prior == "uniform" else draw_log_density(u, names, Ms, est.bounds,
+                                                                          prior=getattr(est, "prior_class", "paper"))
     with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
         log_w = np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
     flat = np.zeros(len(u))

@@ -277,7 +277,8 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", default="results/models", help="directory with <parameter>.pt files")
     parser.add_argument("--sample-id", type=int, help="sample of dataset.h5 to read")
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
-    parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training domain")
+    parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training "
+                        "domain or its loop contradicts the prior class the model was trained on")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
                         help="auto (default): whichever validation shows better (learn.estimator_choice: the lower mean validation "
@@ -294,8 +295,12 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_predict(args) -> int:
     """Print the prediction (``predictor.prediction_lines``, or JSON): each parameter with its intervals and
-    whether it is read from the image (``learn.answer``), and the derived combinations with theirs."""
-    from .predictor import image_from_input, load_models, predict_parameters, prediction_lines
+    whether it is read from the image (``learn.answer``), and the derived combinations with theirs. First
+    the prior-class check (``learn.prior_class``): a file whose loop contradicts the class the model was
+    trained on raises PriorClassError (exit 2) unless ``--force``; the class is printed (JSON:
+    ``prior_class``, ``prior_check``)."""
+    from .predictor import image_from_input, load_models, models_prior_class, predict_parameters, prediction_lines
+    from .prior_class import check_prior_class
 
     from .estimator_choice import default_posterior_path
 
@@ -310,15 +315,20 @@ def run_predict(args) -> int:
         from .posterior import PosteriorEstimator, posterior_prediction
 
         estimator = PosteriorEstimator.load(args.posterior)
+        trained_on = estimator.prior_class
         image, note = image_from_input(args.input, estimator.image_size, args.sample_id, args.B_max_T, args.force)
+        check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
         result = posterior_prediction(estimator, image, args.ms_kA_m * 1e3, args.draws, args.seed)
     else:
         models = load_models(args.models)
+        trained_on = models_prior_class(models)
         size = next(iter(models.values())).image_size
         image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
+        check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
         from .answer import alice_answer
 
         result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
+    result["prior_class"], result["prior_check"] = trained_on, check
     if note:
         result["out_of_domain"] = note
     if choice is not None:

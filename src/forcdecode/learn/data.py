@@ -1,7 +1,8 @@
 """The merged dataset as the networks see it: uint8 FORC images, normalized M_s, normalized targets.
 
 Normalization uses the bounds of the configuration that drew the dataset (stored in dataset.h5),
-on a log scale where the draw is log (K_u): never data maxima.
+on a log scale where the draw is log (K_u): never data maxima. The prior class the dataset was drawn
+from (``prior`` of its stored config; absent: paper) travels with the data into every model.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import h5py
 import numpy as np
 
 from ..core.errors import InputFileError
-from ..core.parameters import DEFAULT_BOUNDS, TARGETS, UNITS, normalize
+from ..core.parameters import DEFAULT_BOUNDS, DEFAULT_PRIOR_CLASS, TARGETS, UNITS, normalize, prior_class
 
 __all__ = ["TARGETS", "UNITS", "PAPER_FIGURES", "LearningData", "load_dataset"]
 # TARGETS (parameters with their own network; M_s is an input) and UNITS: core.parameters
@@ -32,6 +33,7 @@ class LearningData:
     bounds: dict
     config_hash: str
     fields_T: np.ndarray
+    prior_class: str = DEFAULT_PRIOR_CLASS  # the class the dataset was drawn from (core.parameters.PRIOR_CLASSES)
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
@@ -41,7 +43,8 @@ class LearningData:
         index = np.asarray(index, dtype=np.int64)
         return LearningData(images=self.images[index], ms_norm=self.ms_norm[index],
                             values={k: v[index] for k, v in self.values.items()}, sample_id=self.sample_id[index],
-                            bounds=self.bounds, config_hash=self.config_hash, fields_T=self.fields_T)
+                            bounds=self.bounds, config_hash=self.config_hash, fields_T=self.fields_T,
+                            prior_class=self.prior_class)
 
     def target(self, name: str) -> np.ndarray:
         """Normalized target u ∈ [0, 1] of one parameter."""
@@ -60,6 +63,7 @@ def load_dataset(path) -> LearningData:
         cfg = json.loads(h5.attrs["config_json"])
         data = LearningData(images=h5["images"][:], ms_norm=np.zeros(0), values={c: parameters[:, k] for k, c in enumerate(columns)},
                             sample_id=h5["sample_id"][:], bounds={**DEFAULT_BOUNDS, **cfg.get("bounds", {})},
-                            config_hash=str(h5.attrs["config_hash"]), fields_T=h5["fields_T"][:])
+                            config_hash=str(h5.attrs["config_hash"]), fields_T=h5["fields_T"][:],
+                            prior_class=prior_class(cfg))
     data.ms_norm = normalize("Ms", data.values["Ms"], data.bounds)
     return data

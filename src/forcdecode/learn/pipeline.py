@@ -39,7 +39,7 @@ import torch
 from ..config import defaults
 from ..core import io
 from ..core.errors import DatasetError
-from ..core.parameters import LOG_SCALE, denormalize
+from ..core.parameters import DEFAULT_PRIOR_CLASS, LOG_SCALE, denormalize
 from ..core.streams import stream_rng, stream_seed
 from .answer import alice_identification
 from .curve import learning_curve_fit
@@ -305,14 +305,16 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
 def save_model(path, *, name, alice, bob, settings, data, validation_errors, conformal, metrics,
                identification=None) -> None:
     """Everything ``predict`` needs: both networks, the normalization, the error mapping, the config hash,
-    and whether the parameter is read from the image (``learn.answer.alice_identification``: validation
-    figures and the validation records a combination's flag needs)."""
+    the prior class of the training data (``prior_class``; files without it: paper), and whether the
+    parameter is read from the image (``learn.answer.alice_identification``: validation figures and the
+    validation records a combination's flag needs)."""
     payload = {
         "format": "forcdecode-alice-bob/1", "parameter": name,
         "architecture": {"model": settings["model"], "width": int(settings["width"]),
                          "image_size": int(data.images.shape[-1])},
         "readout": settings["readout"], "bounds": {k: [float(v[0]), float(v[1])] for k, v in data.bounds.items()},
         "log_scale": name in LOG_SCALE, "config_hash": data.config_hash,
+        "prior_class": getattr(data, "prior_class", DEFAULT_PRIOR_CLASS),
         "alice_state": alice.net.state_dict(), "bob_state": bob.net.state_dict(),
         "validation_errors": [float(x) for x in validation_errors],
         "conformal": {"levels": list(conformal.levels), "quantiles": {str(k): float(v) for k, v in conformal.quantiles.items()},

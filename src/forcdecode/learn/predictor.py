@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from ..core.errors import InputFileError, ModelFileError, OutOfDomainError
-from ..core.parameters import denormalize, normalize
+from ..core.parameters import denormalize, normalize, prior_class
 from .encoding import readout
 from .models import build_network, image_tensor
 from .uncertainty import ConformalIntervals, quantile_to_error
@@ -47,6 +47,11 @@ class ParameterModel:
     @property
     def bounds(self) -> dict:
         return self.payload["bounds"]
+
+    @property
+    def prior_class(self) -> str:
+        """The prior class of the training data (``core.parameters.PRIOR_CLASSES``; older files: paper)."""
+        return prior_class(self.payload.get("prior_class"))
 
     @property
     def image_size(self) -> int:
@@ -88,6 +93,15 @@ def load_models(directory, names=None) -> dict:
         model = ParameterModel.load(path)
         models[model.name] = model
     return models
+
+
+def models_prior_class(models: dict) -> str:
+    """The one prior class of a set of Alice models (ModelFileError when they were trained on several)."""
+    classes = sorted({m.prior_class for m in models.values()})
+    if len(classes) != 1:
+        raise ModelFileError("the models were trained on different prior classes ("
+                             + ", ".join(f"{n}: {m.prior_class}" for n, m in models.items()) + "); use one training run's models")
+    return classes[0]
 
 
 def predict_parameters(models: dict, image_uint8, Ms_A_per_m: float) -> dict:
@@ -170,13 +184,17 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
     from the image per parameter; a parameter whose validation skill does not show it read from the image
     (``learn.answer``) is printed "not read from the image: prior only" with its prior range instead of a
     number; then the derived combinations (value, intervals, defined fraction, the same flag) and how
-    their intervals were made, and the basis of each flag."""
+    their intervals were made, and the basis of each flag. After the source, the prior class the model
+    was trained on, when the result names it (``learn.prior_class``)."""
     from ..core.parameters import UNITS
     from .answer import PREDATES, PRIOR_ONLY
+    from .prior_class import prior_class_line
 
-    lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m {ms_note})",
-             f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  "
-             f"{'unit':<8}read from the image?"]
+    lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m {ms_note})"]
+    if result.get("prior_class"):
+        lines.append(prior_class_line(result["prior_class"], result.get("prior_check")))
+    lines += [f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  "
+              f"{'unit':<8}read from the image?"]
     bases = []
     for name, entry in result.items():
         if not isinstance(entry, dict) or "value" not in entry:
@@ -218,6 +236,9 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
             lines.append("  (retrain the models to get the flag: the model files predate it)")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
+    check = result.get("prior_check")
+    if check and check.get("forced"):
+        lines.append(f"WARNING (decoded with --force): {check['reason']}")
     ood = result.get("ood")
     if ood:
         prefix = "WARNING: " if ood.get("out_of_distribution") else ""

@@ -275,12 +275,88 @@ def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 
                                      shuffled_u=shuffled_u)
 
 
+REGIMES = (("K_eff>0", "perpendicular films, K_eff = K_u - mu0 M_s^2/2 > 0"),
+           ("K_eff<0", "in-plane films, K_eff <= 0"))
+"""The two regimes of ``by_regime`` in metrics.json (the sign of the true K_eff)."""
+
+
+def _dataset_truth(dataset) -> tuple[dict, str]:
+    """sample id -> true K_eff (J/m³) of the families of ``dataset`` (dataset.h5), and its prior class
+    (``core.parameters.prior_class`` of the stored config; absent: paper). No images are read."""
+    import h5py
+
+    from ..core.parameters import k_eff, prior_class
+
+    with h5py.File(dataset, "r") as h5:
+        columns = list(h5["parameters"].attrs["columns"])
+        parameters = h5["parameters"][:]
+        ids = h5["sample_id"][:]
+        cfg = json.loads(h5.attrs["config_json"])
+    keff = k_eff({"K_u": parameters[:, columns.index("K_u")], "Ms": parameters[:, columns.index("Ms")]})
+    return {int(s): float(k) for s, k in zip(ids, keff)}, prior_class(cfg)
+
+
+def regime_metrics(predictions: dict, dataset) -> dict:
+    """``by_regime`` of metrics.json: Alice's accuracy on the test families of each regime (``REGIMES``:
+    the sign of the true K_eff), per parameter: the count, the MAE (normalized), the MAE of the two
+    trivial predictors (the prior, the train split's median; M_s only, the frame's ``ms_only_prediction``)
+    and the skills 1 − MAE / MAE(baseline) over each. Point figures without intervals (a regime may hold
+    a handful of test families: read the counts). ``prior_class``: the class the dataset was drawn from."""
+    keff, trained_on = _dataset_truth(dataset)
+    out = {"definition": "test families by the sign of the true K_eff = K_u - mu0 M_s^2/2; MAE of u (normalized); "
+                         "skill = 1 - MAE / MAE(baseline), baselines: prior (train median), ms_only (M_s-only k-NN)",
+           "prior_class": trained_on, "regimes": dict(REGIMES), "counts": {}, "parameters": {}}
+    for name, frame in predictions.items():
+        test = frame[frame["split"] == "test"]
+        prior = float(np.median(frame.loc[frame["split"] == "train", "target"])) if (frame["split"] == "train").any() else float("nan")
+        regime = np.array([keff.get(int(s), np.nan) for s in test["sample_id"]])
+        entry = {}
+        for label, where in (("K_eff>0", regime > 0), ("K_eff<0", regime <= 0)):
+            part = test[where]
+            n = int(len(part))
+            out["counts"].setdefault(label, n)
+            if n == 0:
+                entry[label] = {"n": 0, "mae": None, "mae_prior": None, "mae_ms_only": None,
+                                "skill_vs_prior": None, "skill_vs_ms_only": None}
+                continue
+            target = part["target"].to_numpy(float)
+            mae = float(np.mean(np.abs(part["prediction"].to_numpy(float) - target)))
+            mae_prior = float(np.mean(np.abs(prior - target)))
+            mae_ms = (float(np.mean(np.abs(part["ms_only_prediction"].to_numpy(float) - target)))
+                      if "ms_only_prediction" in part else float("nan"))
+            entry[label] = {"n": n, "mae": mae, "mae_prior": mae_prior, "mae_ms_only": mae_ms,
+                            "skill_vs_prior": 1.0 - mae / mae_prior if mae_prior > 0 else None,
+                            "skill_vs_ms_only": 1.0 - mae / mae_ms if mae_ms > 0 else None}
+        out["parameters"][name] = entry
+    return out
+
+
+def regime_markdown(by_regime: dict) -> str:
+    """The per-regime table of metrics.md."""
+    counts = by_regime["counts"]
+    lines = ["", f"## By regime (test split; dataset prior class: {by_regime['prior_class']})", "",
+             f"Counts: K_eff > 0: {counts.get('K_eff>0', 0)}, K_eff < 0: {counts.get('K_eff<0', 0)}.", "",
+             "| parameter | regime | n | MAE | skill vs prior | skill vs M_s only |", "|---|---|---|---|---|---|"]
+
+    def f(v):
+        return "—" if v is None or not np.isfinite(v) else f"{v:.3f}"
+
+    for name, entry in by_regime["parameters"].items():
+        for label in ("K_eff>0", "K_eff<0"):
+            e = entry[label]
+            lines.append(f"| {name} | {label} | {e['n']} | {f(e['mae'])} | {f(e['skill_vs_prior'])} | "
+                         f"{f(e['skill_vs_ms_only'])} |")
+    return "\n".join(lines) + "\n"
+
+
 def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None, dataset=None,
              seed: int = 0, n_boot: int = 2000, models=None, sealed: dict | None = None) -> dict:
     """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset.h5 Alice was
     trained on) metrics.json also holds the derived combinations of Alice's predictions (with ``models``,
-    the directory of the model files, their images-shuffled baseline too); with ``sealed`` (the frozen
-    networks' figures on the sealed set, ``learn.sealed``) they sit beside the test split's as ``sealed``."""
+    the directory of the model files, their images-shuffled baseline too), the figures per regime of the
+    true K_eff (``by_regime``, :func:`regime_metrics`) and the dataset's ``prior_class``; with ``sealed``
+    (the frozen networks' figures on the sealed set, ``learn.sealed``) they sit beside the test split's as
+    ``sealed``."""
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
@@ -291,6 +367,8 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
         predictions[name] = pd.read_parquet(path)
     if dataset is not None:
         metrics["combinations"] = alice_combinations(predictions, dataset, seed, n_boot, models)
+        metrics["by_regime"] = regime_metrics(predictions, dataset)
+        metrics["prior_class"] = metrics["by_regime"]["prior_class"]
     if sealed is not None:
         from .sealed import attach_sealed
 
@@ -304,5 +382,6 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
     retention_figure(metric_paths, figure_dir / "retention.png")
     uncertainty_figure(metrics, figure_dir / "uncertainty_baselines.png")
     with io.atomic_path(Path(out_metrics).with_suffix(".md")) as tmp:
-        tmp.write_text("# Alice and Bob on the test split\n\n" + markdown(metrics))
+        tmp.write_text("# Alice and Bob on the test split\n\n" + markdown(metrics)
+                       + (regime_markdown(metrics["by_regime"]) if "by_regime" in metrics else ""))
     return metrics

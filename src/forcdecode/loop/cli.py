@@ -54,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sweep-profiles", type=int, default=2, help="pinning profiles per M_s during the sweep")
     parser.add_argument("--every-k", type=int, default=4, help="hold out every k-th curve")
     parser.add_argument("--no-physics", action="store_true", help="skip the physics-side candidates (K_2, bias, second phase)")
-    parser.add_argument("--force", action="store_true", help="analyse even when the file is out of domain")
+    parser.add_argument("--force", action="store_true", help="analyse even when the file is out of domain, or its loop "
+                        "contradicts the prior class the model was trained on")
     parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
                                                           "before the effect selection, comma-separated (e.g. K_u,A_ex)")
     parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
@@ -154,6 +155,10 @@ def run(args) -> int:
 
         print(json.dumps(_json_ready(report), indent=2))
         return 0
+    if report.get("prior_class"):
+        from ..learn.prior_class import prior_class_line
+
+        print(prior_class_line(report["prior_class"], report.get("prior_check")))
     prediction = report.get("prediction")
     if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
         from ..learn.predictor import prediction_lines

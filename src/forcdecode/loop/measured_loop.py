@@ -431,13 +431,34 @@ def _log_ood(ood: dict, log) -> None:
         log(f"WARNING training-data check: {ood['warning']}")
 
 
+def prior_check(report: dict, trained_on: str, m: Measurement, s: LoopSettings, out: Path, path, log) -> None:
+    """The prior-class check (``learn.prior_class``) of the model's class against the measured loop; report
+    keys ``prior_class`` and ``prior_check``. A loop that contradicts the class stops the file: the report
+    is written (status "contradicts the prior class") and PriorClassError raised, unless ``force``."""
+    from ..core.errors import PriorClassError
+    from ..learn.prior_class import check_prior_class, prior_class_line
+
+    report["prior_class"] = trained_on
+    try:
+        report["prior_check"] = check_prior_class(trained_on, m.image, force=s.force, source=str(path),
+                                                  B_max_T=float(m.fields[-1]))
+    except PriorClassError as error:
+        report["prior_check"] = error.check
+        stop(out, path, report, "contradicts the prior class", "\n".join(_prior_lines(report)))
+        raise
+    log(prior_class_line(trained_on, report["prior_check"]))
+    if report["prior_check"].get("forced"):
+        log(f"WARNING (--force): {report['prior_check']['reason']}")
+
+
 def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, report: dict, out: Path, path,
              log) -> Estimate | None:
     """The Hamiltonian: given, or predicted (Alice or the posterior) at each M_s and the M_s whose
     re-simulation is closest kept, then optionally refined by simulation (``_refine``); its report
     entries. First, whatever the estimator, the training-data check (report key ``ood``: the posterior's
     ``posterior_ood``, Alice's image-only ``alice_ood``); None when it stops the file (its report
-    written; ``force`` decodes it anyway)."""
+    written; ``force`` decodes it anyway). Before it, the prior-class check (``prior_check``): a loop that
+    contradicts the class the model was trained on raises PriorClassError (report written) unless ``force``."""
     if s.params is not None:
         report.update(parameters=s.params, Ms_source="given (--params)",
                       ood={"available": False, "verdict": "not run: the Hamiltonian is given (--params), nothing is decoded"})
@@ -449,13 +470,15 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
         from ..learn.posterior import PosteriorEstimator, posterior_prediction
 
         est = PosteriorEstimator.load(s.posterior_path)
+        prior_check(report, est.prior_class, m, s, out, path, log)
         ood = posterior_ood(est, m.image, ms_values)
         models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
         trained = "The posterior was trained on"
     elif s.estimator == "alice":
-        from ..learn.predictor import load_models
+        from ..learn.predictor import load_models, models_prior_class
 
         models = load_models(s.models_dir)
+        prior_check(report, models_prior_class(models), m, s, out, path, log)
         ood = alice_ood(s.models_dir, models, m.image, s.training_dataset, log=log)
         trained = "Alice's networks were trained on"
     else:
@@ -756,6 +779,20 @@ def _ood_lines(report) -> list[str]:
     return lines + [""]
 
 
+def _prior_lines(report) -> list[str]:
+    """The prior class of the model and its check against the loop, in Markdown (empty without a model)."""
+    name = report.get("prior_class")
+    if not name:
+        return []
+    from ..learn.prior_class import prior_class_line
+
+    lines = ["## Prior class", "", prior_class_line(name, report.get("prior_check")) + "."]
+    check = report.get("prior_check") or {}
+    if check.get("reason"):
+        lines += ["", f"**{'Decoded with --force although' if check.get('forced') else 'Not decoded'}**: {check['reason']}."]
+    return lines + [""]
+
+
 def _read_cell(entry: dict) -> str:
     """The "read from the image?" cell: yes, no, or unknown with the reason."""
     read = entry.get("read_from_image")
@@ -793,7 +830,7 @@ def _combination_lines(prediction: dict) -> list[str]:
 
 
 def _markdown(path, report, analysis) -> str:
-    lines = [_markdown_domain(path, report), *_ood_lines(report)]
+    lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report)]
     prediction = report.get("prediction")
     if prediction:
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",

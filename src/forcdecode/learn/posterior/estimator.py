@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from ...core.errors import ConfigError, OutOfDomainError
-from ...core.parameters import denormalize
+from ...core.parameters import DEFAULT_PRIOR_CLASS, denormalize
 from ...core.streams import stream_seed
 from ..models import image_tensor
 from .file_format import read_estimator, save_estimator
@@ -36,6 +36,9 @@ class PosteriorEstimator:
     members: list = field(default_factory=list)
     """Further networks of a deep ensemble (``net`` is the first): the posterior is the equal mixture of
     the members' flows, each fitted from its own weight seed on the same data."""
+    prior_class: str = DEFAULT_PRIOR_CLASS
+    """The prior class of the training data (``core.parameters.PRIOR_CLASSES``): the draw prior of the
+    "prior" coordinates and of the density; files written before it: paper."""
 
     @property
     def nets(self) -> list:
@@ -166,10 +169,10 @@ class PosteriorEstimator:
 
     def to_coordinates(self, u, ms_norm) -> np.ndarray:
         """u (…, d) → the flow's coordinates (``ms_norm`` broadcast against u's leading axes)."""
-        return to_coordinates(u, self._Ms(ms_norm), self.names, self.bounds, self.coordinates)
+        return to_coordinates(u, self._Ms(ms_norm), self.names, self.bounds, self.coordinates, self.prior_class)
 
     def from_coordinates(self, v, ms_norm) -> np.ndarray:
-        return from_coordinates(v, self._Ms(ms_norm), self.names, self.bounds, self.coordinates)
+        return from_coordinates(v, self._Ms(ms_norm), self.names, self.bounds, self.coordinates, self.prior_class)
 
     def coordinates_log_jacobian(self, u, ms_norm) -> np.ndarray:
         """log |dv/du| per row (the draw prior's log density for "prior" coordinates, 0 for "box")."""
@@ -178,7 +181,7 @@ class PosteriorEstimator:
             return np.zeros(len(u))
         from ...dataset.params import draw_log_density
 
-        return draw_log_density(u, self.names, self._Ms(ms_norm), self.bounds or None)
+        return draw_log_density(u, self.names, self._Ms(ms_norm), self.bounds or None, prior=self.prior_class)
 
     def save(self, path, **metadata) -> None:
         """Atomic write of the weights, architecture, names, bounds and ``metadata`` (plain values;

@@ -1,5 +1,6 @@
 """The posterior's model file (``learn.posterior``): one ``torch.save`` of plain values (format
-``FORMAT``): the architecture, the parameter names and bounds, the best epoch, the state dict of each
+``FORMAT``): the architecture, the parameter names and bounds, the prior class of the training data
+(``prior_class``; a file without it: paper), the best epoch, the state dict of each
 member of the ensemble and the metadata (OOD reference, recalibration, conformal widening, ...).
 Read back with ``weights_only=True``: no class is pickled, so the file does not depend on where the
 code lives."""
@@ -13,6 +14,7 @@ import torch
 
 from ...core import io
 from ...core.errors import ModelFileError
+from ...core.parameters import prior_class
 from .flow import PosteriorNet
 
 FORMAT = "forcdecode-posterior/1"
@@ -23,7 +25,8 @@ def save_estimator(est, path, **metadata) -> None:
     payload = {"format": FORMAT, "architecture": dict(est.architecture), "names": list(est.names),
                "bounds": {k: [float(v[0]), float(v[1])] for k, v in est.bounds.items()},
                "best_epoch": int(est.best_epoch), "state": est.net.state_dict(),
-               "member_states": [m.state_dict() for m in est.members], "metadata": metadata}
+               "member_states": [m.state_dict() for m in est.members],
+               "prior_class": str(getattr(est, "prior_class", "paper")), "metadata": metadata}
     with io.atomic_path(path) as tmp:
         torch.save(payload, tmp)
 
@@ -49,7 +52,7 @@ def read_estimator(path) -> dict:
         nets.append(net.eval())
     return {"net": nets[0], "architecture": payload["architecture"], "names": tuple(payload["names"]),
             "bounds": payload["bounds"], "best_epoch": payload["best_epoch"], "metadata": payload.get("metadata", {}),
-            "members": nets[1:]}
+            "members": nets[1:], "prior_class": prior_class(payload.get("prior_class"))}
 
 
 __all__ = ["FORMAT", "read_estimator", "save_estimator"]

@@ -72,22 +72,23 @@ def from_latent(z) -> np.ndarray:
     return np.clip((s - SQUEEZE) / (1.0 - 2.0 * SQUEEZE), 0.0, 1.0)
 
 
-def to_coordinates(u, Ms, names, bounds, coordinates: str) -> np.ndarray:
+def to_coordinates(u, Ms, names, bounds, coordinates: str, prior: str = "paper") -> np.ndarray:
     """u (…, d) → the coordinates the flow models: ``box``, u itself; ``prior``, v_j = F_j(u_j | M_s),
     the CDF of the draw prior given M_s (``dataset.params.draw_prior_cdf``): the prior becomes uniform,
     so the flow learns only what the image adds (A_ex's dependence on M_s through the exchange length
     and K_u's triangular draw no longer have to be learned from a few hundred families). ``Ms`` (A/m)
-    broadcasts against u's leading axes."""
+    broadcasts against u's leading axes; ``prior``: the prior class of that draw."""
     u = np.asarray(u, dtype=float)
     if coordinates == "box":
         return u
     from ...dataset.params import draw_prior_cdf
 
     Ms = np.broadcast_to(np.asarray(Ms, dtype=float), u.shape[:-1])
-    return np.stack([draw_prior_cdf(n, u[..., j], Ms, bounds or None) for j, n in enumerate(names)], axis=-1)
+    return np.stack([draw_prior_cdf(n, u[..., j], Ms, bounds or None, prior=prior) for j, n in enumerate(names)],
+                    axis=-1)
 
 
-def from_coordinates(v, Ms, names, bounds, coordinates: str) -> np.ndarray:
+def from_coordinates(v, Ms, names, bounds, coordinates: str, prior: str = "paper") -> np.ndarray:
     """Inverse of :func:`to_coordinates`."""
     v = np.asarray(v, dtype=float)
     if coordinates == "box":
@@ -95,7 +96,8 @@ def from_coordinates(v, Ms, names, bounds, coordinates: str) -> np.ndarray:
     from ...dataset.params import draw_prior_ppf
 
     Ms = np.broadcast_to(np.asarray(Ms, dtype=float), v.shape[:-1])
-    return np.stack([draw_prior_ppf(n, v[..., j], Ms, bounds or None) for j, n in enumerate(names)], axis=-1)
+    return np.stack([draw_prior_ppf(n, v[..., j], Ms, bounds or None, prior=prior) for j, n in enumerate(names)],
+                    axis=-1)
 
 
 # ---------------------------------------------------------------- networks

@@ -29,7 +29,8 @@ from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_emb
 @_float32
 @with_float32_default
 def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = None, seed: int = 0,
-                  embedding: str = "cnn", bounds: dict | None = None, log=None) -> PosteriorEstimator:
+                  embedding: str = "cnn", bounds: dict | None = None, log=None,
+                  prior_class: str = "paper") -> PosteriorEstimator:
     """Maximum-likelihood fit of the flow and the embedding on ``train`` (AdamW), keeping the weights
     of the epoch with the lowest validation negative log-likelihood; ``x`` are uint8 images (cnn) or
     float vectors (mlp), ``u`` the targets in [0, 1], shape (n, len(names)).
@@ -46,7 +47,7 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
         if log is not None and settings["ensemble"] > 1:
             log(f"posterior ensemble member {k + 1}/{settings['ensemble']}")
         members.append(_fit_member(x, ms_norm, u, train, val, names=names, settings=settings, seed=member_seed,
-                                   embedding=embedding, bounds=bounds, log=log))
+                                   embedding=embedding, bounds=bounds, log=log, prior_class=prior_class))
     est = members[0]
     est.members = [m.net for m in members[1:]]
     if len(members) > 1:
@@ -57,7 +58,7 @@ def fit_posterior(x, ms_norm, u, train, val, *, names, settings: dict | None = N
 
 
 def _fit_member(x, ms_norm, u, train, val, *, names, settings: dict, seed: int, embedding: str,
-                bounds: dict | None, log) -> PosteriorEstimator:
+                bounds: dict | None, log, prior_class: str = "paper") -> PosteriorEstimator:
     """One flow (and its embedding) fitted from the weight seed ``seed``: see :func:`fit_posterior`."""
     u = np.asarray(u, dtype=float)
     train, val = np.asarray(train), np.asarray(val)
@@ -84,7 +85,7 @@ def _fit_member(x, ms_norm, u, train, val, *, names, settings: dict, seed: int, 
         architecture["features"] = int(x.shape[1])
     torch.manual_seed(stream_seed(seed, "posterior", "weights"))
     net = PosteriorNet(architecture)
-    est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}))
+    est = PosteriorEstimator(net, architecture, tuple(names), dict(bounds or {}), prior_class=prior_class)
     if architecture["coordinates"] == "prior" and not set(names) <= set(TARGETS):
         raise ConfigError(f"coordinates: prior needs the dataset's parameters (a draw prior), got {list(names)}; "
                           "use coordinates: box")
@@ -262,7 +263,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     log(f"posterior: {len(names)} parameters, {len(train)} training / {len(val)} validation / {len(test)} test samples")
     started = time.perf_counter()
     est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=settings, seed=seed,
-                        embedding="cnn", bounds=data.bounds, log=log)
+                        embedding="cnn", bounds=data.bounds, log=log,
+                        prior_class=getattr(data, "prior_class", "paper"))
     train_s = time.perf_counter() - started
     from ..ood import fit_ood_reference, ood_check
 
@@ -335,6 +337,7 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                "targets": {"sbc_ks_p_above": 0.01, "coverage_90_within": [0.85, 0.95]},
                "best_epoch": int(est.best_epoch), "epochs_run": len(est.history["val_nll"]),
                "validation_nll": float(est.history["val_nll"][est.best_epoch]), "config_hash": data.config_hash,
+               "prior_class": est.prior_class,
                "summary": settings["summary"], "summary_regression": _regression_summary(est.history),
                "test_and_calibration_splits": pooled,
                "split_diagnostics": diagnostics,
