@@ -327,9 +327,10 @@ def test_the_loop_is_handed_the_file_and_an_erroneous_Ms_only(tmp_path, monkeypa
     row = bench.run_user_case(case, tmp_path)
     args = seen["args"]
     assert args.ms_kA_m == pytest.approx(case["hamiltonian"]["Ms"] * case["Ms_error_factor"] / 1e3, rel=1e-5)
-    assert args.params is None and args.refit == "K_u,A_ex,D" and args.estimator == "alice"
+    # the user's default: --estimator auto, resolved by the loop (its report's choice names the one used)
+    assert args.params is None and args.refit == "K_u,A_ex,D" and args.estimator == "auto"
     assert args.models == "results/models" and args.null_realisations == loop_cli_default("null_realisations")
-    assert row["oracle_inputs"] is False and row["estimator"] == "alice"
+    assert row["oracle_inputs"] is False and row["estimator"] == "auto"
     assert bench._argv_options(row["loop_argv"]) == list(bench.USER_LOOP_ARGS)
     assert row["answers"]["always_largest_gain"]["named"] == ["background"]
     # the fallback a user without a model has: --params of the population median at the given M_s

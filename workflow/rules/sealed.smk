@@ -31,7 +31,6 @@ if SEALED_ON:
             "{params.cli} dataset merge --config {input.config} --params {input.params} "
             "--screens {input.screens} --family-lists {input.families} --h5 {output.h5} --parquet {output.parquet} 2> {log}"
 
-
     rule score_sealed:
         """Alice and Bob, frozen, on the sealed set: MAE, skill over the trivial predictors (fitted on the
         training dataset's train split) with bootstrap intervals, coverage; the derived combinations."""
@@ -54,7 +53,6 @@ if SEALED_ON:
         shell:
             "{params.cli} learn sealed --models {params.models} --dataset {input.dataset} --sealed {input.sealed} "
             "--config {input.config} --out {output} > {log} 2>&1"
-
 
     rule posterior_sealed:
         """The joint posterior, frozen (recalibration included), on the sealed set: SBC, coverage, TARP, PIT,
@@ -85,7 +83,6 @@ if SEALED_ON:
             "{params.cli} learn posterior-check --posterior {input.model} --dataset {input.sealed} "
             "--training-dataset {input.dataset} --config {input.config} --out {output.metrics} "
             "--figure {output.figure} --threads {threads} > {log} 2>&1"
-
 
     rule posterior_report:
         """results/posterior/metrics.json: the posterior's test figures with the sealed set's beside them."""

@@ -779,6 +779,9 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
             raise ConfigError(f"--without-estimator {fallback!r}: one of {', '.join(FALLBACKS)}")
         return f"fallback: {fallback}"
     args = loop_namespace(["FILE", "--out", "OUT", *loop_args])
+    from ..loop.cli import resolve_estimator
+
+    resolve_estimator(args)  # --estimator auto as the loop resolves it (and the posterior's default path)
     try:
         if args.estimator == "alice":
             from ..learn.predictor import load_models
@@ -865,8 +868,10 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
         report = read_json(out / "report.json", what="loop report")
     except ForcdecodeError as error:  # what the user would see as `error: ...`: an answer naming nothing
         report = {"status": f"error: {error}"}
-    return user_row(case, report, argv=argv, estimator=f"fallback: {fallback}" if fallback else
-                    loop_namespace(argv).estimator, sample_s=sample_s, loop_s=time.perf_counter() - start)
+    # the estimator that answered: the loop's resolution of --estimator auto where it made one
+    used = (report.get("estimator_choice") or {}).get("estimator") or loop_namespace(argv).estimator
+    return user_row(case, report, argv=argv, estimator=f"fallback: {fallback}" if fallback else used,
+                    sample_s=sample_s, loop_s=time.perf_counter() - start)
 
 
 HAMILTONIAN_CHANGE = "K_u change"
