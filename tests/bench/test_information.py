@@ -147,3 +147,36 @@ def test_protocol_code_reproduces_the_closed_form_ensemble():
         clear = low(u, r) == high(u, r)
         assert clear.mean() > 0.8
         assert np.max(np.abs(protocol(u, r) - closed(u, r))[clear]) < 2e-3
+
+
+@pytest.mark.slow
+def test_fiducial_processes_run_side_by_side_and_resume(tmp_path, monkeypatch):
+    """`bench information --workers 2`: two fiducial processes at once on a tiny film (16 nm box, one
+    parameter, R = 2). Both analyses are written, costs.jsonl gets one row per process with its own CPU
+    time, and a second call finds everything on disk and simulates nothing; a fiducial whose result was
+    removed is re-analysed from its families on disk to the same numbers."""
+    import json
+
+    from forcdecode.bench import information_films as info
+    from forcdecode.config import load_config, shipped_config
+
+    monkeypatch.setitem(info.FILMS, "tiny", dict(nx=8, ny=8, nz=1, n_grains=2, protocol="quasistatic",
+                                                 names=("K_u",)))
+    cfg = load_config(shipped_config("config"))
+    base = {"Ms": 5.0e5, "A_ex": 1.5e-11, "K_u": 3.5e5, "D": 5e-4, "N_pin": 10, "sigma_theta_deg": 2.0,
+            "sigma_K": 0.05}
+    fids = [{**base, "sample_id": 1, "regime": "domains"}, {**base, "K_u": 4.0e5, "sample_id": 2, "regime": "domains"}]
+    info.run_fiducials(cfg, "tiny", fids, 2, [0.1], 0, tmp_path, say=lambda *_: None, workers=2)
+    results = {sid: tmp_path / "tiny" / f"s{sid:05d}.json" for sid in (1, 2)}
+    assert all(p.exists() for p in results.values())
+    rows = [json.loads(line) for line in (tmp_path / "costs.jsonl").read_text().splitlines()]
+    assert sorted(r["sample_id"] for r in rows) == [1, 2] and all(r["exit"] == 0 and r["cpu_s"] > 0 for r in rows)
+    first = json.loads(results[2].read_text())
+    n_families = len(list((tmp_path / "tiny").rglob("*.npz")))
+    assert n_families == 2 * 3 * 2  # fiducials x (centre, +delta, -delta) x R
+    results[2].unlink()
+    info.run_fiducials(cfg, "tiny", fids, 2, [0.1], 0, tmp_path, say=lambda *_: None, workers=2)
+    again = json.loads(results[2].read_text())
+    key = "R2_d0.1"
+    assert again["channels"]["float"][key]["crb_single"] == first["channels"]["float"][key]["crb_single"]
+    assert len(list((tmp_path / "tiny").rglob("*.npz"))) == n_families

@@ -242,20 +242,26 @@ def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> No
 
 
 def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stability: int, out_dir, say=print,
-                  stop_at: float | None = None) -> None:
-    """Each fiducial in its own process, one at a time (``costs.jsonl``: its CPU time and peak RSS)."""
+                  stop_at: float | None = None, workers: int = 1) -> None:
+    """Each fiducial in its own process, ``workers`` at a time (``costs.jsonl``: each process's CPU time and
+    peak RSS, from ``wait4``, so the cost per family does not depend on how many ran beside it)."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..core.io import write_json
+
     out_dir = Path(out_dir)
     cfg_path = out_dir / "config.json"
     cfg_path.parent.mkdir(parents=True, exist_ok=True)
     cfg_path.write_text(json.dumps(cfg))
-    for k, fid in enumerate(fids):
+    costs_lock = threading.Lock()
+
+    def one(k: int, fid: dict) -> None:
         if stop_at is not None and time.time() > stop_at:
             say(f"{film}: stop time reached before fiducial {fid['sample_id']}")
             return
         ds = list(deltas) if k < stability else list(deltas)[:1]
         result = out_dir / film / f"s{int(fid['sample_id']):05d}.json"
-        if result.exists():
-            continue
         spec = json.dumps({"config": str(cfg_path), "film": film, "film_spec": FILMS[film], "fiducial": fid,
                            "R": R, "deltas": ds, "out": str(out_dir)})
         start = time.perf_counter()
@@ -264,18 +270,26 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
         _, status, usage = os.wait4(proc.pid, 0)
         row = {"film": film, "sample_id": int(fid["sample_id"]), "exit": os.waitstatus_to_exitcode(status),
                "wall_s": time.perf_counter() - start, "cpu_s": usage.ru_utime + usage.ru_stime,
-               "peak_rss_MiB": usage.ru_maxrss / 1024, "deltas": ds, "R": R}
-        with open(out_dir / "costs.jsonl", "a") as fh:
+               "peak_rss_MiB": usage.ru_maxrss / 1024, "deltas": ds, "R": R, "workers": workers}
+        with costs_lock, open(out_dir / "costs.jsonl", "a") as fh:
             fh.write(json.dumps(row) + "\n")
         if row["exit"] == 0:
             analysis = analyse_fiducial(out_dir, film, fid, R, ds)
             analysis["process"] = row
-            from ..core.io import write_json
-
             write_json(result, analysis)
             say(fiducial_line(analysis))
         else:
             say(f"{film} fiducial {fid['sample_id']}: exit {row['exit']}")
+
+    todo = [(k, fid) for k, fid in enumerate(fids)
+            if not (out_dir / film / f"s{int(fid['sample_id']):05d}.json").exists()]
+    if workers <= 1:
+        for k, fid in todo:
+            one(k, fid)
+        return
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # threads only wait on the processes
+        for future in [pool.submit(one, k, fid) for k, fid in todo]:
+            future.result()
 
 
 # --- analysis ---------------------------------------------------------------------------------------------
