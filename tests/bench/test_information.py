@@ -180,3 +180,22 @@ def test_fiducial_processes_run_side_by_side_and_resume(tmp_path, monkeypatch):
     key = "R2_d0.1"
     assert again["channels"]["float"][key]["crb_single"] == first["channels"]["float"][key]["crb_single"]
     assert len(list((tmp_path / "tiny").rglob("*.npz"))) == n_families
+
+
+def test_period_box_runs_the_spiral_fiducials_only_and_results_without_families_are_kept(tmp_path):
+    """The period box (128 nm -> 272 nm, the spiral fiducials' period 103-133 nm held twice) runs only the
+    fiducials of its regime; the laptop films run all. A result whose families are not on disk (a
+    committed copy) survives `--summarize-only`'s re-analysis unchanged."""
+    import json
+
+    from forcdecode.bench import information_films as info
+
+    fids = [{"sample_id": i, "regime": r} for i, r in enumerate(["K_eff<0", "domains", "spirals", "K_eff<0", "spirals"])]
+    assert [f["sample_id"] for f in info.film_fiducials("period_box", fids)] == [2, 4]
+    assert info.film_fiducials("laptop_8nm", fids) == fids
+    assert 2 * info.FILMS["period_box"]["nx"] / 133 >= 2  # 2 nm cells: the box holds 2 of the longer period
+    kept = tmp_path / "laptop_8nm" / "s00007.json"
+    kept.parent.mkdir()
+    kept.write_text(json.dumps({"film": "laptop_8nm", "sample_id": 7, "params": {}, "R": 8, "deltas": [0.1]}))
+    assert info.reanalyse(tmp_path, say=lambda *_: None) == 0
+    assert json.loads(kept.read_text())["sample_id"] == 7
