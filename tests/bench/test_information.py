@@ -199,3 +199,16 @@ def test_period_box_runs_the_spiral_fiducials_only_and_results_without_families_
     kept.write_text(json.dumps({"film": "laptop_8nm", "sample_id": 7, "params": {}, "R": 8, "deltas": [0.1]}))
     assert info.reanalyse(tmp_path, say=lambda *_: None) == 0
     assert json.loads(kept.read_text())["sample_id"] == 7
+
+
+def test_main_job_estimate_reproduces_the_measured_laptop_job_and_shrinks_draws_for_dearer_films():
+    """At the laptop's cost the estimate is the measured main job (85-92 min wall on 2 cores, fresh clones
+    of 2026-11-28); a film 3x dearer fits 2 h only with fewer draws, and one 20x dearer not at 500 draws."""
+    from forcdecode.bench.information_films import MIN_DRAWS, main_job_estimate
+
+    laptop = main_job_estimate(1.0)
+    assert 85 / 60 <= laptop["wall_hours_2_cores"] <= 92 / 60 and laptop["eligible"]
+    dear = main_job_estimate(3.0)
+    assert dear["wall_hours_2_cores"] > 2 and MIN_DRAWS <= dear["draws_within_2h"] < 1000
+    assert abs(main_job_estimate(3.0, draws=dear["draws_within_2h"])["wall_hours_2_cores"] - 2) < 0.01
+    assert not main_job_estimate(20.0)["eligible"]
