@@ -212,3 +212,23 @@ def test_main_job_estimate_reproduces_the_measured_laptop_job_and_shrinks_draws_
     assert dear["wall_hours_2_cores"] > 2 and MIN_DRAWS <= dear["draws_within_2h"] < 1000
     assert abs(main_job_estimate(3.0, draws=dear["draws_within_2h"])["wall_hours_2_cores"] - 2) < 0.01
     assert not main_job_estimate(20.0)["eligible"]
+
+
+def test_paired_comparison_on_shared_fiducials():
+    """paired_to: ratios film/reference on the fiducials both measured, per parameter; an unidentified
+    (None) reference bound makes any finite film bound tighter."""
+    from forcdecode.bench.information_films import paired_to
+
+    def analysis(sid, matched, single):
+        row = {"crb_conditional_matched": matched, "crb_single": single}
+        return {"sample_id": sid, "names": ["K_u", "D"], "R": 8, "deltas": [0.1], "channels": {"float": {"R8_d0.1": row}}}
+
+    film = [analysis(1, [0.01, 0.2], [0.001, 0.02]), analysis(2, [0.02, 0.1], [0.002, 0.01]), analysis(3, [1, 1], [1, 1])]
+    ref = [analysis(1, [0.02, 0.4], [0.001, 0.04]), analysis(2, [0.01, None], [0.004, 0.01])]
+    out = paired_to(film, ref, ["K_u", "D"])
+    assert out["n_fiducials"] == 2 and out["sample_ids"] == [1, 2]
+    k = out["per_parameter"]["K_u"]["crb_conditional_matched"]
+    assert k["ratios"] == [0.5, 2.0] and k["median_ratio"] == 1.25 and k["film_tighter"] == 1
+    d = out["per_parameter"]["D"]["crb_conditional_matched"]
+    assert d["ratios"] == [0.5, 0.0] and d["film_tighter"] == 2
+    assert out["per_parameter"]["D"]["crb_single"]["film_tighter"] == 1

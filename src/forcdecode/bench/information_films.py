@@ -475,6 +475,39 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
             "rho_median": float(np.median([r["rho"] for _, r in rows])) if rows else None}
 
 
+def paired_to(analyses: list[dict], reference: list[dict], names) -> dict:
+    """A film against a reference film on the fiducials both measured (same Hamiltonian, float channel,
+    each film's primary R and δ): per parameter, the ratio film/reference of the conditional matched-filter
+    bound (conservative) and of the Ledoit–Wolf marginal bound, per fiducial and as a median, and how many
+    fiducials the film bounds tighter. ∞ (unidentified) compares as larger than any finite bound."""
+    ref = {a["sample_id"]: a for a in reference}
+    shared = [a for a in analyses if a["sample_id"] in ref]
+    ref_names = ref[shared[0]["sample_id"]]["names"] if shared else []
+    out = {"n_fiducials": len(shared), "sample_ids": [a["sample_id"] for a in shared], "per_parameter": {}}
+
+    def bound(a, key, n):
+        row = a["channels"]["float"][f"R{a['R']}_d{a['deltas'][0]:g}"]
+        v = row.get(key, [None] * len(a["names"]))[a["names"].index(n)]
+        return float("inf") if v is None else float(v)
+
+    for n in names:
+        if n not in ref_names:
+            continue
+        block = {}
+        for key in ("crb_conditional_matched", "crb_single"):
+            pairs = [(bound(a, key, n), bound(ref[a["sample_id"]], key, n)) for a in shared]
+            ratios = [f / r if np.isfinite(f) and np.isfinite(r) and r > 0 else
+                      (0.0 if np.isfinite(f) and not np.isfinite(r) else (float("inf") if np.isfinite(r) else None))
+                      for f, r in pairs]
+            finite = [x for x in ratios if x is not None]
+            block[key] = {"ratios": [None if x is None or not np.isfinite(x) else x for x in ratios],
+                          "median_ratio": (None if not finite or not np.isfinite(np.median(finite))
+                                           else float(np.median(finite))),
+                          "film_tighter": int(sum(f < r for f, r in pairs)), "n": len(pairs)}
+        out["per_parameter"][n] = block
+    return out
+
+
 def stability(analyses: list[dict], names) -> dict:
     """Per fiducial simulated at several δ (float channel): every (R, δ)'s single-family marginal CRB
     (Ledoit–Wolf) and conditional matched-filter bound, as ratios to those at (R, δ₀); and their
@@ -589,6 +622,9 @@ def summarize(out_dir, films=None) -> dict:
                                       "image": _block([a for a in analyses if a["regime"] == r], names, "image", primary)}
                                   for r in REGIMES}
         film_row["stability"] = stability(analyses, names)
+        laptop = [json.loads(p.read_text()) for p in sorted((out_dir / "laptop").glob("s*.json"))]
+        if film != "laptop" and laptop:
+            film_row["paired_to_laptop"] = paired_to(analyses, laptop, names)
         film_row["main_job"] = main_job_estimate(cpu / _laptop_cost(out_dir))
         film_row["main_job_core_hours"] = film_row["main_job"]["core_hours"]
         film_row["main_job_wall_hours_2_cores"] = film_row["main_job"]["wall_hours_2_cores"]
@@ -673,6 +709,18 @@ def summary_lines(summary: dict) -> list[str]:
                          f"{fmt(p['crb_conditional_matched_median'])}")
         lines.append(f"  sigma_w alignment (A_ex-D best direction vs grad sigma_w), median: "
                      f"{row['sigma_w_alignment_deg_median']}")
+        job = row["main_job"]
+        lines.append(f"  main job: {job['cost_ratio_to_laptop']:.2f}x the laptop family, {job['wall_hours_2_cores']:.2f} h "
+                     f"on 2 cores at 1000 draws; {job['draws_within_2h']} draws fit 2 h")
+        paired = row.get("paired_to_laptop")
+        if paired and paired["n_fiducials"]:
+            parts = []
+            for n, blk in paired["per_parameter"].items():
+                m = blk["crb_conditional_matched"]
+                ratio = "n/a" if m["median_ratio"] is None else f"{m['median_ratio']:.2f}"
+                parts.append(f"{n} {ratio} ({m['film_tighter']}/{m['n']} tighter)")
+            lines.append(f"  vs laptop on {paired['n_fiducials']} shared fiducials, matched bound ratio median: "
+                         + ", ".join(parts))
         for r, blk in row["per_regime"].items():
             b = blk["float"]
             if b["n_fiducials"]:
