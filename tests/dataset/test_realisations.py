@@ -254,13 +254,13 @@ def test_llg_raw_curves_are_kept_per_realisation(cfg, tmp_path, monkeypatch):
 
 def test_slurm_runtime_scales_with_realisations(tmp_path):
     """profiles/slurm's simulate_family runtime, evaluated as Snakemake does (a Python expression with
-    the job's input): 240 min times the R of the job's config.json."""
+    the job's input, whose named entries are lists of paths): 240 min times the R of the job's config.json."""
     expression = yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())[
         "set-resources"]["simulate_family"]["runtime"]
     path = tmp_path / "config.json"
     for cfg, minutes in (({"seed": 1}, 240), ({"seed": 1, "realisations": 4}, 960)):
         path.write_text(json.dumps(cfg))
-        assert eval(expression, {"input": SimpleNamespace(config=str(path))}) == minutes
+        assert eval(expression, {"input": SimpleNamespace(config=[str(path)])}) == minutes
 
 
 @pytest.mark.slow
