@@ -27,6 +27,28 @@ def pytest_sessionstart(session):
                     f"(the measured-file tests would skip; CI must run them)", returncode=pytest.ExitCode.TESTS_FAILED)
 
 
+@pytest.fixture
+def evaluate_slurm_resource():
+    """`evaluate(text, config_path)`: a string resource of profiles/slurm evaluated the way Snakemake
+    evaluates a `--set-resources` / profile string per job, on the job's `input` built the way Snakemake
+    builds simulate_family's: `config` a list-valued named input (it is `rules.resolve_config.output`),
+    then `params` and `screen`."""
+    import asyncio
+
+    from snakemake.iocontainers import InputFiles
+    from snakemake.resources import Resource
+
+    def evaluate(text: str, config_path):
+        job_input = InputFiles([str(config_path), "params.parquet", "screen.parquet"])
+        job_input._set_name("config", 0, end=1)
+        job_input._set_name("params", 1)
+        job_input._set_name("screen", 2)
+        return Resource.cli_evaluator("resource", text, wildcards=None, input=job_input, attempt=1, threads=1,
+                                      async_run=asyncio.run)
+
+    return evaluate
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     outcome = yield

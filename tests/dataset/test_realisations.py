@@ -11,7 +11,6 @@ import os
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import h5py
 import numpy as np
@@ -252,15 +251,15 @@ def test_llg_raw_curves_are_kept_per_realisation(cfg, tmp_path, monkeypatch):
         assert list(h5["raw/3/1/mz"][:]) == [1.0, 1.0] and list(h5["raw/3/0/offsets"][:]) == [0, 2]
 
 
-def test_slurm_runtime_scales_with_realisations(tmp_path):
+def test_slurm_runtime_scales_with_realisations(tmp_path, evaluate_slurm_resource):
     """profiles/slurm's simulate_family runtime, evaluated as Snakemake does (a Python expression with
-    the job's input, whose named entries are lists of paths): 240 min times the R of the job's config.json."""
+    the job's input, built as Snakemake builds it): 240 min times the R of the job's config.json."""
     expression = yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())[
         "set-resources"]["simulate_family"]["runtime"]
     path = tmp_path / "config.json"
     for cfg, minutes in (({"seed": 1}, 240), ({"seed": 1, "realisations": 4}, 960)):
         path.write_text(json.dumps(cfg))
-        assert eval(expression, {"input": SimpleNamespace(config=[str(path)])}) == minutes
+        assert evaluate_slurm_resource(expression, path) == minutes
 
 
 @pytest.mark.slow

@@ -67,27 +67,18 @@ def test_wildcards_are_constrained(tmp_path):
         assert bad.returncode != 0 and "MissingRuleException" in text, (target, text[-2000:])
 
 
-def test_slurm_profile_resource_expressions_evaluate_on_the_rules_inputs(tmp_path):
+def test_slurm_profile_resource_expressions_evaluate_on_the_rules_inputs(tmp_path, evaluate_slurm_resource):
     """A string resource in profiles/slurm is a Python expression Snakemake evaluates per job with the
     job's `input`. A rule input given as another rule's output (`rules.resolve_config.output`) is a
     list, so `input.config` is a Namedlist, not a path: this ran only on a real Slurm in CI and broke
     there (TypeError at the first simulate_family job). Evaluated here the way Snakemake does it, on
     an input built the way Snakemake builds it, with a config.json asking for 3 realisations."""
-    import asyncio
-
-    from snakemake.iocontainers import InputFiles
-    from snakemake.resources import Resource
-
-    def evaluate(text):  # what Snakemake runs for a `--set-resources` / profile string
-        return Resource.cli_evaluator("resource", text, wildcards=None, input=job_input, attempt=1, threads=1,
-                                      async_run=asyncio.run)
-
     config = tmp_path / "config.json"
     config.write_text('{"realisations": 3}')
-    job_input = InputFiles([str(config), "params.parquet", "screen.parquet"])
-    job_input._set_name("config", 0, end=1)  # a list-valued named input, as rules.resolve_config.output
-    job_input._set_name("params", 1)
-    job_input._set_name("screen", 2)
+
+    def evaluate(text):
+        return evaluate_slurm_resource(text, config)
+
     profile = yaml.safe_load((ROOT / "profiles" / "slurm" / "config.yaml").read_text())
     expressions = {(rule, name): value for rule, resources in profile["set-resources"].items()
                    for name, value in resources.items() if isinstance(value, str)}
