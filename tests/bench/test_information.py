@@ -232,3 +232,29 @@ def test_paired_comparison_on_shared_fiducials():
     d = out["per_parameter"]["D"]["crb_conditional_matched"]
     assert d["ratios"] == [0.5, 0.0] and d["film_tighter"] == 2
     assert out["per_parameter"]["D"]["crb_single"]["film_tighter"] == 1
+
+
+def _film_row(matched, lw, eligible=True, regimes=None):
+    row = {"main_job": {"eligible": eligible},
+           "matched_bound_at_one_core_hour": dict(zip(("A_ex", "D", "N_pin"), matched)),
+           "bound_at_one_core_hour": dict(zip(("A_ex", "D", "N_pin"), lw))}
+    if regimes:
+        row["regimes"] = regimes
+    return row
+
+
+def test_choose_film_decides_on_the_conservative_bound_not_ledoit_wolf():
+    """The Ledoit–Wolf bound is 4x optimistic at R = 8 on the closed-form check: a film that wins only
+    by it must lose; ineligible films, single-regime films and an unidentified parameter do not win."""
+    from forcdecode.bench.information_films import choose_film
+
+    films = {"a": _film_row([0.1, 0.2, 0.2], [0.001, 0.002, 0.002]),   # wins on LW only
+             "b": _film_row([0.05, 0.1, 0.1], [0.01, 0.02, 0.02]),      # wins on the matched filter
+             "c": _film_row([0.01, 0.01, 0.01], [0.001, 0.001, 0.001], eligible=False),
+             "d": _film_row([0.01, 0.01, 0.01], [0.001, 0.001, 0.001], regimes=["spirals"])}
+    choice = choose_film(films)
+    assert choice["film"] == "b"
+    assert choice["scores"]["b"] == pytest.approx((0.05 * 0.1 * 0.1) ** (1 / 3))
+    assert choice["scores_ledoit_wolf"]["a"] < choice["scores_ledoit_wolf"]["b"]
+    assert set(choice["scores"]) == {"a", "b"}
+    assert choose_film({"a": _film_row([0.1, None, 0.2], [0.001, 0.002, 0.002])})["film"] is None
