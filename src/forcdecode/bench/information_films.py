@@ -70,9 +70,9 @@ period 4πA_ex/|D| is 103–133 nm at the laptop map's two spiral fiducials), in
 ≈ 32 nm as in the laptop film (72 in 272² nm²)."""
 
 NOT_MEASURED = {
-    "paper": "256x256x2: a family costs ~100x the laptop's; >= 2 fiducials x 9 points x R >= 4 is days of "
-             "2 shared cores",
-    "laptop_llg": "the LLG sweep-rate protocol is ~200x dearer than quasi-static (config/README.md): not in "
+    "paper": "256x256x2: a family costs ~340x the laptop's (729 CPU-s, docs/films.md); >= 2 fiducials x 9 points x "
+             "R >= 4 is days of 2 shared cores, and no GPU machine was lent",
+    "laptop_llg": "the LLG sweep-rate protocol is ~360x dearer than quasi-static (docs/engine.md, 2026-11-28): not in "
                   "this session's budget",
 }
 NOT_YET = {
