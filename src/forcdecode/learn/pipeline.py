@@ -192,24 +192,33 @@ def train_parameter(data: LearningData, name: str, settings: dict, seed: int, mo
     fractions = sorted(float(f) for f in settings["learning_curve"])
     sizes = [max(2, int(round(f * len(train)))) for f in fractions]
     curve_mae = {split: np.full((len(sizes), n_seeds), np.nan) for split in ("validation", "test")}
+    # every curve fit's validation predictions, so that two runs (e.g. R = 1 and R = 4) can be compared
+    # sample by sample on the validation ids they share (forcdecode bench realisations)
+    curve_validation = np.full((len(sizes), n_seeds, len(val)), np.nan)
     scored = {"validation": val, "test": test}
     for k in range(n_seeds):
         order = stream_rng(seed, "learning_curve", name, k).permutation(train)
         for i, size in enumerate(sizes):
             if size >= len(train):
+                curve_validation[i, k] = member_predictions[k, val]
                 for split, index in scored.items():
                     curve_mae[split][i, k] = float(np.abs(member_predictions[k, index] - u[index]).mean())
                 continue
             log(f"{name}: learning curve, {size} training samples, seed {k + 1}/{n_seeds}")
             partial = _fit(data, u, order[:size], val, settings, stream_seed(seed, "learning_curve", name, k, size))
             for split, index in scored.items():
-                curve_mae[split][i, k] = float(np.abs(partial.predict(data.images[index], data.ms_norm[index],
-                                                                      readout_method) - u[index]).mean())
+                predicted = partial.predict(data.images[index], data.ms_norm[index], readout_method)
+                if split == "validation":
+                    curve_validation[i, k] = predicted
+                curve_mae[split][i, k] = float(np.abs(predicted - u[index]).mean())
     timings["learning_curve_s"] = time.perf_counter() - started
     paper = PAPER_FIGURES.get(name)
     curve = {"fractions": fractions, "sizes": [min(s, len(train)) for s in sizes],
              "mae": curve_mae["test"].tolist(), "evaluated_on": "test",
              "mae_validation": curve_mae["validation"].tolist(),
+             "validation_sample_ids": [int(i) for i in data.sample_id[val]],
+             "validation_truth": u[val].tolist(),
+             "validation_predictions": curve_validation.tolist(),
              # the trivial predictors on the validation split, to turn its MAE into skill
              "baselines_validation": {"prior": float(np.abs(prior - u[val]).mean()),
                                       "ms_only": float(np.abs(ms_only[val] - u[val]).mean())},
