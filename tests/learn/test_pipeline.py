@@ -74,6 +74,11 @@ def test_alice_learns_and_reports_on_the_test_split_only(trained):
     val = frame[frame["split"] == "validation"]
     assert curve["mae_validation"][-1][0] == pytest.approx(np.abs(val["prediction"] - val["target"]).mean())
     assert curve["mae"][-1][0] == pytest.approx(metrics["mae"])
+    # each fit's validation predictions are kept (paired comparisons of runs): they give its MAE
+    kept = np.asarray(curve["validation_predictions"])
+    assert kept.shape == (2, 2, len(val)) and curve["validation_sample_ids"] == val["sample_id"].tolist()
+    assert np.abs(kept - np.asarray(curve["validation_truth"])).mean(axis=2) == pytest.approx(
+        np.asarray(curve["mae_validation"]))
     prior = np.median(frame.loc[frame["split"] == "train", "target"])
     assert curve["baselines_validation"]["prior"] == pytest.approx(np.abs(prior - val["target"]).mean())
     assert curve["baselines_validation"]["ms_only"] == pytest.approx(

@@ -1,4 +1,4 @@
-"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
+"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|realisations|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
 line is one JSON object."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import os
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..infer.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "fit", "ood", "information",
-                                           "prior-class"], help="what to benchmark")
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "realisations", "fit", "ood",
+                                           "information", "prior-class"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -77,7 +77,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                       "box128=results/films_learning/box128/results"],
                        help="film-learning: NAME=RESULTS_DIR of workflow runs up to metrics.json (default: the runs of "
                             "config/films/laptop_8nm_grains.yaml, config/config.yaml and config/films/box128.yaml "
-                            "named in README)")
+                            "named in README); realisations: RUN_A RUN_B, two results folders whose learning stage "
+                            "ran (default: those of config/experiments/realisations_R1.yaml and _R4.yaml)")
+    films.add_argument("--realisations-out", default="results/bench/realisations",
+                       help="realisations: summary.json and realisations.png")
     films.add_argument("--learning-out", default="results/bench/film_learning",
                        help="film-learning: summary.json and film_learning.png")
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
@@ -158,6 +161,8 @@ def run(args) -> int:
         return _bench_films(args, say)
     if args.target == "film-learning":
         return _bench_film_learning(args, say)
+    if args.target == "realisations":
+        return _bench_realisations(args, say)
     if args.target == "fit":
         return _bench_fit(args, say)
     if args.target == "ood":
@@ -311,6 +316,30 @@ def _bench_learn(args, say) -> int:
         say(f"wrote {args.out}")
     if args.json:
         print(json.dumps(result))
+    return 0
+
+
+REALISATION_RUNS = ("results/realisations/R1", "results/realisations/R4")
+"""The runs of config/experiments/realisations_R1.yaml and _R4.yaml (docs/results/2026-11-29-realisations.md)."""
+
+
+def _bench_realisations(args, say) -> int:
+    from ..core.errors import ConfigError
+    from ..core.io import write_json
+    from . import realisations
+
+    runs = list(args.runs)
+    if any("=" in r for r in runs):  # film-learning's NAME=DIR default: not given for this target
+        runs = list(REALISATION_RUNS)
+    if len(runs) != 2:
+        raise ConfigError(f"realisations --runs: expected two results folders, RUN_A RUN_B (got {len(runs)})")
+    result = realisations.compare(*runs)
+    write_json(f"{args.realisations_out}/summary.json", result)
+    realisations.figure(result, f"{args.realisations_out}/realisations.png")
+    for line in realisations.summary_lines(result):
+        say(line)
+    if args.json:
+        print(json.dumps({k: result[k] for k in ("points", "decision", "rule")}))
     return 0
 
 

@@ -1,0 +1,195 @@
+"""Training on families averaged over R disorder realisations against R = 1, at equal core-hours.
+
+A measured film is millimetres wide: its FORC family is the mean over very many patches of the
+simulated box. With ``realisations: R`` each training sample is the mean family of R films that differ
+only in their disorder, at R times the cost of a family, so at a fixed simulation budget R = 4 buys a
+quarter of the samples, each less noisy. This bench reads two finished learning stages of the workflow
+(run A, run B: ``learn/NAME_metrics.json`` with the learning curve's validation predictions,
+``samples.parquet``, ``config.json``) and compares them sample by sample:
+
+- cost of a curve point: size / n_train × the simulation CPU of the whole dataset (every draw's
+  screening, rejected ones included, and every family, all R realisations);
+- per validation id the two runs share (the split is a hash of the sample id, so an id is in
+  validation in both), the absolute error in the normalized units of the MAE tables, averaged over the
+  weight seeds; each run's networks read their own dataset's image of that id (A's one realisation, B's
+  mean of R);
+- each of B's curve points against A's point of nearest cost: the paired difference B − A of the mean
+  absolute error with a 90 % bootstrap interval over the shared ids (the same resamples for every
+  parameter, so the mean over parameters gets one too).
+
+Decision rule (docs/results/2026-11-29-realisations.md, fixed before the runs): at the largest matched
+point, B replaces A when the 90 % interval of the mean over parameters of B − A lies below 0.
+Validation also stops the training (early stopping), which biases both runs' figures the same way.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..core.errors import InputFileError
+from ..core.streams import stream_rng
+
+N_BOOT = 2000
+
+
+def _simulation_cpu_s(samples: pd.DataFrame) -> float:
+    """CPU seconds of every screening and every family of a run (``samples.parquet``)."""
+    for column in ("screen_cpu_s", "family_cpu_s"):
+        if column not in samples or not samples[column].notna().any():
+            raise InputFileError(f"samples.parquet has no {column}: the run predates CPU accounting")
+    return float(samples["screen_cpu_s"].fillna(0.0).sum() + samples["family_cpu_s"].fillna(0.0).sum())
+
+
+def load_run(results_dir) -> dict:
+    """One run's learning curves with their validation predictions, and what its points cost."""
+    results_dir = Path(results_dir)
+    try:
+        samples = pd.read_parquet(results_dir / "samples.parquet")
+        config = json.loads((results_dir / "config.json").read_text())
+    except FileNotFoundError as error:
+        raise InputFileError(f"{results_dir}: not a finished dataset ({error.filename} missing)") from None
+    curves = {}
+    for path in sorted((results_dir / "learn").glob("*_metrics.json")):
+        curve = json.loads(path.read_text()).get("learning_curve", {})
+        if "validation_predictions" not in curve:
+            raise InputFileError(f"{path}: its learning curve has no validation predictions (a run before "
+                                 "2026-11-29); rerun its train_parameter jobs")
+        curves[path.name[: -len("_metrics.json")]] = curve
+    if not curves:
+        raise InputFileError(f"{results_dir}/learn: no *_metrics.json (the learning stage has not run)")
+    total_s = _simulation_cpu_s(samples)
+    out = {"results": str(results_dir), "realisations": int(config.get("realisations", 1)),
+           "n_draws": int(len(samples)), "n_dataset": int(samples["in_dataset"].sum()),
+           "simulation_core_s": total_s, "parameters": {}}
+    for name, curve in curves.items():
+        sizes = np.asarray(curve["sizes"], dtype=float)
+        n_train = sizes.max()
+        out["parameters"][name] = {
+            "sizes": sizes.astype(int).tolist(),
+            "core_hours": (sizes / n_train * total_s / 3600.0).tolist(),
+            "ids": np.asarray(curve["validation_sample_ids"], dtype=np.int64),
+            "truth": np.asarray(curve["validation_truth"], dtype=float),
+            "predictions": np.asarray(curve["validation_predictions"], dtype=float),  # sizes × seeds × ids
+            "mae_validation": np.nanmean(np.asarray(curve["mae_validation"], dtype=float), axis=1).tolist(),
+            "baselines_validation": curve["baselines_validation"],
+        }
+    return out
+
+
+def _shared(a: dict, b: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shared validation ids and their positions in each run; the truths must agree."""
+    shared, ia, ib = np.intersect1d(a["ids"], b["ids"], return_indices=True)
+    if shared.size < 2:
+        raise InputFileError(f"the runs share {shared.size} validation ids: nothing to pair")
+    if not np.allclose(a["truth"][ia], b["truth"][ib], atol=1e-9):
+        raise InputFileError("the runs' normalized truths differ on shared ids: not the same Hamiltonians")
+    return shared, ia, ib
+
+
+def _seed_mean_abs_error(entry: dict, point: int, index: np.ndarray) -> np.ndarray:
+    return np.nanmean(np.abs(entry["predictions"][point][:, index] - entry["truth"][index]), axis=0)
+
+
+def _interval(values: np.ndarray, resamples: np.ndarray) -> list[float]:
+    means = values[resamples].mean(axis=1)
+    return [float(np.quantile(means, 0.05)), float(np.quantile(means, 0.95))]
+
+
+def compare(run_a, run_b, seed: int = 0) -> dict:
+    """Paired comparison of run B against run A at matched core-hours (see the module docstring)."""
+    a, b = load_run(run_a), load_run(run_b)
+    parameters = sorted(set(a["parameters"]) & set(b["parameters"]))
+    if not parameters:
+        raise InputFileError("the runs have no learned parameter in common")
+    shared, _, _ = _shared(a["parameters"][parameters[0]], b["parameters"][parameters[0]])
+    rng = stream_rng(seed, "bootstrap", "realisations")
+    resamples = rng.integers(0, shared.size, size=(N_BOOT, shared.size))
+    points = []
+    for j, cost_b in enumerate(b["parameters"][parameters[0]]["core_hours"]):
+        costs_a = np.asarray(a["parameters"][parameters[0]]["core_hours"])
+        i = int(np.argmin(np.abs(np.log(costs_a) - np.log(cost_b))))
+        row = {"b_point": j, "a_point": i, "b_size": b["parameters"][parameters[0]]["sizes"][j],
+               "a_size": a["parameters"][parameters[0]]["sizes"][i], "b_core_hours": cost_b,
+               "a_core_hours": float(costs_a[i]), "cost_ratio_b_over_a": float(cost_b / costs_a[i]),
+               "n_shared": int(shared.size), "parameters": {}}
+        differences = []
+        for p in parameters:
+            ea, eb = a["parameters"][p], b["parameters"][p]
+            _, ia, ib = _shared(ea, eb)
+            err_a, err_b = _seed_mean_abs_error(ea, i, ia), _seed_mean_abs_error(eb, j, ib)
+            diff = err_b - err_a
+            differences.append(diff)
+            row["parameters"][p] = {"mae_a": float(err_a.mean()), "mae_b": float(err_b.mean()),
+                                    "difference_b_minus_a": float(diff.mean()),
+                                    "difference_ci90": _interval(diff, resamples)}
+        mean_diff = np.mean(differences, axis=0)
+        row["mean_difference_b_minus_a"] = float(mean_diff.mean())
+        row["mean_difference_ci90"] = _interval(mean_diff, resamples)
+        points.append(row)
+    matched = [r for r in points if 0.5 <= r["cost_ratio_b_over_a"] <= 2.0]
+    decisive = max(matched, key=lambda r: r["b_core_hours"]) if matched else None
+    if decisive is None:
+        decision = "no matched point (cost ratio within 0.5-2)"
+    elif decisive["mean_difference_ci90"][1] < 0:
+        decision = f"B (R = {b['realisations']})"
+    else:
+        decision = f"A (R = {a['realisations']}) stays"
+    strip = {"ids", "truth", "predictions"}
+    runs = {key: {**run, "parameters": {p: {k: v for k, v in e.items() if k not in strip}
+                                        for p, e in run["parameters"].items()}}
+            for key, run in (("A", a), ("B", b))}
+    return {"runs": runs, "parameters": parameters, "points": points,
+            "decisive_point": None if decisive is None else decisive["b_point"], "decision": decision,
+            "rule": "at the largest matched point (cost ratio within 0.5-2), B when the 90 % bootstrap interval "
+                    "of the mean over parameters of the paired validation MAE difference B - A lies below 0"}
+
+
+def summary_lines(result: dict) -> list[str]:
+    lines = []
+    for key, run in result["runs"].items():
+        lines.append(f"{key}: R = {run['realisations']}, {run['n_dataset']} of {run['n_draws']} draws in the dataset, "
+                     f"{run['simulation_core_s'] / 3600:.2f} core-h of simulation ({run['results']})")
+    for row in result["points"]:
+        lines.append(f"B {row['b_size']} train ({row['b_core_hours']:.3f} core-h) vs A {row['a_size']} train "
+                     f"({row['a_core_hours']:.3f} core-h, ratio {row['cost_ratio_b_over_a']:.2f}), "
+                     f"{row['n_shared']} shared validation ids:")
+        for p, v in row["parameters"].items():
+            lines.append(f"    {p:>6}: MAE A {v['mae_a']:.3f}, B {v['mae_b']:.3f}, B - A {v['difference_b_minus_a']:+.3f} "
+                         f"[{v['difference_ci90'][0]:+.3f}, {v['difference_ci90'][1]:+.3f}]")
+        lines.append(f"    mean over parameters: B - A {row['mean_difference_b_minus_a']:+.3f} "
+                     f"[{row['mean_difference_ci90'][0]:+.3f}, {row['mean_difference_ci90'][1]:+.3f}]")
+    lines.append(f"decision: {result['decision']} ({result['rule']})")
+    return lines
+
+
+def figure(result: dict, out_path) -> None:
+    """Validation MAE (mean over seeds, each run's whole validation split) against core-hours."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    parameters = result["parameters"]
+    fig, axes = plt.subplots(1, len(parameters), figsize=(3.6 * len(parameters), 3.2), squeeze=False)
+    for ax, p in zip(axes.flat, parameters):
+        for key, run in result["runs"].items():
+            entry = run["parameters"][p]
+            ax.plot(entry["core_hours"], entry["mae_validation"], marker="o", label=f"{key}: R = {run['realisations']}")
+        trivial = min(result["runs"]["A"]["parameters"][p]["baselines_validation"].values())
+        ax.axhline(trivial, color="grey", ls=":", lw=0.8, label="best trivial (A)")
+        ax.set_xscale("log")
+        ax.set_title(p)
+        ax.set_xlabel("simulation core-hours")
+        ax.set_ylabel("validation MAE (normalized)")
+    axes.flat[0].legend(fontsize=8)
+    fig.tight_layout()
+    Path(out_path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_path, dpi=120)
+    plt.close(fig)
+
+
+__all__ = ["load_run", "compare", "summary_lines", "figure"]

@@ -1,0 +1,84 @@
+"""R = 4 against R = 1 at equal core-hours (bench/realisations.py) on synthetic runs whose answer is
+known: costs, matched points, the paired difference and the decision rule."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from forcdecode.bench.realisations import compare, figure, load_run, summary_lines
+from forcdecode.core.errors import InputFileError
+
+IDS = np.arange(0, 200, 2)  # validation ids of run A; run B (fewer draws) holds those below 100
+TRUTH = np.linspace(0.1, 0.9, IDS.size)
+
+
+def write_run(folder, realisations, n_draws, screen_cpu, family_cpu, sizes, errors, ids=IDS, truth=TRUTH):
+    """A finished learning stage: ``errors[point]`` is the absolute error of every seed at every id
+    (the sign alternates between ids), so the MAE of a point is exactly that error."""
+    (folder / "learn").mkdir(parents=True)
+    pd.DataFrame({"sample_id": np.arange(n_draws), "in_dataset": np.arange(n_draws) % 2 == 0,
+                  "screen_cpu_s": screen_cpu, "family_cpu_s": np.where(np.arange(n_draws) % 2 == 0, family_cpu, np.nan)}
+                 ).to_parquet(folder / "samples.parquet")
+    (folder / "config.json").write_text(json.dumps({"seed": 3, "realisations": realisations}))
+    keep = ids < n_draws
+    sign = np.where(np.arange(keep.sum()) % 2 == 0, 1.0, -1.0)
+    predictions = [[(truth[keep] + sign * e).tolist()] * 2 for e in errors]  # 2 seeds
+    for name in ("K_u", "D"):
+        curve = {"sizes": sizes, "mae_validation": [[e, e] for e in errors],
+                 "baselines_validation": {"prior": 0.3, "ms_only": 0.25},
+                 "validation_sample_ids": ids[keep].tolist(), "validation_truth": truth[keep].tolist(),
+                 "validation_predictions": predictions}
+        (folder / "learn" / f"{name}_metrics.json").write_text(json.dumps({"learning_curve": curve}))
+
+
+def test_costs_matched_points_and_a_better_b_is_chosen(tmp_path):
+    # A: 200 draws at 1 CPU-s screening, 100 families at 3 CPU-s: 500 CPU-s; B: 100 draws, 50 families at
+    # 12 CPU-s (4 realisations): 700 CPU-s. B's points at sizes 10, 20, 40 of 40.
+    write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [20, 40, 80], [0.20, 0.15, 0.12])
+    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [10, 20, 40], [0.16, 0.10, 0.08])
+    run = load_run(tmp_path / "b")
+    assert run["simulation_core_s"] == pytest.approx(700.0) and run["realisations"] == 4
+    assert run["parameters"]["K_u"]["core_hours"] == pytest.approx([175 / 3600, 350 / 3600, 700 / 3600])
+    result = compare(tmp_path / "a", tmp_path / "b")
+    # A costs 125, 250, 500 CPU-s at its points: B's 175 -> 125 (log-nearest: 1.40 vs 1.43), 350 -> 250, 700 -> 500
+    assert [(r["b_point"], r["a_point"]) for r in result["points"]] == [(0, 0), (1, 1), (2, 2)]
+    last = result["points"][-1]
+    assert last["n_shared"] == 50 and last["cost_ratio_b_over_a"] == pytest.approx(1.4)
+    assert last["parameters"]["K_u"]["difference_b_minus_a"] == pytest.approx(0.08 - 0.12)
+    assert last["mean_difference_ci90"][1] < 0  # constant per-id difference: a degenerate interval
+    assert result["decisive_point"] == 2 and result["decision"].startswith("B")
+    assert any("decision" in line for line in summary_lines(result))
+    figure(result, tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_a_b_no_better_keeps_a(tmp_path):
+    # B better on half the ids, worse on the other half by the same amount: interval straddles 0
+    rng = np.random.default_rng(0)
+    write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [40, 80], [0.10, 0.10])
+    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [20, 40], [0.10, 0.10])
+    data = json.loads((tmp_path / "b" / "learn" / "K_u_metrics.json").read_text())
+    curve = data["learning_curve"]
+    truth = np.asarray(curve["validation_truth"])
+    noise = rng.normal(0, 0.05, truth.size)
+    curve["validation_predictions"] = [[(truth + 0.10 + noise).tolist()] * 2] * 2
+    (tmp_path / "b" / "learn" / "K_u_metrics.json").write_text(json.dumps(data))
+    result = compare(tmp_path / "a", tmp_path / "b")
+    low, high = result["points"][-1]["mean_difference_ci90"]
+    assert low < 0 < high
+    assert result["decision"].startswith("A")
+
+
+def test_runs_of_other_hamiltonians_or_without_predictions_are_refused(tmp_path):
+    write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [40, 80], [0.10, 0.10])
+    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [20, 40], [0.10, 0.10], truth=TRUTH + 0.01)
+    with pytest.raises(InputFileError, match="truths differ"):
+        compare(tmp_path / "a", tmp_path / "b")
+    old = tmp_path / "b" / "learn" / "D_metrics.json"
+    data = json.loads(old.read_text())
+    del data["learning_curve"]["validation_predictions"]
+    old.write_text(json.dumps(data))
+    with pytest.raises(InputFileError, match="no validation predictions"):
+        load_run(tmp_path / "b")
