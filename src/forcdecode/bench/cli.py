@@ -1,4 +1,4 @@
-"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|realisations|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
+"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|realisations|prior-learning|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
 line is one JSON object."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import os
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..infer.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
 
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "realisations", "fit", "ood",
+    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "realisations", "prior-learning",
+                                           "fit", "ood",
                                            "information", "prior-class"], help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
@@ -78,7 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="film-learning: NAME=RESULTS_DIR of workflow runs up to metrics.json (default: the runs of "
                             "config/films/laptop_8nm_grains.yaml, config/config.yaml and config/films/box128.yaml "
                             "named in README); realisations: RUN_A RUN_B, two results folders whose learning stage "
-                            "ran (default: those of config/experiments/realisations_R1.yaml and _R4.yaml)")
+                            "ran (default: those of config/experiments/realisations_R1.yaml and _R4.yaml); prior-learning: RUN_A RUN_C "
+                            "(default: those of config/experiments/realisations_R1.yaml and prior_perpendicular.yaml)")
+    films.add_argument("--prior-learning-out", default="results/bench/prior_learning", help="prior-learning: summary.json")
     films.add_argument("--realisations-out", default="results/bench/realisations",
                        help="realisations: summary.json and realisations.png")
     films.add_argument("--learning-out", default="results/bench/film_learning",
@@ -163,6 +166,8 @@ def run(args) -> int:
         return _bench_film_learning(args, say)
     if args.target == "realisations":
         return _bench_realisations(args, say)
+    if args.target == "prior-learning":
+        return _bench_prior_learning(args, say)
     if args.target == "fit":
         return _bench_fit(args, say)
     if args.target == "ood":
@@ -324,22 +329,45 @@ REALISATION_RUNS = ("results/realisations/R1", "results/realisations/R4")
 
 
 def _bench_realisations(args, say) -> int:
-    from ..core.errors import ConfigError
     from ..core.io import write_json
     from . import realisations
 
-    runs = list(args.runs)
-    if any("=" in r for r in runs):  # film-learning's NAME=DIR default: not given for this target
-        runs = list(REALISATION_RUNS)
-    if len(runs) != 2:
-        raise ConfigError(f"realisations --runs: expected two results folders, RUN_A RUN_B (got {len(runs)})")
-    result = realisations.compare(*runs)
+    result = realisations.compare(*_two_runs(args, REALISATION_RUNS))
     write_json(f"{args.realisations_out}/summary.json", result)
     realisations.figure(result, f"{args.realisations_out}/realisations.png")
     for line in realisations.summary_lines(result):
         say(line)
     if args.json:
         print(json.dumps({k: result[k] for k in ("points", "decision", "rule")}))
+    return 0
+
+
+PRIOR_CLASS_RUNS = ("results/realisations/R1", "results/prior/perpendicular")
+"""The runs of config/experiments/realisations_R1.yaml (paper) and prior_perpendicular.yaml."""
+
+
+def _two_runs(args, default: tuple) -> list:
+    from ..core.errors import ConfigError
+
+    runs = list(args.runs)
+    if any("=" in r for r in runs):  # film-learning's NAME=DIR default: not given for this target
+        runs = list(default)
+    if len(runs) != 2:
+        raise ConfigError(f"{args.target} --runs: expected two results folders (got {len(runs)})")
+    return runs
+
+
+def _bench_prior_learning(args, say) -> int:
+    from ..core.io import write_json
+    from . import prior_learning
+
+    result = prior_learning.compare_classes(*_two_runs(args, PRIOR_CLASS_RUNS))
+    write_json(f"{args.prior_learning_out}/summary.json", result)
+    for line in prior_learning.summary_lines(result):
+        say(line)
+    if args.json:
+        print(json.dumps({k: result[k] for k in ("mean_mae_difference_c_minus_a", "mean_mae_difference_ci90",
+                                                 "decision", "rule")}))
     return 0
 
 

@@ -280,7 +280,7 @@ REGIMES = (("K_eff>0", "perpendicular films, K_eff = K_u - mu0 M_s^2/2 > 0"),
 """The two regimes of ``by_regime`` in metrics.json (the sign of the true K_eff)."""
 
 
-def _dataset_truth(dataset) -> tuple[dict, str]:
+def dataset_truth(dataset) -> tuple[dict, str]:
     """sample id -> true K_eff (J/m³) of the families of ``dataset`` (dataset.h5), and its prior class
     (``core.parameters.prior_class`` of the stored config; absent: paper). No images are read."""
     import h5py
@@ -302,7 +302,7 @@ def regime_metrics(predictions: dict, dataset) -> dict:
     trivial predictors (the prior, the train split's median; M_s only, the frame's ``ms_only_prediction``)
     and the skills 1 − MAE / MAE(baseline) over each. Point figures without intervals (a regime may hold
     a handful of test families: read the counts). ``prior_class``: the class the dataset was drawn from."""
-    keff, trained_on = _dataset_truth(dataset)
+    keff, trained_on = dataset_truth(dataset)
     out = {"definition": "test families by the sign of the true K_eff = K_u - mu0 M_s^2/2; MAE of u (normalized); "
                          "skill = 1 - MAE / MAE(baseline), baselines: prior (train median), ms_only (M_s-only k-NN)",
            "prior_class": trained_on, "regimes": dict(REGIMES), "counts": {}, "parameters": {}}
