@@ -35,17 +35,16 @@ def write_run(folder, realisations, n_draws, screen_cpu, family_cpu, sizes, erro
 
 def test_costs_matched_points_and_a_better_b_is_chosen(tmp_path):
     # A: 200 draws at 1 CPU-s screening, 100 families at 3 CPU-s: 500 CPU-s; B: 100 draws, 50 families at
-    # 12 CPU-s (4 realisations): 700 CPU-s. B's points at sizes 10, 20, 40 of 40.
+    # 8 CPU-s (4 realisations): 500 CPU-s. B's points at sizes 10, 20, 40 of 40, A's at 20, 40, 80 of 80.
     write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [20, 40, 80], [0.20, 0.15, 0.12])
-    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [10, 20, 40], [0.16, 0.10, 0.08])
+    write_run(tmp_path / "b", 4, 100, 1.0, 8.0, [10, 20, 40], [0.16, 0.10, 0.08])
     run = load_run(tmp_path / "b")
-    assert run["simulation_core_s"] == pytest.approx(700.0) and run["realisations"] == 4
-    assert run["parameters"]["K_u"]["core_hours"] == pytest.approx([175 / 3600, 350 / 3600, 700 / 3600])
+    assert run["simulation_core_s"] == pytest.approx(500.0) and run["realisations"] == 4
+    assert run["parameters"]["K_u"]["core_hours"] == pytest.approx([125 / 3600, 250 / 3600, 500 / 3600])
     result = compare(tmp_path / "a", tmp_path / "b")
-    # A costs 125, 250, 500 CPU-s at its points: B's 175 -> 125 (log-nearest: 1.40 vs 1.43), 350 -> 250, 700 -> 500
     assert [(r["b_point"], r["a_point"]) for r in result["points"]] == [(0, 0), (1, 1), (2, 2)]
     last = result["points"][-1]
-    assert last["n_shared"] == 50 and last["cost_ratio_b_over_a"] == pytest.approx(1.4)
+    assert last["n_shared"] == 50 and last["cost_ratio_b_over_a"] == pytest.approx(1.0)
     assert last["parameters"]["K_u"]["difference_b_minus_a"] == pytest.approx(0.08 - 0.12)
     assert last["mean_difference_ci90"][1] < 0  # constant per-id difference: a degenerate interval
     assert result["decisive_point"] == 2 and result["decision"].startswith("B")
@@ -54,11 +53,22 @@ def test_costs_matched_points_and_a_better_b_is_chosen(tmp_path):
     assert (tmp_path / "f.png").stat().st_size > 0
 
 
+def test_b_is_never_given_more_budget_than_a(tmp_path):
+    # B's families at 12 CPU-s: 700 CPU-s in all. Its points cost 175, 350, 700 CPU-s; A's 125, 250, 500.
+    # Nearest: 175 -> 125 (log-nearest: 1.40 vs 1.43), 350 -> 250, 700 -> 500, every ratio 1.4: none matched
+    write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [20, 40, 80], [0.20, 0.15, 0.12])
+    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [10, 20, 40], [0.16, 0.10, 0.08])
+    result = compare(tmp_path / "a", tmp_path / "b")
+    assert [(r["b_point"], r["a_point"]) for r in result["points"]] == [(0, 0), (1, 1), (2, 2)]
+    assert all(r["cost_ratio_b_over_a"] == pytest.approx(1.4) for r in result["points"])
+    assert result["decisive_point"] is None and result["decision"].startswith("no matched point")
+
+
 def test_a_b_no_better_keeps_a(tmp_path):
     # B better on half the ids, worse on the other half by the same amount: interval straddles 0
     rng = np.random.default_rng(0)
     write_run(tmp_path / "a", 1, 200, 1.0, 3.0, [40, 80], [0.10, 0.10])
-    write_run(tmp_path / "b", 4, 100, 1.0, 12.0, [20, 40], [0.10, 0.10])
+    write_run(tmp_path / "b", 4, 100, 1.0, 8.0, [20, 40], [0.10, 0.10])
     data = json.loads((tmp_path / "b" / "learn" / "K_u_metrics.json").read_text())
     curve = data["learning_curve"]
     truth = np.asarray(curve["validation_truth"])

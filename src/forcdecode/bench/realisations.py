@@ -13,7 +13,8 @@ quarter of the samples, each less noisy. This bench reads two finished learning 
   validation in both), the absolute error in the normalized units of the MAE tables, averaged over the
   weight seeds; each run's networks read their own dataset's image of that id (A's one realisation, B's
   mean of R);
-- each of B's curve points against A's point of nearest cost: the paired difference B − A of the mean
+- each of B's curve points against A's point of nearest cost (matched when B costs 0.5–1.1× A's): the
+  paired difference B − A of the mean
   absolute error with a 90 % bootstrap interval over the shared ids (the same resamples for every
   parameter, so the mean over parameters gets one too).
 
@@ -34,6 +35,10 @@ from ..core.errors import InputFileError
 from ..core.streams import stream_rng
 
 N_BOOT = 2000
+
+MATCH_RATIO = (0.5, 1.1)
+"""A point of B is matched to A's nearest when its cost is 0.5-1.1 times A's: B is never given more
+simulation than A (beyond 10 %), so a win of B is not bought with budget."""
 
 
 def _simulation_cpu_s(samples: pd.DataFrame) -> float:
@@ -130,10 +135,10 @@ def compare(run_a, run_b, seed: int = 0) -> dict:
         row["mean_difference_b_minus_a"] = float(mean_diff.mean())
         row["mean_difference_ci90"] = _interval(mean_diff, resamples)
         points.append(row)
-    matched = [r for r in points if 0.5 <= r["cost_ratio_b_over_a"] <= 2.0]
+    matched = [r for r in points if MATCH_RATIO[0] <= r["cost_ratio_b_over_a"] <= MATCH_RATIO[1]]
     decisive = max(matched, key=lambda r: r["b_core_hours"]) if matched else None
     if decisive is None:
-        decision = "no matched point (cost ratio within 0.5-2)"
+        decision = f"no matched point (cost ratio B/A within {MATCH_RATIO[0]}-{MATCH_RATIO[1]})"
     elif decisive["mean_difference_ci90"][1] < 0:
         decision = f"B (R = {b['realisations']})"
     else:
@@ -144,8 +149,9 @@ def compare(run_a, run_b, seed: int = 0) -> dict:
             for key, run in (("A", a), ("B", b))}
     return {"runs": runs, "parameters": parameters, "points": points,
             "decisive_point": None if decisive is None else decisive["b_point"], "decision": decision,
-            "rule": "at the largest matched point (cost ratio within 0.5-2), B when the 90 % bootstrap interval "
-                    "of the mean over parameters of the paired validation MAE difference B - A lies below 0"}
+            "rule": f"at the largest matched point (cost ratio B/A within {MATCH_RATIO[0]}-{MATCH_RATIO[1]}: B never "
+                    "gets more than 10 % more simulation than A), B when the 90 % bootstrap interval of the mean over "
+                    "parameters of the paired validation MAE difference B - A lies below 0"}
 
 
 def summary_lines(result: dict) -> list[str]:
