@@ -6,8 +6,9 @@ and ``learn/NAME_metrics.json`` with the learning curve's validation predictions
 validation families whose true K_eff = K_u − μ0 M_s²/2 is above 0 (a perpendicular film, what a thin-
 film lab measures):
 
-- per family and parameter the absolute error of the full-training-set networks in the normalized
-  units of the MAE tables, averaged over the weight seeds;
+- C's full training set against A's learning-curve point of matched simulation cost (C costs 0.5–1.1×
+  that point: never more simulation than A): per family and parameter the absolute error of those
+  networks in the normalized units of the MAE tables, averaged over the weight seeds;
 - per parameter the MAE and the skill over the best trivial predictor of that run on those families
   (the median of its K_eff > 0 training targets; its M_s-only k-NN's predictions), with the paired
   bootstrap interval of ``learn.scoring.skill_over_best_trivial``;
@@ -36,9 +37,10 @@ from ..learn.scoring import skill_over_best_trivial
 N_BOOT = 2000
 
 
-def load_class_run(results_dir) -> dict:
-    """Per parameter, the K_eff > 0 validation families of one run: truth, seed-mean prediction, the
-    two trivial predictors; and the run's class and simulation CPU."""
+def load_class_run(results_dir, point: int = -1) -> dict:
+    """Per parameter, the K_eff > 0 validation families of one run: truth, the seed-mean prediction of
+    the learning curve's point ``point`` (-1: the full training set), the two trivial predictors; and
+    the run's class, simulation CPU and the cost of every curve point (size / n_train × the CPU)."""
     results_dir = Path(results_dir)
     try:
         keff, prior_class = dataset_truth(results_dir / "dataset.h5")
@@ -61,7 +63,10 @@ def load_class_run(results_dir) -> dict:
         if train.empty:
             raise InputFileError(f"{results_dir}: no training family with K_eff > 0")
         ids = np.asarray(curve["validation_sample_ids"], dtype=np.int64)
-        seed_mean = np.nanmean(np.asarray(curve["validation_predictions"], dtype=float)[-1], axis=0)
+        seed_mean = np.nanmean(np.asarray(curve["validation_predictions"], dtype=float)[point], axis=0)
+        sizes = np.asarray(curve["sizes"], dtype=float)
+        out["curve_core_s"] = (sizes / sizes.max() * cpu).tolist()
+        out["point"], out["train_size"] = int(point % sizes.size), int(sizes[point])
         val = frame.set_index("sample_id").loc[ids]
         keep = (val["k_eff"] > 0).to_numpy()
         truth = np.asarray(curve["validation_truth"], dtype=float)[keep]
@@ -85,9 +90,28 @@ def _mean_error_per_family(run: dict, parameters) -> np.ndarray:
                    axis=0)
 
 
+MATCH_RATIO = (0.5, 1.1)
+"""C's full set is scored against A's learning-curve point whose simulation cost is nearest, among
+those C costs 0.5-1.1 times: C is never given more simulation than A (beyond 10 %)."""
+
+
+def matched_point(costs_a, cost_c: float) -> int:
+    """Index of A's curve point nearest (in log cost) to ``cost_c`` with cost_c / cost_a in MATCH_RATIO."""
+    costs_a = np.asarray(costs_a, dtype=float)
+    ratio = cost_c / costs_a
+    allowed = np.flatnonzero((ratio >= MATCH_RATIO[0]) & (ratio <= MATCH_RATIO[1]))
+    if allowed.size == 0:
+        raise InputFileError(f"no point of run A's learning curve costs within {MATCH_RATIO} of run C's "
+                             f"{cost_c:.0f} CPU-s (A's points: {np.round(costs_a).tolist()})")
+    return int(allowed[np.argmin(np.abs(np.log(ratio[allowed])))])
+
+
 def compare_classes(run_a, run_c, seed: int = 0) -> dict:
-    """Run C against run A on the K_eff > 0 validation families of each (see the module docstring)."""
-    a, c = load_class_run(run_a), load_class_run(run_c)
+    """Run C's full training set against run A at the learning-curve point of matched simulation cost,
+    on the K_eff > 0 validation families of each (see the module docstring)."""
+    c = load_class_run(run_c)
+    a = load_class_run(run_a)
+    a = load_class_run(run_a, matched_point(a["curve_core_s"], c["simulation_core_s"]))
     parameters = sorted(set(a["parameters"]) & set(c["parameters"]))
     if not parameters:
         raise InputFileError("the runs have no learned parameter in common")
@@ -109,6 +133,7 @@ def compare_classes(run_a, run_c, seed: int = 0) -> dict:
                                         for p, e in run["parameters"].items()}}
             for key, run in (("A", a), ("C", c))}
     return {"runs": runs, "parameters": parameters, "per_parameter": table,
+            "cost_ratio_c_over_a": float(c["simulation_core_s"] / a["curve_core_s"][a["point"]]),
             "mean_mae": {"A": float(err_a.mean()), "C": float(err_c.mean())},
             "mean_mae_difference_c_minus_a": difference, "mean_mae_difference_ci90": interval,
             "decision": decision,
@@ -122,7 +147,9 @@ def summary_lines(result: dict) -> list[str]:
         n = next(iter(run["parameters"].values()))["n_validation_k_eff_positive"]
         lines.append(f"{key}: prior {run['prior_class']}, {run['n_dataset']} of {run['n_draws']} draws in the dataset "
                      f"({100 * run['fraction_k_eff_positive']:.0f} % with K_eff > 0), {run['simulation_core_s'] / 3600:.2f} "
-                     f"core-h of simulation; {n} validation families with K_eff > 0 ({run['results']})")
+                     f"core-h of simulation; scored: {run['train_size']} training families "
+                     f"({run['curve_core_s'][run['point']] / 3600:.2f} core-h); {n} validation families with "
+                     f"K_eff > 0 ({run['results']})")
     for p, row in result["per_parameter"].items():
         cells = ", ".join(f"{k} MAE {v['mae']:.3f} skill {v['skill']:+.2f} [{v['skill_ci90'][0]:+.2f}, "
                           f"{v['skill_ci90'][1]:+.2f}] over {v['best_trivial']}" for k, v in row.items())
