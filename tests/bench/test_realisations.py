@@ -92,3 +92,53 @@ def test_runs_of_other_hamiltonians_or_without_predictions_are_refused(tmp_path)
     old.write_text(json.dumps(data))
     with pytest.raises(InputFileError, match="no validation predictions"):
         load_run(tmp_path / "b")
+
+
+def _zero_model(path, name, side):
+    """Alice/Bob with zero weights: the softmax readout gives the middle of the prior (u = 0.5) whatever
+    the image."""
+    import torch
+
+    from forcdecode.core.parameters import DEFAULT_BOUNDS
+    from forcdecode.learn.models import build_network
+
+    net = build_network("small", width=4, image_size=side)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.zero_()
+    torch.save({"format": "forcdecode-alice-bob/1", "parameter": name,
+                "architecture": {"model": "small", "width": 4, "image_size": side}, "readout": "softmax",
+                "bounds": {k: [float(v[0]), float(v[1])] for k, v in DEFAULT_BOUNDS.items()},
+                "alice_state": net.state_dict(), "bob_state": net.state_dict(), "validation_errors": [0.1, 0.2],
+                "conformal": {"levels": [0.9], "quantiles": {"0.9": 1.0}, "sigma_floor": 1e-4}}, path)
+
+
+def test_cross_reading_scores_each_network_on_both_runs_images(tmp_path):
+    import h5py
+
+    from forcdecode.bench.realisations import cross_reading
+    from forcdecode.core.parameters import denormalize
+
+    side = 16
+    for key, n_draws, cpu in (("a", 200, 3.0), ("b", 100, 8.0)):
+        write_run(tmp_path / key, 1 if key == "a" else 4, n_draws, 1.0, cpu, [20, 40], [0.1, 0.1])
+        ids = np.arange(n_draws)
+        u = (ids % 10) / 10 + 0.05                     # the same truth for an id in both runs
+        with h5py.File(tmp_path / key / "dataset.h5", "w") as h5:
+            h5["parameters"] = np.stack([np.full(n_draws, 8e5), denormalize("K_u", u), denormalize("D", u)], axis=1)
+            h5["parameters"].attrs["columns"] = ["Ms", "K_u", "D"]
+            h5["images"] = np.random.default_rng(0).integers(0, 255, (n_draws, side, side), dtype=np.uint8)
+            h5["sample_id"], h5["fields_T"] = ids, np.linspace(-1, 1, side)
+            h5.attrs["config_json"], h5.attrs["config_hash"] = json.dumps({}), key
+        (tmp_path / key / "models").mkdir()
+        for name in ("K_u", "D"):
+            _zero_model(tmp_path / key / "models" / f"{name}.pt", name, side)
+    result = cross_reading(tmp_path / "a", tmp_path / "b")
+    shared = IDS[IDS < 100]
+    expected = float(np.mean(np.abs(0.5 - ((shared % 10) / 10 + 0.05))))
+    for name in ("K_u", "D"):
+        row = result[name]
+        assert row["n_shared"] == shared.size
+        for key in ("A_net_on_A_images", "A_net_on_B_images", "B_net_on_A_images", "B_net_on_B_images"):
+            assert row[key] == pytest.approx(expected, abs=1e-6)
+        assert row["a_net_mean_images_minus_own"] == pytest.approx(0.0, abs=1e-6)

@@ -82,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "ran (default: those of config/experiments/realisations_R1.yaml and _R4.yaml); prior-learning: RUN_A RUN_C "
                             "(default: those of config/experiments/realisations_R1.yaml and prior_perpendicular.yaml)")
     films.add_argument("--prior-learning-out", default="results/bench/prior_learning", help="prior-learning: summary.json")
+    films.add_argument("--cross-reading", action="store_true",
+                       help="realisations: also each run's full-set networks on both runs' images of the shared "
+                            "validation ids (reads dataset.h5 and models/; reported only)")
     films.add_argument("--realisations-out", default="results/bench/realisations",
                        help="realisations: summary.json and realisations.png")
     films.add_argument("--learning-out", default="results/bench/film_learning",
@@ -332,7 +335,10 @@ def _bench_realisations(args, say) -> int:
     from ..core.io import write_json
     from . import realisations
 
-    result = realisations.compare(*_two_runs(args, REALISATION_RUNS))
+    runs = _two_runs(args, REALISATION_RUNS)
+    result = realisations.compare(*runs)
+    if args.cross_reading:
+        result["cross_reading"] = realisations.cross_reading(*runs)
     write_json(f"{args.realisations_out}/summary.json", result)
     realisations.figure(result, f"{args.realisations_out}/realisations.png")
     for line in realisations.summary_lines(result):

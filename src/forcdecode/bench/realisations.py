@@ -154,6 +154,43 @@ def compare(run_a, run_b, seed: int = 0) -> dict:
                     "parameters of the paired validation MAE difference B - A lies below 0"}
 
 
+def cross_reading(run_a, run_b, seed: int = 0) -> dict:
+    """Each run's full-set network (member 0, ``models/NAME.pt``, the one ``predict`` uses) on both
+    runs' images of the shared validation ids: A's single-realisation images and B's R-realisation
+    means. A measured film is an average over very many patches, so "A's network on B's images" is the
+    situation of a user whose decoder was trained on single realisations. Reported only (not part of
+    the decision). Per parameter: the four MAEs and, for A's network, the paired difference (mean
+    images − own images) with a 90 % bootstrap interval over the shared ids."""
+    from ..learn.data import load_dataset
+    from ..learn.predictor import ParameterModel
+
+    runs = {"A": Path(run_a), "B": Path(run_b)}
+    runs_loaded = {k: load_run(r) for k, r in runs.items()}
+    data = {k: load_dataset(r / "dataset.h5") for k, r in runs.items()}
+    parameters = sorted(set(runs_loaded["A"]["parameters"]) & set(runs_loaded["B"]["parameters"]))
+    rng = stream_rng(seed, "bootstrap", "realisations", "cross_reading")
+    out = {}
+    for p in parameters:
+        shared, _, _ = _shared(runs_loaded["A"]["parameters"][p], runs_loaded["B"]["parameters"][p])
+        position = {k: np.array([int(np.flatnonzero(d.sample_id == i)[0]) for i in shared]) for k, d in data.items()}
+        truth = data["A"].target(p)[position["A"]]
+        if not np.allclose(truth, data["B"].target(p)[position["B"]], atol=1e-9):
+            raise InputFileError(f"{p}: the runs' datasets disagree on the truth of shared ids")
+        ms = data["A"].values["Ms"][position["A"]]
+        errors = {}
+        for net in runs:
+            model = ParameterModel.load(runs[net] / "models" / f"{p}.pt")
+            for images in runs:
+                predicted = model.predict(data[images].images[position[images]], ms)["normalized"]
+                errors[f"{net}_net_on_{images}_images"] = np.abs(predicted - truth)
+        shift = errors["A_net_on_B_images"] - errors["A_net_on_A_images"]
+        resamples = rng.integers(0, shared.size, size=(N_BOOT, shared.size))
+        out[p] = {**{k: float(v.mean()) for k, v in errors.items()}, "n_shared": int(shared.size),
+                  "a_net_mean_images_minus_own": float(shift.mean()),
+                  "a_net_mean_images_minus_own_ci90": _interval(shift, resamples)}
+    return out
+
+
 def summary_lines(result: dict) -> list[str]:
     lines = []
     for key, run in result["runs"].items():
@@ -169,6 +206,12 @@ def summary_lines(result: dict) -> list[str]:
         lines.append(f"    mean over parameters: B - A {row['mean_difference_b_minus_a']:+.3f} "
                      f"[{row['mean_difference_ci90'][0]:+.3f}, {row['mean_difference_ci90'][1]:+.3f}]")
     lines.append(f"decision: {result['decision']} ({result['rule']})")
+    for p, v in result.get("cross_reading", {}).items():
+        lines.append(f"cross-reading {p:>6} ({v['n_shared']} ids, full-set networks, member 0): A's net on A's images "
+                     f"{v['A_net_on_A_images']:.3f}, on B's mean images {v['A_net_on_B_images']:.3f} "
+                     f"({v['a_net_mean_images_minus_own']:+.3f} [{v['a_net_mean_images_minus_own_ci90'][0]:+.3f}, "
+                     f"{v['a_net_mean_images_minus_own_ci90'][1]:+.3f}]); B's net on A's {v['B_net_on_A_images']:.3f}, "
+                     f"on B's {v['B_net_on_B_images']:.3f}")
     return lines
 
 
@@ -198,4 +241,4 @@ def figure(result: dict, out_path) -> None:
     plt.close(fig)
 
 
-__all__ = ["load_run", "compare", "summary_lines", "figure"]
+__all__ = ["load_run", "compare", "cross_reading", "summary_lines", "figure"]
