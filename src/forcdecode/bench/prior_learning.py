@@ -33,29 +33,26 @@ from ..core.errors import InputFileError
 from ..core.streams import stream_rng
 from ..learn.report import dataset_truth
 from ..learn.scoring import skill_over_best_trivial
+from .realisations import simulation_cpu_s, validation_curves
 
 N_BOOT = 2000
 
 
-def load_class_run(results_dir, point: int = -1) -> dict:
+def load_class_run(results_dir) -> dict:
     """Per parameter, the K_eff > 0 validation families of one run: truth, the seed-mean prediction of
-    the learning curve's point ``point`` (-1: the full training set), the two trivial predictors; and
-    the run's class, simulation CPU and the cost of every curve point (size / n_train × the CPU)."""
+    every learning-curve point (points × families), the two trivial predictors; and the run's class,
+    simulation CPU and the cost of every curve point (size / n_train × the CPU)."""
     results_dir = Path(results_dir)
     try:
         keff, prior_class = dataset_truth(results_dir / "dataset.h5")
         samples = pd.read_parquet(results_dir / "samples.parquet")
     except FileNotFoundError as error:
         raise InputFileError(f"{results_dir}: not a finished dataset ({error.filename} missing)") from None
-    cpu = float(samples["screen_cpu_s"].fillna(0.0).sum() + samples["family_cpu_s"].fillna(0.0).sum())
+    cpu = simulation_cpu_s(samples)
     out = {"results": str(results_dir), "prior_class": prior_class, "n_draws": int(len(samples)),
            "n_dataset": int(samples["in_dataset"].sum()), "simulation_core_s": cpu,
            "fraction_k_eff_positive": float(np.mean(np.array(list(keff.values())) > 0)), "parameters": {}}
-    for metrics_path in sorted((results_dir / "learn").glob("*_metrics.json")):
-        name = metrics_path.name[: -len("_metrics.json")]
-        curve = json.loads(metrics_path.read_text()).get("learning_curve", {})
-        if "validation_predictions" not in curve:
-            raise InputFileError(f"{metrics_path}: no validation predictions (a run before 2026-11-29)")
+    for name, (metrics_path, curve) in validation_curves(results_dir).items():
         frame = pd.read_parquet(results_dir / "learn" / f"{name}_predictions.parquet",
                                 columns=["sample_id", "split", "target", "ms_only_prediction"])
         frame["k_eff"] = [keff.get(int(s), np.nan) for s in frame["sample_id"]]
@@ -63,22 +60,28 @@ def load_class_run(results_dir, point: int = -1) -> dict:
         if train.empty:
             raise InputFileError(f"{results_dir}: no training family with K_eff > 0")
         ids = np.asarray(curve["validation_sample_ids"], dtype=np.int64)
-        seed_mean = np.nanmean(np.asarray(curve["validation_predictions"], dtype=float)[point], axis=0)
         sizes = np.asarray(curve["sizes"], dtype=float)
         out["curve_core_s"] = (sizes / sizes.max() * cpu).tolist()
-        out["point"], out["train_size"] = int(point % sizes.size), int(sizes[point])
+        out["curve_sizes"] = sizes.astype(int).tolist()
         val = frame.set_index("sample_id").loc[ids]
         keep = (val["k_eff"] > 0).to_numpy()
         truth = np.asarray(curve["validation_truth"], dtype=float)[keep]
         if not np.allclose(truth, val["target"].to_numpy(float)[keep], atol=1e-9):
             raise InputFileError(f"{metrics_path}: its validation truths disagree with the predictions file")
+        seed_means = np.nanmean(np.asarray(curve["validation_predictions"], dtype=float), axis=1)  # points × ids
         out["parameters"][name] = {
-            "ids": ids[keep], "truth": truth, "prediction": seed_mean[keep],
+            "ids": ids[keep], "truth": truth, "point_predictions": seed_means[:, keep],
             "prior": np.full(int(keep.sum()), float(np.median(train["target"]))),
             "ms_only": val["ms_only_prediction"].to_numpy(float)[keep]}
-    if not out["parameters"]:
-        raise InputFileError(f"{results_dir}/learn: no *_metrics.json (the learning stage has not run)")
     return out
+
+
+def at_point(run: dict, point: int = -1) -> dict:
+    """``run`` scored at its learning curve's point ``point`` (-1: the full training set): each
+    parameter's ``prediction`` is that point's seed mean; ``point`` and ``train_size`` are recorded."""
+    point = int(point % len(run["curve_sizes"]))
+    parameters = {p: {**e, "prediction": e["point_predictions"][point]} for p, e in run["parameters"].items()}
+    return {**run, "parameters": parameters, "point": point, "train_size": run["curve_sizes"][point]}
 
 
 def _mean_error_per_family(run: dict, parameters) -> np.ndarray:
@@ -109,9 +112,9 @@ def matched_point(costs_a, cost_c: float) -> int:
 def compare_classes(run_a, run_c, seed: int = 0) -> dict:
     """Run C's full training set against run A at the learning-curve point of matched simulation cost,
     on the K_eff > 0 validation families of each (see the module docstring)."""
-    c = load_class_run(run_c)
+    c = at_point(load_class_run(run_c))
     a = load_class_run(run_a)
-    a = load_class_run(run_a, matched_point(a["curve_core_s"], c["simulation_core_s"]))
+    a = at_point(a, matched_point(a["curve_core_s"], c["simulation_core_s"]))
     parameters = sorted(set(a["parameters"]) & set(c["parameters"]))
     if not parameters:
         raise InputFileError("the runs have no learned parameter in common")
@@ -161,4 +164,4 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
-__all__ = ["load_class_run", "compare_classes", "summary_lines"]
+__all__ = ["load_class_run", "at_point", "matched_point", "compare_classes", "summary_lines"]

@@ -41,12 +41,27 @@ MATCH_RATIO = (0.5, 1.1)
 simulation than A (beyond 10 %), so a win of B is not bought with budget."""
 
 
-def _simulation_cpu_s(samples: pd.DataFrame) -> float:
+def simulation_cpu_s(samples: pd.DataFrame) -> float:
     """CPU seconds of every screening and every family of a run (``samples.parquet``)."""
     for column in ("screen_cpu_s", "family_cpu_s"):
         if column not in samples or not samples[column].notna().any():
             raise InputFileError(f"samples.parquet has no {column}: the run predates CPU accounting")
     return float(samples["screen_cpu_s"].fillna(0.0).sum() + samples["family_cpu_s"].fillna(0.0).sum())
+
+
+def validation_curves(results_dir) -> dict:
+    """Parameter name → (path, learning curve) of every ``learn/NAME_metrics.json`` of a run, each
+    curve holding its fits' validation predictions (runs from 2026-11-29 on)."""
+    curves = {}
+    for path in sorted((Path(results_dir) / "learn").glob("*_metrics.json")):
+        curve = json.loads(path.read_text()).get("learning_curve", {})
+        if "validation_predictions" not in curve:
+            raise InputFileError(f"{path}: its learning curve has no validation predictions (a run before "
+                                 "2026-11-29); rerun its train_parameter jobs")
+        curves[path.name[: -len("_metrics.json")]] = (path, curve)
+    if not curves:
+        raise InputFileError(f"{results_dir}/learn: no *_metrics.json (the learning stage has not run)")
+    return curves
 
 
 def load_run(results_dir) -> dict:
@@ -57,20 +72,12 @@ def load_run(results_dir) -> dict:
         config = json.loads((results_dir / "config.json").read_text())
     except FileNotFoundError as error:
         raise InputFileError(f"{results_dir}: not a finished dataset ({error.filename} missing)") from None
-    curves = {}
-    for path in sorted((results_dir / "learn").glob("*_metrics.json")):
-        curve = json.loads(path.read_text()).get("learning_curve", {})
-        if "validation_predictions" not in curve:
-            raise InputFileError(f"{path}: its learning curve has no validation predictions (a run before "
-                                 "2026-11-29); rerun its train_parameter jobs")
-        curves[path.name[: -len("_metrics.json")]] = curve
-    if not curves:
-        raise InputFileError(f"{results_dir}/learn: no *_metrics.json (the learning stage has not run)")
-    total_s = _simulation_cpu_s(samples)
+    curves = validation_curves(results_dir)
+    total_s = simulation_cpu_s(samples)
     out = {"results": str(results_dir), "realisations": int(config.get("realisations", 1)),
            "n_draws": int(len(samples)), "n_dataset": int(samples["in_dataset"].sum()),
            "simulation_core_s": total_s, "parameters": {}}
-    for name, curve in curves.items():
+    for name, (_, curve) in curves.items():
         sizes = np.asarray(curve["sizes"], dtype=float)
         n_train = sizes.max()
         out["parameters"][name] = {
@@ -241,4 +248,4 @@ def figure(result: dict, out_path) -> None:
     plt.close(fig)
 
 
-__all__ = ["load_run", "compare", "cross_reading", "summary_lines", "figure"]
+__all__ = ["simulation_cpu_s", "validation_curves", "load_run", "compare", "cross_reading", "summary_lines", "figure"]
