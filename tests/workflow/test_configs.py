@@ -62,3 +62,33 @@ def test_the_prior_class_reaches_the_draw_and_the_default_stays_out_of_config_js
     assert cfg["prior"] == "perpendicular"
     assert (k_eff({"K_u": perpendicular["K_u"].to_numpy(), "Ms": perpendicular["Ms"].to_numpy()}) > 0).all()
     assert perpendicular["Ms"].equals(paper["Ms"]) and not perpendicular["K_u"].equals(paper["K_u"])
+
+
+def test_a_configfile_on_the_command_line_replaces_the_laptop_default(tmp_path):
+    """`--configfile paper.yaml` alone gives the paper's config with the schema's defaults for what it
+    leaves out (255 grains, the paper's prior class), not the laptop default's keys: Snakemake extends
+    a Snakefile's `configfile:` by the command line's files, so the Snakefile reads config.yaml only
+    when none is given (paper runs had the laptop's 16 grains before). Without --configfile the laptop
+    default is read."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    def resolved(workdir, *configfiles):
+        workdir.mkdir()
+        args = ("--configfile", *configfiles) if configfiles else ()
+        done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
+                               str(workdir), "--cores", "1", *args, "--", "results/config.json"],
+                              cwd=workdir, capture_output=True, text=True, timeout=300,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
+        assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+        return json.loads((workdir / "results" / "config.json").read_text())
+
+    laptop = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    paper = resolved(tmp_path / "paper", str(ROOT / "config" / "paper.yaml"))
+    assert paper["n_grains"] == 255 != laptop["n_grains"] and paper["mesh"]["nx"] == 256
+    assert "prior" not in paper  # the paper class, left out of config.json
+    default = resolved(tmp_path / "default")
+    assert default["n_grains"] == laptop["n_grains"] and default.get("prior", "paper") == laptop.get("prior", "paper")
+    assert default["mesh"] == laptop["mesh"]
