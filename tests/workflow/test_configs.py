@@ -1,5 +1,9 @@
 """Every shipped configuration passes the workflow's schema; the paper scale trains the paper's network."""
 
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -9,6 +13,19 @@ from snakemake.utils import validate
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = str(ROOT / "workflow" / "schemas" / "config.schema.yaml")
+
+
+def resolved_config(workdir, *args, target="results/config.json") -> dict:
+    """Snakemake with ``args`` (config files, overrides) up to ``target`` in a new ``workdir``; the
+    resolved results/config.json. The jobs run this checkout's package."""
+    workdir.mkdir()
+    done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
+                           str(workdir), "--cores", "1", *args, "--", target],
+                          cwd=workdir, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1",
+                               "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    return json.loads((workdir / "results" / "config.json").read_text())
 
 
 @pytest.mark.parametrize("name", ["config.yaml", "paper.yaml", "test.yaml"])
@@ -35,26 +52,15 @@ def test_the_prior_class_reaches_the_draw_and_the_default_stays_out_of_config_js
     """`prior: paper` (the default) is left out of results/config.json, so a dataset made before the key
     keeps its config.json (nothing reruns) and its config hash; `prior: perpendicular` is written there
     and the draw follows it (every K_eff > 0)."""
-    import json
-    import os
-    import subprocess
-    import sys
-
     import pandas as pd
 
     from forcdecode.core.parameters import k_eff
 
     def run(workdir, *config):
-        workdir.mkdir()
-        done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                               str(workdir), "--cores", "1", "--configfile", str(ROOT / "config" / "test.yaml"),
-                               *(("--config", *config) if config else ()), "--", "results/params/chunk_0000.parquet"],
-                              cwd=workdir, capture_output=True, text=True, timeout=300,
-                              env={**os.environ, "PYTHONUNBUFFERED": "1",  # the jobs run this checkout's package
-                                   "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
-        assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-        return (json.loads((workdir / "results" / "config.json").read_text()),
-                pd.read_parquet(workdir / "results" / "params" / "chunk_0000.parquet"))
+        chunk = "results/params/chunk_0000.parquet"
+        cfg = resolved_config(workdir, "--configfile", str(ROOT / "config" / "test.yaml"),
+                              *(("--config", *config) if config else ()), target=chunk)
+        return cfg, pd.read_parquet(workdir / chunk)
 
     cfg, paper = run(tmp_path / "paper")
     assert "prior" not in cfg
@@ -70,25 +76,10 @@ def test_a_configfile_on_the_command_line_replaces_the_laptop_default(tmp_path):
     a Snakefile's `configfile:` by the command line's files, so the Snakefile reads config.yaml only
     when none is given (paper runs had the laptop's 16 grains before). Without --configfile the laptop
     default is read."""
-    import json
-    import os
-    import subprocess
-    import sys
-
-    def resolved(workdir, *configfiles):
-        workdir.mkdir()
-        args = ("--configfile", *configfiles) if configfiles else ()
-        done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                               str(workdir), "--cores", "1", *args, "--", "results/config.json"],
-                              cwd=workdir, capture_output=True, text=True, timeout=300,
-                              env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
-        assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-        return json.loads((workdir / "results" / "config.json").read_text())
-
     laptop = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
-    paper = resolved(tmp_path / "paper", str(ROOT / "config" / "paper.yaml"))
+    paper = resolved_config(tmp_path / "paper", "--configfile", str(ROOT / "config" / "paper.yaml"))
     assert paper["n_grains"] == 255 != laptop["n_grains"] and paper["mesh"]["nx"] == 256
     assert "prior" not in paper  # the paper class, left out of config.json
-    default = resolved(tmp_path / "default")
+    default = resolved_config(tmp_path / "default")
     assert default["n_grains"] == laptop["n_grains"] and default.get("prior", "paper") == laptop.get("prior", "paper")
     assert default["mesh"] == laptop["mesh"]
