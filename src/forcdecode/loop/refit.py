@@ -54,14 +54,15 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
     """The search of the module docstring. ``measured``: the grid family (n × n, NaN below the
     diagonal); ``train_rows``: the curves (rows) fitted; ``effect``: an ``effects.Effect`` fitted on
     top at every evaluation (needs ``fields``; ``order`` default ``effects.measurement_clock``).
-    ``families``: a store {multipliers: re-simulated family} shared by searches of the same ``cfg``,
+    ``families``: a store {multipliers: (re-simulated family, its spread)} shared by searches of the same ``cfg``,
     ``params``, ``names``, ``n_profiles`` and ``key`` (e.g. on other training curves): a family in it
     is not re-simulated again, and each one re-simulated is added (the result is the same without it).
     Returns {"params", "multipliers", "objective", "objective_at_prediction", "evaluations",
-    "history" [(multipliers, objective)], "family" (the refitted re-simulation), "model" (with the
+    "history" [(multipliers, objective)], "family" (the refitted re-simulation), "spread" (the variance
+    of m between its ``n_profiles`` disorder profiles, ddof 1; zeros for one profile), "model" (with the
     effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
     from .effects import fit_effect, measurement_clock
-    from ..infer.resimulate import resimulate
+    from ..infer.resimulate import resimulate_with_spread
 
     measured = np.asarray(measured, float)
     names = tuple(names)
@@ -80,18 +81,19 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
         if multipliers in cache:
             return cache[multipliers][0]
         trial = {**params, **{n: float(params[n]) * m for n, m in zip(names, multipliers)}}
-        family = None if families is None else families.get(multipliers)
-        if family is None:
-            family = resimulate(cfg, trial, n_profiles=n_profiles, key=key)
+        stored = None if families is None else families.get(multipliers)
+        if stored is None:
+            stored = resimulate_with_spread(cfg, trial, n_profiles=n_profiles, key=key)
             if families is not None:
-                families[multipliers] = family
+                families[multipliers] = stored
+        family, spread = stored
         model, theta = family, {}
         if effect is not None and effect.parameters:
             values, _ = fit_effect(effect, measured, family, fields, order, list(train_rows))
             model = effect.model(family, fields, order, values)
             theta = dict(zip(effect.parameters, map(float, values)))
         value = _training_mse(measured, model, train_rows)
-        cache[multipliers] = (value, family, model, theta)
+        cache[multipliers] = (value, family, model, theta, spread)
         history.append((list(multipliers), value))
         if progress is not None:
             progress(len(cache), budget)
@@ -134,11 +136,30 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
             if not improved:
                 step /= 2
     best_key = min(cache, key=lambda k: cache[k][0])
-    value, family, model, theta = cache[best_key]
+    value, family, model, theta, spread = cache[best_key]
     refitted = {**params, **{n: float(params[n]) * m for n, m in zip(names, best_key)}}
     return {"params": refitted, "multipliers": dict(zip(names, best_key)), "objective": value,
             "objective_at_prediction": at_prediction, "evaluations": len(cache), "history": history,
-            "family": family, "model": model, "effect_parameters": theta}
+            "family": family, "spread": spread, "model": model, "effect_parameters": theta}
+
+
+def realisation_floor(profile_spread, n_profiles: int, null_squares) -> np.ndarray:
+    """The variance v of m between single disorder realisations of the refitted Hamiltonian at every
+    point (NaN below the diagonal): the structure test's disorder floor. Two estimates, pooled by their
+    degrees of freedom: the spread between the refit's own ``n_profiles`` profiles (ddof 1: P − 1
+    degrees of freedom) and, from each of R null films (another P-profile average), (pseudo − base)²,
+    whose mean is 2v/P (one degree of freedom each). v = ((P − 1)·v_profiles + R·v_null)/(P − 1 + R);
+    zeros when neither exists (one profile, no null film). Where a curve starts at a reversal field on
+    which the profiles disagree (one switched, one not: the family averages them), v is of order 1,
+    and a measured curve that followed one of them is not a structured residual."""
+    profile_spread = np.asarray(profile_spread, float)
+    dof_profiles, dof_null = max(n_profiles - 1, 0), len(null_squares)
+    if dof_profiles + dof_null == 0:
+        return np.zeros_like(profile_spread)
+    pooled = dof_profiles * profile_spread
+    if dof_null:
+        pooled = pooled + dof_null * (n_profiles / 2 * np.mean(null_squares, axis=0))
+    return pooled / (dof_profiles + dof_null)
 
 
 JOINT_TOLERANCE = 0.05
@@ -368,8 +389,9 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations. The same films
     give the structure test its disorder floor (unless ``analysis`` passes ``floor_variance``): the
     variance v between single realisations, from E[(pseudo − base)²] = 2v/P for two P-profile averages,
-    so a residual no larger than another film of the same Hamiltonian leaves is not reported as an
-    "unexplained structured residual".
+    pooled with the spread between the refit's own P profiles (``realisation_floor``; with R = 0 that
+    spread alone), so a residual no larger than another film of the same Hamiltonian leaves is not
+    reported as an "unexplained structured residual".
 
     ``field_shift``, ``drift``: the measurement's model-free evidence for a field shift and for a
     drift (``signatures``), which field-shift and drift candidates need (``analyse_residual``); the
@@ -419,9 +441,9 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                 **(physics_grids or {}))
     options = dict(every_k=every_k, cross_fit=cross_fit, seed=cfg["seed"] if seed is None else seed,
                    n_profiles=n_profiles, **candidates, **analysis)
-    null = None
+    null, squares = None, []
     if null_realisations > 0:
-        null, squares = {}, []
+        null = {}
         for r in range(null_realisations):
             # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
             # on the same curves (its residual is then the floor after a refit), else against ``base``
@@ -435,8 +457,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
             null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r, hamiltonian_floor=True))
-        if "floor_variance" not in options:
-            options["floor_variance"] = n_profiles / 2 * np.mean(squares, axis=0)  # NaN below the diagonal, as the families
+    if "floor_variance" not in options:
+        options["floor_variance"] = realisation_floor(refit["spread"], n_profiles, squares)
     if measured_points is not None:
         options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points,
                                                            key="refit_major_loop")
@@ -477,4 +499,5 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
 
 __all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit",
            "crossfit_refit_mse", "hamiltonian_change_explains", "joint_generalises", "measured_saturation",
+           "realisation_floor",
            "refit_ambiguity", "refit_hamiltonian", "simulated_shift_offsets", "with_refit_ambiguity"]
