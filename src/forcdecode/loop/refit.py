@@ -156,10 +156,12 @@ def realisation_floor(profile_spread, n_profiles: int, null_squares) -> np.ndarr
     dof_profiles, dof_null = max(n_profiles - 1, 0), len(null_squares)
     if dof_profiles + dof_null == 0:
         return np.zeros_like(profile_spread)
-    pooled = dof_profiles * profile_spread
-    if dof_null:
-        pooled = pooled + dof_null * (n_profiles / 2 * np.mean(null_squares, axis=0))
-    return pooled / (dof_profiles + dof_null)
+    if dof_null == 0:
+        return profile_spread
+    null_floor = n_profiles / 2 * np.mean(null_squares, axis=0)
+    if dof_profiles == 0:
+        return null_floor  # one profile: the null films' estimate as it was, to the last bit
+    return (dof_profiles * profile_spread + dof_null * null_floor) / (dof_profiles + dof_null)
 
 
 JOINT_TOLERANCE = 0.05
