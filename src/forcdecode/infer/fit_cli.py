@@ -348,6 +348,53 @@ def network_summaries(est, images, ms_norm: float, seed: int) -> np.ndarray:
     return out
 
 
+LIKELIHOOD_POOL = 4000
+"""Uniform draws over the prior's box beside the amortized posterior's draws: the proposal of the image
+likelihood's posterior (``_likelihood_pool``)."""
+
+
+def _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key):
+    """The proposal of the image likelihood's posterior, fixed per film: the amortized posterior's draws
+    q₀ (the flow, recalibration off) and ``LIKELIHOOD_POOL`` uniform draws of the box (stream
+    ``fit_likelihood``), with the mixture's log density ½ q₀ + ½ (a parameter the images do not carry
+    then keeps its prior, not q₀'s narrower law) and the prior's p(u | M_s) at each."""
+    from ..core.streams import stream_rng
+    from ..dataset.params import draw_log_density
+
+    box = stream_rng(seed, "posterior", "fit_likelihood", key).uniform(SQUEEZE_BOX, 1 - SQUEEZE_BOX,
+                                                                         (LIKELIHOOD_POOL, draws.shape[1]))
+    pool = np.vstack([draws, box])
+    log_q0 = _proposal_logpdf(est, _Context(image, ms_norm))(pool)
+    log_mix = np.logaddexp(log_q0, 0.0) + np.log(0.5)
+    names = tuple(est.names)
+    log_p = (np.zeros(len(pool)) if prior == "uniform" else
+             draw_log_density(pool, names, Ms, est.bounds, prior=getattr(est, "prior_class", "paper")))
+    return pool, log_mix, log_p
+
+
+SQUEEZE_BOX = 1e-4
+"""How far the uniform draws of ``_likelihood_pool`` keep from the box's edges (logit stays finite)."""
+
+
+def _likelihood_reading(u, images, image, pool, names):
+    """The reading ``images_likelihood``: the prior times the synthetic likelihood of the observed image in
+    the simulated images' principal components (``infer.fit.image_likelihood``; no network summary),
+    by importance sampling over ``pool`` (``_likelihood_pool``); None where the simulations are too few."""
+    from .fit import image_likelihood, likelihood_posterior
+
+    try:
+        like = image_likelihood(u, images, image)
+        summary = likelihood_posterior(like.loglik, pool[0], pool[1], pool[2], names)
+    except ValueError:
+        return None
+    info = like.info
+    summary.update(tempered=False, image_likelihood={
+        "components": info["components"], "resolution": dict(zip(names, info["resolution"])),
+        **{k: info[k] for k in ("misfit", "misfit_simulated_max", "misfit_p", "outside_components",
+                                "outside_components_simulated_max", "outside_components_p")}})
+    return summary
+
+
 def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, checkpoints=(), log=None,
                  state_path=None, prior=DEFAULT_PRIOR, round_size: int = 25, extend=None) -> dict:
     """The amortized posterior corrected by simulation of this film, by regression adjustment.
@@ -378,8 +425,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from ..dataset.params import draw_log_density
     from ..forc.raster import rasterize_grid_family
     from ..learn.calibration import recalibrate_draws
-    from .fit import (anchored_summary, image_summaries, outside_simulations, regression_adjust, shifted_summary,
-                      summarize_particles, summary_resolution)
+    from .fit import (anchored_summary, image_likelihood, image_summaries, likelihood_posterior, outside_simulations,
+                      regression_adjust, shifted_summary, summarize_particles, summary_resolution)
     from .posterior_predictive import draws_as_hamiltonians
     from .resimulate import run_tasks
 
@@ -434,6 +481,7 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
         log_w = np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
     flat = np.zeros(len(u))
+    likelihood_pool = None if kept is None else _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key)
     answers = {}
     resolution, image_reading = {}, {}  # of the summaries, whatever the reading: reported with the answer only
     for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
@@ -453,6 +501,10 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
                                          "resolution": dict(zip(names, info["resolution"])),
                                          "outside_simulations": outside, "distance2_observed": d2_observed,
                                          "distance2_simulated_max": d2_max}
+                reading = _likelihood_reading(u[:b][use], kept[:b][use], image, likelihood_pool, names)
+                if reading is not None:
+                    reading.update(wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()))
+                    answers.setdefault("images_likelihood", {})[str(b)] = reading
                 if not outside:  # outside, the regression would extrapolate: no image reading at this budget
                     by_source["images"] = (s_images, observed_images)
                     by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
