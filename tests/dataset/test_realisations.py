@@ -39,6 +39,9 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), *filter(N
 CONFIG_JSON_SHA256_BEFORE = {"test": "5543862dd69a12641288a7bc95099a7fc73761a66dcd86be8d42b83f95aa3198",
                              "config": "25775332b2f4613e9f071213ca58c7305965d7e1218871da06f520bcb1aee649"}
 CONFIG_HASH_BEFORE = {"test": "80ff68272e9a2d53", "config": "ba146b7d72ea6130"}
+# the prior class each config resolved to then: config.yaml had no `prior` key (the schema's `paper`);
+# it states `perpendicular` since 2026-11-29 (a new dataset by design), so it is resolved with the old class
+PRIOR_BEFORE = {"test": "paper", "config": "paper"}
 # a passing sample of config/test.yaml (seed 7; sample 3, the only one of screening chunk 0, passes too)
 SAMPLE = 9
 
@@ -104,9 +107,10 @@ def test_resolved_config_and_hash_as_before(tmp_path):
 def test_resolved_config_absent_one_two(tmp_path, name):
     """The key absent, 1 and 2, on the tiny and the laptop configs (six Snakemake runs: ~30 s each on a
     busy machine)."""
-    absent = resolve(tmp_path / "absent", name)
-    one = resolve(tmp_path / "one", name, "--config", "realisations=1")
-    two = resolve(tmp_path / "two", name, "--config", "realisations=2")
+    prior = f"prior={PRIOR_BEFORE[name]}"
+    absent = resolve(tmp_path / "absent", name, "--config", prior)
+    one = resolve(tmp_path / "one", name, "--config", prior, "realisations=1")
+    two = resolve(tmp_path / "two", name, "--config", prior, "realisations=2")
     assert one == absent and hashlib.sha256(absent).hexdigest() == CONFIG_JSON_SHA256_BEFORE[name]
     cfg = json.loads(absent)
     assert "realisations" not in cfg and config_hash(physics_config(cfg)) == CONFIG_HASH_BEFORE[name]
