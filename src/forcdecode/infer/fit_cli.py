@@ -353,6 +353,10 @@ LIKELIHOOD_POOL = 4000
 likelihood's posterior (``_likelihood_pool``)."""
 
 
+SQUEEZE_BOX = 1e-4
+"""How far the uniform draws of ``_likelihood_pool`` keep from the box's edges (logit stays finite)."""
+
+
 def _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key):
     """The proposal of the image likelihood's posterior, fixed per film: the amortized posterior's draws
     q₀ (the flow, recalibration off) and ``LIKELIHOOD_POOL`` uniform draws of the box (stream
@@ -370,10 +374,6 @@ def _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key):
     log_p = (np.zeros(len(pool)) if prior == "uniform" else
              draw_log_density(pool, names, Ms, est.bounds, prior=getattr(est, "prior_class", "paper")))
     return pool, log_mix, log_p
-
-
-SQUEEZE_BOX = 1e-4
-"""How far the uniform draws of ``_likelihood_pool`` keep from the box's edges (logit stays finite)."""
 
 
 def _likelihood_reading(u, images, image, pool, names):
@@ -411,7 +411,10 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     were kept or the observed image summary lies outside the simulated ones (``infer.fit.
     outside_simulations``: the regression would extrapolate); the other ``ADJUSTED_READINGS`` (weights
     p(u | M_s)/q₀(u), which turn the draws into a prior sample and fall back to p(u | M_s) where the
-    summary is flat; each parameter on its own summary) are under ``variants``. Independent
+    summary is flat; each parameter on its own summary) are under ``variants``, and so is
+    ``images_likelihood`` (the prior times a synthetic likelihood of the observed image in the simulated
+    images' principal components, ``infer.fit.image_likelihood``: no network summary; formed wherever
+    the image summaries are). Independent
     realisations, not common random numbers: the regression's residual is then the disorder's scatter,
     which it averages instead of fitting one realisation.
     ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
@@ -425,8 +428,8 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     from ..dataset.params import draw_log_density
     from ..forc.raster import rasterize_grid_family
     from ..learn.calibration import recalibrate_draws
-    from .fit import (anchored_summary, image_likelihood, image_summaries, likelihood_posterior, outside_simulations,
-                      regression_adjust, shifted_summary, summarize_particles, summary_resolution)
+    from .fit import (anchored_summary, image_summaries, outside_simulations, regression_adjust, shifted_summary,
+                      summarize_particles, summary_resolution)
     from .posterior_predictive import draws_as_hamiltonians
     from .resimulate import run_tasks
 
