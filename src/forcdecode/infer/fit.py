@@ -546,6 +546,18 @@ def _ridge_fit(features, targets, ridge: float):
     return lambda new: np.column_stack([np.ones(len(new)), (new - mean) / sd]) @ coef
 
 
+def _image_inputs(u, images, observed_image):
+    """(draws (k, d), simulated images as rows of pixels in [0, 1] (k, n²), the observed image as one such
+    row (1, n²)) from uint8-scaled inputs; ValueError unless there is one image of the observed shape per draw."""
+    u = np.atleast_2d(np.asarray(u, float))
+    images = np.asarray(images, float)
+    observed = np.asarray(observed_image, float).reshape(1, -1) / 255.0
+    if len(images) != len(u) or images.ndim != 3 or images.shape[1] * images.shape[2] != observed.shape[1]:
+        raise ValueError(f"{len(u)} draws, images {images.shape} and an observed image of {observed.shape[1]} "
+                         "pixels: one image of the observed shape per draw is needed")
+    return u, images.reshape(len(u), -1) / 255.0, observed
+
+
 def image_summaries(u, images, observed_image, folds: int = 10) -> tuple[np.ndarray, np.ndarray, dict]:
     """Summaries read from the family's own simulations instead of the network: semi-automatic ABC
     (Fearnhead & Prangle 2012) fitted locally. The k simulated images (k, n, n) of draws ``u`` (k, d) are
@@ -562,15 +574,9 @@ def image_summaries(u, images, observed_image, folds: int = 10) -> tuple[np.ndar
     the pairs.) Returns (summaries (k, d), observed summary (d,), {"components", "ridge",
     "resolution": the out-of-fold summaries' ``summary_resolution``}). ValueError for mismatched shapes
     or fewer than 2 × folds simulations."""
-    u = np.atleast_2d(np.asarray(u, float))
-    images = np.asarray(images, float)
-    observed = np.asarray(observed_image, float).reshape(1, -1) / 255.0
-    if len(images) != len(u) or images.ndim != 3 or images.shape[1] * images.shape[2] != observed.shape[1]:
-        raise ValueError(f"{len(u)} draws, images {images.shape} and an observed image of {observed.shape[1]} "
-                         "pixels: one image of the observed shape per draw is needed")
+    u, pixels, observed = _image_inputs(u, images, observed_image)
     if len(u) < 2 * folds:
         raise ValueError(f"{len(u)} simulations cannot be cross-fitted in {folds} folds")
-    pixels = images.reshape(len(u), -1) / 255.0
     centre = pixels.mean(axis=0)
     _, _, basis = np.linalg.svd(pixels - centre, full_matrices=False)
     z = _logit(u)
@@ -642,17 +648,11 @@ def image_likelihood(u, images, observed_image, components: int = IMAGE_LIKELIHO
     ValueError for mismatched shapes or fewer than d + m + 3 simulations."""
     from sklearn.covariance import LedoitWolf
 
-    u = np.atleast_2d(np.asarray(u, float))
-    images = np.asarray(images, float)
-    observed = np.asarray(observed_image, float).reshape(1, -1) / 255.0
-    if len(images) != len(u) or images.ndim != 3 or images.shape[1] * images.shape[2] != observed.shape[1]:
-        raise ValueError(f"{len(u)} draws, images {images.shape} and an observed image of {observed.shape[1]} "
-                         "pixels: one image of the observed shape per draw is needed")
+    u, pixels, observed = _image_inputs(u, images, observed_image)
     k, d = u.shape
     m = int(min(components, k - d - 3))
     if m < 1:
         raise ValueError(f"{k} simulations cannot fit {d} slopes and a covariance of any component")
-    pixels = images.reshape(k, -1) / 255.0
     centre = pixels.mean(axis=0)
     _, _, basis = np.linalg.svd(pixels - centre, full_matrices=False)
     basis = basis[:m]
