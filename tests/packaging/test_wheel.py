@@ -76,6 +76,7 @@ def test_the_wheel_holds_the_schema_and_the_default_configs(installed):
     names = set(zipfile.ZipFile(installed["wheel"]).namelist())
     assert {"forcdecode/config/schemas/config.schema.yaml", "forcdecode/config/defaults/config.yaml",
             "forcdecode/config/defaults/paper.yaml", "forcdecode/config/defaults/test.yaml",
+            "forcdecode/config/defaults/cluster.yaml",
             "forcdecode/core/streams.py", "forcdecode/micromag/build.py"} <= names
     # the packaged files are the repository's (one copy each)
     wheel = zipfile.ZipFile(installed["wheel"])
@@ -93,7 +94,7 @@ def test_installed_package_loads_its_schema_and_configs(installed):
     out = json.loads(_run([installed["python"], "-c", probe], installed["cwd"], installed["env"]).stdout)
     assert out["file"].startswith(str(installed["site"]))  # from the wheel, not from the checkout
     assert out["schema"].startswith(str(installed["site"])) and out["exists"]
-    assert set(out["seeds"]) == {"config", "paper", "test"} and out["seeds"]["test"] == 7
+    assert set(out["seeds"]) == {"config", "cluster", "paper", "test"} and out["seeds"]["test"] == 7
     assert out["lr"] > 0
 
 

@@ -28,7 +28,7 @@ def resolved_config(workdir, *args, target="results/config.json") -> dict:
     return json.loads((workdir / "results" / "config.json").read_text())
 
 
-@pytest.mark.parametrize("name", ["config.yaml", "paper.yaml", "test.yaml"])
+@pytest.mark.parametrize("name", ["config.yaml", "cluster.yaml", "paper.yaml", "test.yaml"])
 def test_shipped_config_validates(name):
     config = yaml.safe_load((ROOT / "config" / name).read_text())
     validate(config, SCHEMA, set_default=True)
@@ -38,6 +38,24 @@ def test_shipped_config_validates(name):
 def test_paper_config_is_the_papers_training():
     learning = yaml.safe_load((ROOT / "config" / "paper.yaml").read_text())["learning"]
     assert (learning["model"], learning["lr"], learning["batch_size"]) == ("paper", 0.01, 500)
+
+
+def test_the_cluster_default_is_the_information_maps_film_with_the_laptop_physics():
+    """config/cluster.yaml is the film `box128_8nm` of `bench information` (mesh, cell, grains, protocol),
+    and apart from the film and the run's size it is the laptop default: the map's bounds are its bounds."""
+    from forcdecode.bench.information_films import FILMS
+
+    cluster = yaml.safe_load((ROOT / "config" / "cluster.yaml").read_text())
+    laptop = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    film = FILMS["box128_8nm"]
+    assert (cluster["mesh"]["nx"], cluster["mesh"]["ny"], cluster["mesh"]["nz"]) == (film["nx"], film["ny"], film["nz"])
+    assert cluster["n_grains"] == film["n_grains"] and cluster["protocol"]["name"] == film["protocol"]
+    assert {k: cluster["mesh"][k] for k in ("dx_nm", "dy_nm", "dz_nm")} == \
+        {k: laptop["mesh"][k] for k in ("dx_nm", "dy_nm", "dz_nm")}
+    run_size = {"mesh", "n_grains", "n_samples", "family_chunk_size", "sealed"}
+    assert {k: v for k, v in cluster.items() if k not in run_size} == \
+        {k: v for k, v in laptop.items() if k not in run_size}
+    assert cluster["sealed"]["first_sample_id"] >= cluster["n_samples"]
 
 
 def test_a_wrong_learning_value_is_refused():

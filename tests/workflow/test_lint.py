@@ -17,7 +17,7 @@ def snakemake(workdir, *args):
                           text=True, timeout=300)
 
 
-@pytest.mark.parametrize("config", ["test.yaml", "config.yaml", "paper.yaml"])
+@pytest.mark.parametrize("config", ["test.yaml", "config.yaml", "cluster.yaml", "paper.yaml"])
 def test_snakemake_lint_prints_no_lints(tmp_path, config):
     run = snakemake(tmp_path, "--configfile", str(ROOT / "config" / config), "--lint")
     text = run.stdout + run.stderr

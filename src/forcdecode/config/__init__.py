@@ -6,7 +6,7 @@ validates it, raising :class:`~forcdecode.core.errors.ConfigError` that names th
 
 Package data, one copy each: ``schemas/`` is the repository's ``workflow/schemas/`` (where the
 workflow validates its config) and ``defaults/`` its top-level ``config/`` (``config.yaml``,
-``paper.yaml``, ``test.yaml``), reached through relative symlinks in a checkout and copied into
+``cluster.yaml``, ``paper.yaml``, ``test.yaml``), reached through relative symlinks in a checkout and copied into
 a wheel by setuptools.
 """
 
@@ -24,8 +24,9 @@ SCHEMA_PATH = _HERE / "schemas" / "config.schema.yaml"
 CONFIGS_DIR = _HERE / "defaults"
 """The shipped configurations."""
 
-SHIPPED_CONFIGS = ("config", "paper", "test")
-"""Names of the shipped configurations: laptop default, the seed paper's scale, tiny CI."""
+SHIPPED_CONFIGS = ("config", "cluster", "paper", "test")
+"""Names of the shipped configurations: laptop default, the cluster default (the information map's most
+informative film), the seed paper's scale, tiny CI."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -132,8 +133,8 @@ def realisations(cfg: dict) -> int:
 
 
 def shipped_config(name: str = "config") -> Path:
-    """Path of the shipped configuration ``name``: config (laptop), paper (the seed paper's scale)
-    or test (tiny, CI)."""
+    """Path of the shipped configuration ``name``: config (laptop), cluster (the cluster default),
+    paper (the seed paper's scale) or test (tiny, CI)."""
     if name not in SHIPPED_CONFIGS:
         raise KeyError(f"no shipped configuration {name!r} (one of {', '.join(SHIPPED_CONFIGS)})")
     return CONFIGS_DIR / f"{name}.yaml"
