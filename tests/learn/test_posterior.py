@@ -426,3 +426,29 @@ def test_the_recalibrate_command_saves_a_model_that_refuses_its_own_draw(stage, 
     assert main([*check, "--dataset", str(tmp_path / "other.h5")]) == 0
     # --config scores the training run's test split, which needs that run's dataset
     assert main([*args[:-4], "--config", str(tmp_path / "learning.json")]) != 0
+
+
+def test_split_coverage_per_held_out_split_sees_a_bias_and_passes_the_exact_posterior():
+    """`learn posterior-splits`: the exact posterior covers within each split's binomial band, a biased one
+    does not, and the splits are train_posterior's (hash of seed and sample id)."""
+    from forcdecode.config import defaults
+    from forcdecode.learn.posterior_check import split_coverage, split_coverage_lines
+    from forcdecode.learn.splits import assign_splits
+
+    data = bar_dataset(n=600, seed=3)
+    learning = defaults("learning")
+    table = split_coverage(ExactBarPosterior(), data, seed=SEED, split_seed=SEED, learning=learning, draws=400,
+                           levels=(0.9,))
+    splits = assign_splits(data.sample_id, SEED, learning["split"], learning["protocol"])
+    assert set(table) == {"validation", "calibration", "test"}
+    for split, row in table.items():
+        assert row["n"] == len(splits[split])
+        wide = binomial_band(row["n"], 0.9, level=0.99)
+        assert all(wide[0] <= c <= wide[1] for c in row["coverage_90"].values()), (split, row)
+        assert row["pooled_90"] == pytest.approx(np.mean(list(row["coverage_90"].values())))
+    biased = split_coverage(ExactBarPosterior(shift=0.1), data, seed=SEED, split_seed=SEED, learning=learning,
+                            draws=400, levels=(0.9,))
+    assert all(row["coverage_90"]["K_u"] < 0.2 for row in biased.values()), biased
+    assert len(split_coverage_lines(table)) == 4 and "pooled" in split_coverage_lines(table)[0]
+    with pytest.raises(ConfigError, match="at least 2 draws"):
+        split_coverage(ExactBarPosterior(), data, seed=SEED, split_seed=SEED, learning=learning, draws=1)

@@ -8,6 +8,7 @@
     learn posterior-tune --config C --dataset dataset.h5 --out results/posterior/tuning.json
     learn posterior-check --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out J.json
     learn posterior-recalibrate --posterior results/posterior/model.pt --dataset FRESH/dataset.h5 --out M.pt
+    learn posterior-splits  (coverage per held-out split of the training dataset; defaults: results/)
     learn sealed    --models results/models --dataset dataset.h5 --sealed sealed/dataset.h5 --config learning.json
                     --out sealed/alice.json   (the frozen networks on the sealed set, once, at the end)
     learn attach-sealed --metrics J.json --sealed S.json --out metrics.json
@@ -86,6 +87,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--draws", type=int, default=1000)
     p.add_argument("--config", help="resolved learning.json: with --training-dataset, the derived combinations "
                                     "(sigma_w, ...) are scored too, their baselines fitted on its train split")
+    p.add_argument("--threads", type=int, default=1)
+    p = sub.add_parser("posterior-splits", help="coverage of a saved posterior on each held-out split of its own "
+                                                "training dataset (validation, calibration, test)")
+    p.add_argument("--posterior", default="results/posterior/model.pt", help="the posterior model (.pt)")
+    p.add_argument("--dataset", default="results/dataset.h5", help="the dataset it was trained on")
+    p.add_argument("--config", default="results/learning.json", help="resolved learning.json of the training run "
+                                                                    "(seed, split)")
+    p.add_argument("--out", help="also write the table as JSON")
+    p.add_argument("--draws", type=int, default=1000)
     p.add_argument("--threads", type=int, default=1)
     p = sub.add_parser("posterior-recalibrate", help="refit the posterior's quantile recalibration on a fresh draw "
                                                      "(another id range of the same configuration) and save the model")
@@ -169,6 +179,26 @@ def run(args) -> int:
                                     training_data=training, learning=learning, split_seed=split_seed)
         write_check(metrics, args.out, args.figure)
         for line in check_lines(metrics):
+            print(line)
+        return 0
+    if args.step == "posterior-splits":
+        from ..config import defaults
+        from .data import load_dataset
+        from .posterior import PosteriorEstimator
+        from .posterior_check import split_coverage, split_coverage_lines
+
+        torch.set_num_threads(max(1, args.threads))
+        est = PosteriorEstimator.load(args.posterior)
+        cfg = read_config(args.config)
+        learning = {**defaults("learning"), **(cfg.get("learning") or {})}
+        table = split_coverage(est, load_dataset(args.dataset), seed=int(est.metadata.get("seed", cfg["seed"])),
+                               split_seed=int(cfg["seed"]), learning=learning, draws=args.draws,
+                               levels=(est.metadata.get("settings") or {}).get("levels"))
+        if args.out:
+            from ..core.io import write_json
+
+            write_json(args.out, table)
+        for line in split_coverage_lines(table):
             print(line)
         return 0
     if args.step == "posterior-recalibrate":
