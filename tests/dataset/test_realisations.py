@@ -7,9 +7,6 @@ config/test.yaml: well under a second per family."""
 
 import hashlib
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -29,10 +26,9 @@ from forcdecode.dataset.stages import draw_stage, screen_stage, simulate_stage
 from forcdecode.forc.protocol import quasistatic_family
 from forcdecode.forc.raster import rasterize_grid_family
 from forcdecode.micromag.build import build_film, sweep_options
+from snakemake_runs import snakemake_process
 
 ROOT = Path(__file__).resolve().parents[2]
-# Snakemake (and the package CLI its rules call) import this checkout's package, whatever is installed
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), *filter(None, [os.environ.get("PYTHONPATH")])])}
 # config/test.yaml's and config/config.yaml's resolved config.json (sha256 of its bytes) and config
 # hash, made by the workflow before the key `realisations` existed (commit 8355f54): a dataset and
 # the models made then must keep them
@@ -85,11 +81,8 @@ def test_dataset_config_leaves_one_realisation_out(cfg):
 
 def resolve(tmp_path, name, *extra):
     """results/config.json as the workflow writes it (snakemake's resolve_config) for config/NAME.yaml."""
-    tmp_path.mkdir(parents=True, exist_ok=True)
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                          str(tmp_path), "--cores", "1", "--configfile", str(ROOT / "config" / f"{name}.yaml"),
-                          *extra, "--", "results/config.json"], cwd=tmp_path, capture_output=True, text=True,
-                         timeout=300, env=ENV)
+    run = snakemake_process(tmp_path, "--configfile", ROOT / "config" / f"{name}.yaml", *extra, "--",
+                            "results/config.json")
     assert run.returncode == 0, run.stderr[-3000:]
     return (tmp_path / "results" / "config.json").read_bytes()
 
@@ -269,10 +262,8 @@ def test_slurm_runtime_scales_with_realisations(tmp_path, evaluate_slurm_resourc
 @pytest.mark.slow
 def test_workflow_builds_a_two_realisation_dataset(tmp_path):
     """`snakemake --config realisations=2 -- results/dataset.h5` on the tiny configuration."""
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                          str(tmp_path), "--cores", "2", "--configfile", str(ROOT / "config" / "test.yaml"),
-                          "--config", "realisations=2", "--", "results/dataset.h5"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=900, env=ENV)
+    run = snakemake_process(tmp_path, "--configfile", ROOT / "config" / "test.yaml", "--config", "realisations=2",
+                            "--", "results/dataset.h5", cores=2, timeout=900)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     assert json.loads((tmp_path / "results" / "config.json").read_text())["realisations"] == 2
     with h5py.File(tmp_path / "results" / "dataset.h5", "r") as h5:

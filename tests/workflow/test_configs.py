@@ -1,15 +1,13 @@
 """Every shipped configuration passes the workflow's schema; the paper scale trains the paper's network."""
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
+from snakemake_runs import snakemake_process
 
 ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = str(ROOT / "workflow" / "schemas" / "config.schema.yaml")
@@ -19,11 +17,7 @@ def resolved_config(workdir, *args, target="results/config.json") -> dict:
     """Snakemake with ``args`` (config files, overrides) up to ``target`` in a new ``workdir``; the
     resolved results/config.json. The jobs run this checkout's package."""
     workdir.mkdir()
-    done = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                           str(workdir), "--cores", "1", *args, "--", target],
-                          cwd=workdir, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "PYTHONUNBUFFERED": "1",
-                               "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])})
+    done = snakemake_process(workdir, *args, "--", target)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return json.loads((workdir / "results" / "config.json").read_text())
 

@@ -3,9 +3,6 @@ run draws, screens and simulates only the new chunk: every file of the first run
 mtime, same bytes), the old samples keep their parameters, families and split."""
 
 import hashlib
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -14,17 +11,15 @@ import pytest
 
 from forcdecode.learn.data import load_dataset
 from forcdecode.learn.splits import assign_splits
+from snakemake_runs import snakemake_process
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def snakemake(workdir, n_samples, *args, extra=()):
     """The tiny workflow up to dataset.h5 with ``n_samples`` (target first: --configfile takes several values)."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    return subprocess.run([sys.executable, "-m", "snakemake", "results/dataset.h5", "--snakefile", str(ROOT / "Snakefile"),
-                           "--directory", str(workdir), "--cores", "2", "--config", f"n_samples={n_samples}", *extra,
-                           "--configfile", str(ROOT / "config" / "test.yaml"), *args],
-                          cwd=workdir, capture_output=True, text=True, timeout=900, env=env)
+    return snakemake_process(workdir, "results/dataset.h5", "--config", f"n_samples={n_samples}", *extra,
+                             "--configfile", ROOT / "config" / "test.yaml", *args, cores=2, timeout=900)
 
 
 def digest(path: Path) -> str:

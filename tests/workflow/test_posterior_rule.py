@@ -4,18 +4,15 @@ learning.json (changing them re-simulates and retrains nothing else). Each run i
 directory."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
+
+from snakemake_runs import snakemake_process
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def snakemake(workdir, *args, extra_config=()):
-    return subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                           str(workdir), "--cores", "1", *args, "--configfile", str(ROOT / "config" / "test.yaml"),
-                           *map(str, extra_config)],
-                          cwd=workdir, capture_output=True, text=True, timeout=300)
+    return snakemake_process(workdir, *args, "--configfile", ROOT / "config" / "test.yaml", *extra_config)
 
 
 def planned_jobs(text: str) -> dict:

@@ -5,11 +5,10 @@ its ancestors, and every rule downstream of the sealed merge only reports. A sea
 the training range stops the workflow before any job, naming both ranges."""
 
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from snakemake_runs import snakemake_process
 
 ROOT = Path(__file__).resolve().parents[2]
 # rules that fit a weight, a quantile, a calibration map, a threshold or a choice
@@ -21,9 +20,7 @@ REPORTING = {"merge_sealed", "score_sealed", "posterior_sealed", "posterior_repo
 
 def graph(workdir, kind: str, config: str, *extra) -> tuple[dict, dict]:
     """(node -> label, node -> set of parent nodes) of ``snakemake --rulegraph`` or ``--dag``."""
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                          str(workdir), "--cores", "1", "--configfile", str(ROOT / "config" / config), *extra,
-                          f"--{kind}", "--forceall"], cwd=workdir, capture_output=True, text=True, timeout=300)
+    run = snakemake_process(workdir, "--configfile", ROOT / "config" / config, *extra, f"--{kind}", "--forceall")
     assert run.returncode == 0, run.stderr[-3000:]
     labels = {m[0]: m[1] for m in re.findall(r'^\s*(\d+)\[label = "([^"]*)"', run.stdout, re.M)}
     parents = {node: set() for node in labels}
@@ -69,8 +66,6 @@ def test_no_fitting_job_has_a_sealed_chunk_upstream(tmp_path):
 
 def test_an_overlapping_sealed_range_stops_before_any_job(tmp_path):
     (tmp_path / "overlap.yaml").write_text("sealed: {first_sample_id: 32, n_samples: 16}\n")
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), "--directory",
-                          str(tmp_path), "--cores", "1", "--configfile", str(ROOT / "config" / "test.yaml"),
-                          str(tmp_path / "overlap.yaml"), "-n"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    run = snakemake_process(tmp_path, "--configfile", ROOT / "config" / "test.yaml", tmp_path / "overlap.yaml", "-n")
     assert run.returncode != 0
     assert "overlaps the training range" in run.stdout + run.stderr
