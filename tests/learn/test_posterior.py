@@ -45,7 +45,10 @@ def stage(tmp_path_factory):
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("posterior")
     data = bar_dataset()
-    metrics = train_posterior(data, SETTINGS, LEARNING, SEED, out / "model.pt", out / "metrics.json",
+    # every fitted map applied (gate 1): the stage's maps are near the identity, and the tests below check
+    # how a map is fitted, saved and applied; the gate's own rule is tested in test_posterior_calibration.py
+    metrics = train_posterior(data, {**SETTINGS, "recalibration_gate_alpha": 1.0}, LEARNING, SEED, out / "model.pt",
+                              out / "metrics.json",
                               out / "figures" / "posterior_calibration.png", log=lambda *_: None)
     return data, metrics, out
 
@@ -67,7 +70,10 @@ def test_calibrated_on_alices_test_split_and_files_written(stage):
     data, metrics, out = stage
     splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
     assert metrics["sample_id_test"] == data.sample_id[splits["test"]].tolist()
-    assert metrics["n_train"] == len(splits["train"]) and metrics["n_validation"] == len(splits["validation"])
+    assert metrics["n_train"] + metrics["n_recalibration_holdout"] == len(splits["train"])
+    assert metrics["n_validation"] == len(splits["validation"])
+    # a quarter of train held out from the flow for its recalibration (binomial, 178 families: 99.9 % band)
+    assert 0.12 < metrics["n_recalibration_holdout"] / len(splits["train"]) < 0.38
     on_disk = json.loads((out / "metrics.json").read_text())
     assert on_disk["per_parameter"] == json.loads(json.dumps(metrics["per_parameter"]))
     assert (out / "figures" / "posterior_calibration.png").read_bytes()[:4] == b"\x89PNG"
@@ -92,18 +98,21 @@ def test_a_reloaded_model_reproduces_its_draws(stage):
 
 
 def test_the_recalibration_is_fitted_on_held_out_splits_saved_and_reported_beside_the_flow(stage):
-    """train_posterior fits the Beta recalibration on validation + calibration (48 + 48 families here),
+    """train_posterior fits the Beta recalibration on the calibration split and the part of train held out
+    from the flow (families that chose nothing; validation stopped the training),
     saves it with the model, reports the flow's own test calibration beside the recalibrated one, and
     ``recalibrated=False`` gives the flow's draws (the law ``log_prob`` is the density of)."""
     data, metrics, out = stage
     est = PosteriorEstimator.load(out / "model.pt")
     splits = assign_splits(data.sample_id, SEED, LEARNING["split"], "holdout")
     recal = metrics["recalibration"]
-    assert recal["n"] == len(splits["validation"]) + len(splits["calibration"])
+    assert recal["n"] == len(splits["calibration"]) + metrics["n_recalibration_holdout"]
+    assert recal["fitted_on"] == "calibration split + train held out from the flow"
     assert est.recalibration == recal["beta"] and set(recal["beta_fitted"]) == {"K_u", "D"}
     # applied exactly where the likelihood-ratio test supports the map at the schema's level
     assert set(recal["beta"]) == {n for n, p in recal["likelihood_ratio_p"].items() if p < recal["gate_alpha"]}
-    assert recal["gate_alpha"] == posterior_settings()["recalibration_gate_alpha"]
+    assert recal["gate_alpha"] == 1.0 and set(recal["beta"]) == {"K_u", "D"}
+    assert posterior_settings()["recalibration_gate_alpha"] == 0.05 and posterior_settings()["recalibration_holdout"] == 0.25
     for a, b in recal["beta_fitted"].values():
         assert 0.3 < a < 3.0 and 0.3 < b < 3.0
     assert set(metrics["flow_without_recalibration"]["per_parameter"]) == {"K_u", "D"}
@@ -449,6 +458,34 @@ def test_split_coverage_per_held_out_split_sees_a_bias_and_passes_the_exact_post
     biased = split_coverage(ExactBarPosterior(shift=0.1), data, seed=SEED, split_seed=SEED, learning=learning,
                             draws=400, levels=(0.9,))
     assert all(row["coverage_90"]["K_u"] < 0.2 for row in biased.values()), biased
-    assert len(split_coverage_lines(table)) == 4 and "pooled" in split_coverage_lines(table)[0]
+    assert len(split_coverage_lines(table)) == 8 and "pooled" in split_coverage_lines(table)[0]
+    for row in table.values():  # the exact posterior's K_u median is within half a bar of the truth
+        assert row["mae_median"]["K_u"] < 0.5 / (SIDE - 1) and 0.15 < row["mae_median"]["D"] < 0.35
+        low, high = row["mae_median_ci90"]["D"]
+        assert low < row["mae_median"]["D"] < high
     with pytest.raises(ConfigError, match="at least 2 draws"):
         split_coverage(ExactBarPosterior(), data, seed=SEED, split_seed=SEED, learning=learning, draws=1)
+
+
+def test_the_recalibration_holdout_depends_only_on_seed_and_id():
+    """A family's side (flow or recalibration) is a uniform of (seed, its id): a grown dataset moves no
+    family, the fraction is binomial, 0 holds out nothing and the recalibration then falls back to
+    validation + calibration."""
+    from forcdecode.learn.posterior import recalibration_families, recalibration_holdout
+
+    ids = np.arange(1000, 3000)
+    train = np.arange(0, 2000, 2)
+    flow, held = recalibration_holdout(ids, train, SEED, 0.25)
+    assert np.array_equal(np.sort(np.concatenate([flow, held])), train) and not np.intersect1d(flow, held).size
+    assert abs(len(held) / len(train) - 0.25) < 3.3 * np.sqrt(0.25 * 0.75 / len(train))
+    grown_ids = np.concatenate([ids, np.arange(5000, 5400)])
+    _, held_grown = recalibration_holdout(grown_ids, np.concatenate([train, np.arange(2000, 2400)]), SEED, 0.25)
+    assert set(ids[held]) == set(grown_ids[held_grown]) & set(ids)
+    assert not np.array_equal(recalibration_holdout(ids, train, SEED + 1, 0.25)[1], held)
+    none_flow, none_held = recalibration_holdout(ids, train, SEED, 0.0)
+    assert np.array_equal(none_flow, train) and none_held.size == 0
+    splits = {"validation": np.array([1, 3]), "calibration": np.array([5, 7])}
+    assert recalibration_families(splits, np.array([0, 2]))[0].tolist() == [0, 2, 5, 7]
+    families, fitted_on = recalibration_families(splits, none_held)
+    assert families.tolist() == [1, 3, 5, 7] and fitted_on == "validation + calibration splits"
+

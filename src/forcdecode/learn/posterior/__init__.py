@@ -37,7 +37,8 @@ and ``PosteriorNet``), ``estimator`` (``PosteriorEstimator``: draws, density; su
 recalibration and the split diagnostics) and ``file_format`` (the model file).
 """
 
-from .calibration import fit_held_out_recalibration, gated_recalibration_record, split_diagnostics
+from .calibration import (fit_held_out_recalibration, gated_recalibration_record, recalibration_families,
+                          recalibration_holdout, split_diagnostics)
 from .estimator import RECALIBRATION_REFERENCE_DRAWS, PosteriorEstimator, posterior_prediction, summarize
 from .file_format import FORMAT
 from .flow import (BOUNDED_SUPPORT, EMBEDDINGS, SQUEEZE, SUMMARIES, ConvEmbedding, MLPEmbedding, PosteriorNet, _float32,
@@ -46,5 +47,6 @@ from .training import fit_posterior, train_posterior
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
            "PosteriorEstimator", "fit_posterior", "gated_recalibration_record", "fit_held_out_recalibration",
+           "recalibration_families", "recalibration_holdout",
            "summarize", "posterior_prediction",
            "split_diagnostics", "train_posterior"]

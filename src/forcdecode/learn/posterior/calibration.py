@@ -1,7 +1,7 @@
 """The posterior's recalibration and its diagnostics (``learn.posterior``): where a miscalibration
 comes from per split (``split_diagnostics``), and the Beta quantile recalibration fitted on held-out
-families and applied where a likelihood-ratio test supports it (``fit_held_out_recalibration``,
-``gated_recalibration_record``; the maps themselves in ``learn.calibration``)."""
+families and applied where a likelihood-ratio test supports it (``recalibration_holdout``,
+``recalibration_families``, ``fit_held_out_recalibration``, ``gated_recalibration_record``; the maps themselves in ``learn.calibration``)."""
 
 from __future__ import annotations
 
@@ -64,16 +64,38 @@ def gated_recalibration_record(pit, names, gate_alpha: float, **record) -> dict:
             "likelihood_ratio_p": p_values}
 
 
-def fit_held_out_recalibration(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int,
-                               gate_alpha: float) -> dict:
-    """Quantile recalibration of ``est`` (``learn.calibration``) fitted on the PITs of the validation and
-    calibration splits, the held-out families the flow's weights never saw (validation only chose the
-    epoch; on it alone the flow looks narrower than it is, so both splits are pooled); a map is applied
-    only where its likelihood-ratio test gives p < ``gate_alpha`` (``gated_recalibration_record``)."""
+def recalibration_holdout(sample_ids, train, seed: int, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """(flow's training indices, indices held out for the recalibration): the members of ``train`` whose
+    uniform of (``seed``, sample id) in the stream posterior/recalibration_holdout lies below
+    ``fraction``. Like the split itself, a family's side depends only on the seed and its own id."""
+    train = np.asarray(train)
+    if fraction <= 0 or train.size == 0:
+        return train, train[:0]
+    draw = np.array([stream_rng(seed, "posterior", "recalibration_holdout", int(sample_ids[k])).random()
+                     for k in train])
+    return train[draw >= fraction], train[draw < fraction]
+
+
+def recalibration_families(splits: dict, holdout) -> tuple[np.ndarray, str]:
+    """(indices, description) of the families the recalibration is fitted on: with a train ``holdout``,
+    it and the calibration split, families that chose nothing (validation stopped the flow's training,
+    and on it the flow looks better calibrated than it is: docs/posterior.md); without one, validation +
+    calibration as before 2026-11-29."""
+    holdout = np.asarray(holdout, dtype=np.int64)
+    if holdout.size:
+        return np.union1d(splits["calibration"], holdout), "calibration split + train held out from the flow"
+    return np.union1d(splits["validation"], splits["calibration"]), "validation + calibration splits"
+
+
+def fit_held_out_recalibration(est: PosteriorEstimator, data, u, families, draws: int, seed: int,
+                               gate_alpha: float, fitted_on: str) -> dict:
+    """Quantile recalibration of ``est`` (``learn.calibration``) fitted on the PITs of ``families``
+    (indices into ``data``; ``recalibration_families``), families the flow's weights never saw; a map is
+    applied only where its likelihood-ratio test gives p < ``gate_alpha`` (``gated_recalibration_record``)."""
     from ..calibration import probability_integral_transform
 
-    held_out = np.union1d(splits["validation"], splits["calibration"])
-    raw = est.sample(data.images[held_out], data.ms_norm[held_out], draws,
+    families = np.asarray(families)
+    raw = est.sample(data.images[families], data.ms_norm[families], draws,
                      seed=stream_seed(seed, "posterior", "recalibration_draws"), recalibrated=False)
-    pit = probability_integral_transform(raw, u[held_out])
-    return gated_recalibration_record(pit, est.names, gate_alpha, fitted_on="validation + calibration splits")
+    pit = probability_integral_transform(raw, u[families])
+    return gated_recalibration_record(pit, est.names, gate_alpha, fitted_on=fitted_on)

@@ -20,7 +20,8 @@ from ...core.streams import stream_rng, stream_seed
 from ..scoring import binomial_band
 from ..splits import SPLITS, assign_splits
 from ..train import with_float32_default
-from .calibration import fit_held_out_recalibration, split_diagnostics
+from .calibration import (fit_held_out_recalibration, recalibration_families, recalibration_holdout,
+                          split_diagnostics)
 from .estimator import PosteriorEstimator
 from .file_format import FORMAT
 from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_embedding, posterior_settings, to_latent
@@ -260,9 +261,14 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
         raise DatasetError(f"the {', '.join(empty)} split(s) of {n} FORC families are empty; raise n_samples")
     train, val, test = splits["train"], splits["validation"], splits["test"]
     u = np.stack([data.target(name) for name in names], axis=1)
-    log(f"posterior: {len(names)} parameters, {len(train)} training / {len(val)} validation / {len(test)} test samples")
+    # a part of train held out from the flow for its recalibration (none without one)
+    recalibrating = settings["recalibrate"] and learning["protocol"] == "holdout"
+    flow_train, holdout = recalibration_holdout(data.sample_id, train, seed,
+                                                settings["recalibration_holdout"] if recalibrating else 0.0)
+    log(f"posterior: {len(names)} parameters, {len(flow_train)} training / {len(val)} validation / {len(test)} test "
+        f"samples" + (f" ({len(holdout)} of the train split held out for the recalibration)" if len(holdout) else ""))
     started = time.perf_counter()
-    est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=settings, seed=seed,
+    est = fit_posterior(data.images, data.ms_norm, u, flow_train, val, names=names, settings=settings, seed=seed,
                         embedding="cnn", bounds=data.bounds, log=log,
                         prior_class=getattr(data, "prior_class", "paper"))
     train_s = time.perf_counter() - started
@@ -270,21 +276,21 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
 
     # calibrated on validation + calibration families (held out from the flow, never test): with ~20 each
     # the conformal p-value can reach 1/42, below the Bonferroni level 0.025 of two scores at alpha 0.05
-    est.metadata["ood"] = fit_ood_reference(est, data.images, data.ms_norm, train,
+    est.metadata["ood"] = fit_ood_reference(est, data.images, data.ms_norm, flow_train,
                                             np.union1d(val, splits["calibration"]))
     test_ood = ood_check(est, data.images[test], data.ms_norm[test])
     started = time.perf_counter()
     draws = int(settings["draws"])
     levels = [float(a) for a in settings["levels"]]
     recalibration = None
-    if settings["recalibrate"] and learning["protocol"] == "holdout":
-        n_held_out = len(np.union1d(splits["validation"], splits["calibration"]))
-        if n_held_out < RECALIBRATION_MIN_SAMPLES:
-            log(f"posterior not recalibrated: {n_held_out} validation + calibration families, fewer than "
+    if recalibrating:
+        families, fitted_on = recalibration_families(splits, holdout)
+        if len(families) < RECALIBRATION_MIN_SAMPLES:
+            log(f"posterior not recalibrated: {len(families)} families ({fitted_on}), fewer than "
                 f"{RECALIBRATION_MIN_SAMPLES}")
         else:
             est.metadata["recalibration"] = recalibration = fit_held_out_recalibration(
-                est, data, u, splits, draws, seed, settings["recalibration_gate_alpha"])
+                est, data, u, families, draws, seed, settings["recalibration_gate_alpha"], fitted_on)
             log(f"posterior recalibration fitted on {recalibration['n']} held-out families (Beta a, b; likelihood-"
                 f"ratio p; applied below {recalibration['gate_alpha']:g}): "
                 + ", ".join(f"{n} {a:.2f} {b:.2f} p {recalibration['likelihood_ratio_p'][n]:.3f}"
@@ -318,7 +324,9 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
             for j, name in enumerate(names):
                 calibration["per_parameter"][name][f"coverage_{tag}_conformal"] = float(cov[j])
                 calibration["per_parameter"][name][f"width_{tag}_conformal"] = float(width[j])
-    diagnostics = split_diagnostics(est, data, u, splits, draws, seed) if learning["protocol"] == "holdout" else None
+    # "train" there: the families the flow was fitted on (the held-out part of train is not)
+    diagnostics = (split_diagnostics(est, data, u, {**splits, "train": flow_train}, draws, seed)
+                   if learning["protocol"] == "holdout" else None)
     # read from the image, or prior only: the validation families' draws (as predict draws them), never test
     from ..answer import posterior_identification
 
@@ -329,7 +337,8 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
                                                   int(learning["bootstrap"]), Path(figure_path).with_name("posterior_ridge.png"))
     calibration_s = time.perf_counter() - started
     metrics = {"format": FORMAT, "reported_on": "validation (paper protocol)" if learning["protocol"] == "paper" else "test",
-               "n_train": int(len(train)), "n_validation": int(len(val)), "n_test": int(len(test)),
+               "n_train": int(len(flow_train)), "n_recalibration_holdout": int(len(holdout)),
+               "n_validation": int(len(val)), "n_test": int(len(test)),
                "parameters": list(names), "log_scale": [p for p in names if p in LOG_SCALE], "units": "normalized u in [0, 1]",
                "bounded_support": BOUNDED_SUPPORT, "estimator": "zuko NSF conditioned on a CNN embedding and M_s",
                "coverage": "central (equal-tailed) marginal credible intervals; joint: TARP",
