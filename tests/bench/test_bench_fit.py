@@ -175,3 +175,30 @@ def test_an_extended_validation_bench_writes_the_reference_that_judges_other_fil
     assert not (tmp_path / "case" / "extension_reference.json").exists()  # a case run writes no reference
     assert said[-2].startswith("extension check: 1 of 3 families flagged")
     assert (tmp_path / "case" / "extension_check.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_reading_choice_ranks_readings_by_their_mean_error_with_paired_intervals():
+    """``reading_choice``: the amortized posterior, the answer and every variant present in all rows, each
+    scored by its mean |median − truth| over the choice's parameters (K_u here), the lowest named best."""
+    from forcdecode.bench.fit import choice_lines, reading_choice
+
+    truths = np.linspace(0.3, 0.8, 8)
+    rows = []
+    for t in truths:
+        r = row(t, t + 0.1, t + 0.05, (t - 0.2, t + 0.2))
+        r["refined_by_budget"]["50"]["reading"] = "images_shifted"
+        r["variants"] = {"closer": {"50": {"parameters": {"K_u": {"median": t + 0.02, "interval_90": [0, 1]}}}},
+                         "farther": {"50": {"parameters": {"K_u": {"median": t - 0.2, "interval_90": [0, 1]}}}}}
+        rows.append(r)
+    rows[0]["variants"]["only_here"] = rows[0]["variants"]["closer"]
+    choice = reading_choice(rows, 50, np.random.default_rng(0))
+    table = choice["readings"]
+    assert set(table) == {"amortized", "answer", "closer", "farther"} and choice["best"] == "closer"
+    assert table["closer"]["mean_mae"] == pytest.approx(0.02) and table["farther"]["mean_mae"] == pytest.approx(0.2)
+    assert table["answer"]["mean_mae"] == pytest.approx(0.05) and table["amortized"]["mean_mae"] == pytest.approx(0.1)
+    # every family moves by the same amount: the paired intervals are that amount exactly
+    assert table["closer"]["minus_answer_ci90"] == pytest.approx([-0.03, -0.03])
+    assert table["farther"]["minus_amortized_ci90"] == pytest.approx([0.1, 0.1])
+    assert choice["answer_reading"] == ["images_shifted"] and choice["parameters"] == ["K_u"]
+    lines = choice_lines(choice)
+    assert "answer now: images_shifted" in lines[0] and lines[1].split()[0] == "closer"

@@ -546,6 +546,12 @@ def _bench_fit(args, say) -> int:
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
     for line in summary_lines(out):
         say(line)
+    if args.method == "adjusted":  # the rule that chooses the answer's reading (on validation families)
+        from .fit import choice_lines, reading_choice
+
+        out["reading_choice"] = reading_choice(rows, budgets[-1], np.random.default_rng(stage["seed"]))
+        for line in choice_lines(out["reading_choice"]):
+            say(line)
     if extend:
         out["extend"] = extend
         out["beyond_prior"] = {str(sid): r.get("beyond_prior") for sid, r in zip(out["sample_ids"], rows)}

@@ -110,6 +110,51 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
     return out
 
 
+CHOICE_NAMES = ("K_u", "A_ex", "D")
+"""The parameters whose mean MAE chooses the adjusted fit's reading (``infer.fit_cli.ADJUSTED_CHOICE``)."""
+
+
+def reading_choice(rows, budget: int, rng: np.random.Generator, n_boot: int = 2000, names=CHOICE_NAMES) -> dict:
+    """The rule that chooses the adjusted fit's answer, on these rows (validation families): per reading
+    (the amortized posterior, the reported answer, each variant read off the same simulations) the mean
+    over ``names`` of the MAE of its median at ``budget``, with paired bootstrap 90 % intervals of its
+    difference to the amortized posterior and to the answer; ``best``: the reading with the lowest mean."""
+    key = str(budget)
+    names = [n for n in names if n in rows[0]["names"]]
+
+    def errors(of) -> np.ndarray:  # (families,) mean over names of |median − truth|
+        return np.mean([[abs(of(r)["parameters"][n]["median"] - r["truth_normalized"][n]) for n in names]
+                        for r in rows], axis=1)
+
+    readings = {"amortized": errors(lambda r: r["amortized"]),
+                "answer": errors(lambda r: r["refined_by_budget"][key])}
+    common = set.intersection(*(set(r.get("variants", {})) for r in rows)) if rows else set()
+    for name in sorted(common):
+        if all(key in r["variants"][name] for r in rows):
+            readings[name] = errors(lambda r, name=name: r["variants"][name][key])
+    table = {}
+    for name, e in readings.items():
+        table[name] = {"mean_mae": float(e.mean()),
+                       "minus_amortized_ci90": bootstrap_interval(lambda d: float(d.mean()),
+                                                                  [e - readings["amortized"]], rng, n_boot),
+                       "minus_answer_ci90": bootstrap_interval(lambda d: float(d.mean()),
+                                                               [e - readings["answer"]], rng, n_boot)}
+    answers = {r["refined_by_budget"][key].get("reading") for r in rows}
+    return {"budget": int(budget), "parameters": names, "families": len(rows), "readings": table,
+            "answer_reading": sorted(a for a in answers if a), "best": min(table, key=lambda n: table[n]["mean_mae"])}
+
+
+def choice_lines(choice: dict) -> list[str]:
+    """The reading-choice table, lowest mean MAE first."""
+    lines = [f"choice of the reading at {choice['budget']} simulations on {choice['families']} families: mean MAE of "
+             f"{', '.join(choice['parameters'])} (answer now: {', '.join(choice['answer_reading']) or '-'})"]
+    for name, row in sorted(choice["readings"].items(), key=lambda kv: kv[1]["mean_mae"]):
+        a, b = row["minus_amortized_ci90"], row["minus_answer_ci90"]
+        lines.append(f"  {name:28s} {row['mean_mae']:.3f}   − amortized [{a[0]:+.3f}, {a[1]:+.3f}]   "
+                     f"− answer [{b[0]:+.3f}, {b[1]:+.3f}]")
+    return lines
+
+
 def summary_lines(out: dict) -> list[str]:
     """The printed table: MAE per parameter (M_s-only, amortized, refined per budget with the paired
     90 % interval of the difference), then coverage, β = 1 counts and wall time."""
