@@ -324,6 +324,11 @@ on re-reading the 20 saved test states at 200 simulations (`bench fit --method a
 2026-11-27): A_ex's 90 % coverage 0.70 anchored (below the band 0.80-1.0), back within it shifted;
 validation (5 families) cannot tell coverages apart (all 0.8 or 1.0 either way), so the choice rests on
 the mechanism, shown on linear-Gaussian problems in ``tests/loop/test_fit.py``."""
+# Re-made on 10 validation families of the perpendicular default (2026-11-29; `bench fit --method adjusted
+# --split validation --families 10`, its `reading_choice`): resolved_anchored 0.0601, amortized 0.0603,
+# images_shifted 0.0628, shifted 0.0653, images_likelihood 0.087; the best against the answer −0.003
+# [−0.018, +0.013]. The answer changes only where the best reading's paired 90 % interval against it
+# excludes 0 (a change needs evidence; stated after these numbers), so it stays images_shifted.
 ADJUSTED_CHOICE = "images_shifted"
 ADJUSTED_FALLBACK = "shifted"
 """The reading reported at a budget where ``ADJUSTED_CHOICE`` is missing (no simulated images kept, too few
