@@ -241,8 +241,10 @@ def _combinations_and_ridge(est, data, u, splits, samples, seed: int, levels, n_
 
 def train_posterior(data, settings: dict | None, learning: dict | None, seed: int, model_path, metrics_path,
                     figure_path, log=print) -> dict:
-    """Fit the posterior on the workflow's train split (validation for early stopping), calibrate it on
-    the test split; write the model, metrics.json and the calibration figure (all atomically)."""
+    """Fit the posterior on the workflow's train split (validation for early stopping) less the part held
+    out for its recalibration (``posterior.recalibration_holdout``), recalibrate it on that part and the
+    calibration split, calibrate it on the test split; write the model, metrics.json and the calibration
+    figure (all atomically)."""
     from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics,
                               conformal_coverage, conformal_widening, recalibrated_calibration)
 
