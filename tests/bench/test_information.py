@@ -258,3 +258,18 @@ def test_choose_film_decides_on_the_conservative_bound_not_ledoit_wolf():
     assert choice["scores_ledoit_wolf"]["a"] < choice["scores_ledoit_wolf"]["b"]
     assert set(choice["scores"]) == {"a", "b"}
     assert choose_film({"a": _film_row([0.1, None, 0.2], [0.001, 0.002, 0.002])})["film"] is None
+
+
+def test_stop_at_is_the_next_such_time_even_across_midnight():
+    import datetime as dt
+
+    from forcdecode.bench.information_cli import _stop_time
+    from forcdecode.core.errors import ConfigError
+
+    late = dt.datetime(2026, 11, 29, 23, 40, tzinfo=dt.timezone.utc)
+    assert _stop_time("01:25", now=late) == dt.datetime(2026, 11, 30, 1, 25, tzinfo=dt.timezone.utc).timestamp()
+    assert _stop_time("23:50", now=late) == dt.datetime(2026, 11, 29, 23, 50, tzinfo=dt.timezone.utc).timestamp()
+    assert _stop_time(None) is None
+    for bad in ("1:2:3", "25:00", "noon"):
+        with pytest.raises(ConfigError, match="--stop-at"):
+            _stop_time(bad, now=late)

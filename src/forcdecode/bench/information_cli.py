@@ -9,14 +9,23 @@ FILMS_TARGET_DEFAULT = ["laptop:20x2", "laptop_paper_grains:20x2", "box128:20x1"
 """``--films``'s default belongs to ``bench films``; left at it, ``bench information`` runs the laptop film."""
 
 
-def _stop_time(text):
+def _stop_time(text, now=None):
+    """The UTC time stamp (s) of the next HH:MM after ``now``: a stop at 01:25 asked at 23:40 is the
+    next day's 01:25, not a time already past. None where no stop is asked."""
     if not text:
         return None
     import datetime as dt
 
-    hh, mm = (int(v) for v in text.split(":"))
-    now = dt.datetime.now(dt.timezone.utc)
-    stop = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+    from ..core.errors import ConfigError
+
+    try:
+        hh, mm = (int(v) for v in text.split(":"))
+        now = now or dt.datetime.now(dt.timezone.utc)
+        stop = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+    except ValueError as error:
+        raise ConfigError(f"--stop-at {text!r}: expected a UTC time HH:MM ({error})") from None
+    if stop <= now:
+        stop += dt.timedelta(days=1)
     return stop.timestamp()
 
 
