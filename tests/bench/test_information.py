@@ -232,6 +232,15 @@ def test_paired_comparison_on_shared_fiducials():
     d = out["per_parameter"]["D"]["crb_conditional_matched"]
     assert d["ratios"] == [0.5, 0.0] and d["film_tighter"] == 2
     assert out["per_parameter"]["D"]["crb_single"]["film_tighter"] == 1
+    # a film at R = 4 against a reference at R = 8 that also has R = 4 rows: compared at R = 4
+    small = [{**analysis(1, [0.01, 0.2], [0.001, 0.02]), "R": 4}]
+    small[0]["channels"]["float"] = {"R4_d0.1": small[0]["channels"]["float"]["R8_d0.1"]}
+    both = analysis(1, [0.02, 0.4], [0.001, 0.04])
+    both["channels"]["float"]["R4_d0.1"] = {"crb_conditional_matched": [0.04, 0.8], "crb_single": [0.002, 0.08]}
+    at4 = paired_to(small, [both], ["K_u", "D"])["per_parameter"]["K_u"]["crb_conditional_matched"]
+    assert at4["ratios"] == [0.25]
+    only8 = paired_to(small, [analysis(1, [0.02, 0.4], [0.001, 0.04])], ["K_u"])
+    assert only8["per_parameter"]["K_u"]["crb_conditional_matched"]["ratios"] == [0.5]  # else its own R
 
 
 def _film_row(matched, lw, eligible=True, regimes=None):
@@ -273,3 +282,66 @@ def test_stop_at_is_the_next_such_time_even_across_midnight():
     for bad in ("1:2:3", "25:00", "noon"):
         with pytest.raises(ConfigError, match="--stop-at"):
             _stop_time(bad, now=late)
+
+
+def test_the_llg_film_has_the_laptop_films_disorder_realisations():
+    """Common random numbers across protocols: realisation r of ``laptop_llg`` is drawn from the laptop
+    film's stream (same grains, axes and pinning sites; the pinning treatment does not draw), no other
+    film's, and the LLG film is differentiated in A_ex and D only."""
+    from forcdecode.bench import information_films as info
+    from forcdecode.config import load_config, shipped_config
+    from forcdecode.micromag.build import build_film
+
+    cfg = load_config(shipped_config("config"))
+    draw = lambda film, sid, r: info.film_rng(cfg, film, sid, r).random(4)  # noqa: E731
+    assert np.array_equal(draw("laptop_llg", 19, 2), draw("laptop", 19, 2))
+    assert not np.array_equal(draw("laptop_llg", 19, 2), draw("laptop", 19, 3))
+    assert not np.array_equal(draw("laptop_8nm", 19, 2), draw("laptop", 19, 2))
+    assert info.FILMS["laptop_llg"]["names"] == ("A_ex", "D")
+    params = {"Ms": 5.0e5, "A_ex": 1.5e-11, "K_u": 3.5e5, "D": 5e-4, "N_pin": 40, "sigma_theta_deg": 2.0,
+              "sigma_K": 0.05}
+    fcfg = info.film_config(cfg, "laptop", info.FILMS)
+    _, _, full = build_film(fcfg, params, rng=info.film_rng(cfg, "laptop", 19, 2))
+    _, _, slaved = build_film(fcfg, params, pinning="slaved", rng=info.film_rng(cfg, "laptop_llg", 19, 2))
+    for key in ("K_u", "easy_axis", "grain_labels", "pinning_mask", "pinning_initial"):
+        assert np.array_equal(getattr(full, key), getattr(slaved, key)), key
+
+
+@pytest.mark.slow
+def test_an_llg_family_on_a_tiny_film_switches_no_earlier_than_the_quasistatic_one(monkeypatch):
+    """The bench's LLG film path runs the adaptive slew-rate protocol (forc.adaptive) on the quasi-static
+    film's disorder. On an 8 x 8 film with strong anisotropy each quasi-static branch reverses in one
+    avalanche (m_z = ±1 everywhere). At zero temperature a sweep at a finite rate cannot switch before the
+    metastable minimum disappears, where the quasi-static protocol switches, and here the adaptive rate
+    (fastest, 1 T/ns, where the susceptibility is small, as before an avalanche) delays it by a grid step
+    or more: the descending branch switches at a field no less negative, every ascending curve at a
+    field no lower, and some later."""
+    from forcdecode.bench import information_films as info
+    from forcdecode.config import load_config, shipped_config
+
+    monkeypatch.setitem(info.FILMS, "tiny", dict(nx=8, ny=8, nz=1, n_grains=2, protocol="quasistatic",
+                                                 names=("A_ex", "D")))
+    monkeypatch.setitem(info.FILMS, "tiny_llg", dict(nx=8, ny=8, nz=1, n_grains=2, protocol="llg",
+                                                     names=("A_ex", "D"), disorder_of="tiny"))
+    cfg = load_config(shipped_config("config"))
+    cfg["field"]["n_fields"] = 16
+    base = {"Ms": 5.0e5, "A_ex": 1.5e-11, "K_u": 3.5e5, "D": 5e-4, "N_pin": 10, "sigma_theta_deg": 2.0,
+            "sigma_K": 0.05}
+    families = {film: info.simulate_family(cfg, film, base, 1, 0)["curves"] for film in ("tiny", "tiny_llg")}
+    upper = np.isfinite(families["tiny"])
+    assert upper.sum() == 16 * 17 // 2
+    assert np.all(np.abs(families["tiny"][upper]) > 0.99)  # one avalanche each way
+    assert np.array_equal(np.isfinite(families["tiny_llg"]), upper)  # (LLG records points mid-switch)
+    assert np.all(np.abs(families["tiny_llg"][upper]) <= 1.0 + 1e-6)
+
+    def descending_switch(curves):  # the last reversal field (index) still reversed
+        return max(i for i in range(16) if curves[i, i] < 0)
+
+    def ascending_switch(curves, i):  # the first applied field at which curve i is up again
+        return next(j for j in range(i, 16) if curves[i, j] > 0)
+
+    quasistatic, llg = families["tiny"], families["tiny_llg"]
+    assert descending_switch(llg) <= descending_switch(quasistatic)
+    rows = range(descending_switch(llg) + 1)
+    delays = [ascending_switch(llg, i) - ascending_switch(quasistatic, i) for i in rows]
+    assert min(delays) >= 0 and max(delays) >= 1

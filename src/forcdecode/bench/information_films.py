@@ -58,12 +58,17 @@ FILMS: dict[str, dict] = {
     "box128_8nm": dict(nx=128, ny=128, nz=2, n_grains=64, protocol="quasistatic",
                        names=("K_u", "A_ex", "D", "N_pin")),
     "paper": dict(nx=256, ny=256, nz=2, n_grains=255, protocol="quasistatic", names=("K_u", "A_ex", "D", "N_pin")),
-    "laptop_llg": dict(nx=64, ny=64, nz=1, n_grains=16, protocol="llg", names=NAMES),
+    "laptop_llg": dict(nx=64, ny=64, nz=1, n_grains=16, protocol="llg", names=("A_ex", "D"), disorder_of="laptop"),
     "period_box": dict(nx=136, ny=136, nz=1, n_grains=72, protocol="quasistatic",
                        names=("K_u", "A_ex", "D", "N_pin"), regimes=("spirals",)),
 }
 """Films of the issue (cells 2 × 2 × 4 nm, grains ≈ 32 nm). ``paper`` (256²×2) and ``laptop_llg``
-are listed so the summary can say they were not measured. ``period_box`` is the laptop film's 4 nm
+are listed so the summary can say they were not measured. ``laptop_llg`` is the laptop film under the
+seed paper's adaptive slew-rate LLG protocol (``forc.adaptive``, pinning cells slaved as in the dataset's
+``llg`` protocol), differentiated in A_ex and D only (the issue's question: does a finite sweep rate
+carry information on them that a magnetometer-like quasi-static sweep does not); ``disorder_of`` makes
+its realisation r the laptop film's realisation r (the same grains and pinning sites: common random
+numbers across the two protocols, so the paired comparison sees only the protocol). ``period_box`` is the laptop film's 4 nm
 sized from its fiducials' period: it runs only the fiducials of ``regimes`` (the chiral spirals, whose
 period 4πA_ex/|D| is 103–133 nm at the laptop map's two spiral fiducials), in a 272 nm box that holds
 ≥ 2 of the longer period (2.05 and 2.6 periods) where the 128 nm laptop box holds about one; grains
@@ -72,10 +77,10 @@ period 4πA_ex/|D| is 103–133 nm at the laptop map's two spiral fiducials), in
 NOT_MEASURED = {
     "paper": "256x256x2: a family costs ~340x the laptop's (729 CPU-s, docs/films.md); >= 2 fiducials x 9 points x "
              "R >= 4 is days of 2 shared cores, and no GPU machine was lent",
-    "laptop_llg": "the LLG sweep-rate protocol is ~360x dearer than quasi-static (docs/engine.md, 2026-11-28): not in "
-                  "this session's budget",
 }
 NOT_YET = {
+    "laptop_llg": "the LLG sweep-rate protocol is ~360x dearer than quasi-static (docs/engine.md, 2026-11-28): ~4 CPU-h "
+                  "a fiducial at R = 4 (A_ex and D); not run yet",
     "period_box": "a box of >= 2 spiral periods (136^2x1, 272 nm, for the spiral fiducials): ~40 CPU-s a family, "
                   "72 families at R = 4 for the two spiral fiducials; not run yet",
 }
@@ -211,24 +216,41 @@ def family_path(out_dir, film: str, sid: int, label: str, r: int) -> Path:
     return Path(out_dir) / film / f"s{sid:05d}" / f"{label}_r{r}.npz"
 
 
+def film_rng(cfg: dict, film: str, sid: int, r: int):
+    """The disorder generator of realisation ``r`` at fiducial ``sid``: the ``bench_film`` stream of
+    (film, sid, r), where film is the spec's ``disorder_of`` if it names one (the same grains and sites
+    as that film's realisation r)."""
+    from ..core.streams import stream_rng
+
+    return stream_rng(cfg["seed"], "bench_film", "information", FILMS[film].get("disorder_of", film), int(sid), int(r))
+
+
 def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dict:
     """One family of realisation r: float curves (64×64, NaN below the diagonal), the uint8 image,
     CPU seconds of this process."""
-    from ..core.streams import stream_rng
     from ..forc.protocol import quasistatic_family
     from ..forc.raster import rasterize_grid_family
     from ..micromag.build import build_film, sweep_options
 
+    spec = FILMS[film]
     fcfg = film_config(cfg, film, FILMS)
-    if FILMS[film]["protocol"] != "quasistatic":
-        raise NotImplementedError(f"film {film}: protocol {FILMS[film]['protocol']} not implemented here")
+    if spec["protocol"] not in ("quasistatic", "llg"):
+        raise NotImplementedError(f"film {film}: protocol {spec['protocol']} not implemented here")
     cpu = time.process_time()
-    rng = stream_rng(cfg["seed"], "bench_film", "information", film, int(sid), int(r))
-    f, m0, _ = build_film(fcfg, params, rng=rng)
-    fam = quasistatic_family(f, m0, n_fields=fcfg["field"]["n_fields"], B_max_T=fcfg["field"]["B_max_T"],
-                             **sweep_options(fcfg))
+    rng = film_rng(cfg, film, sid, r)
+    n_fields, B_max_T = fcfg["field"]["n_fields"], fcfg["field"]["B_max_T"]
+    if spec["protocol"] == "llg":
+        from ..forc.adaptive import SlewRate, adaptive_family
+
+        f, m0, _ = build_film(fcfg, params, pinning="slaved", rng=rng)
+        p = fcfg.get("protocol", {})
+        settings = SlewRate(**{k: p[k] for k in ("alpha", "safety", "rate_min_T_per_s", "rate_max_T_per_s") if k in p})
+        fam = adaptive_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, settings=settings)
+    else:
+        f, m0, _ = build_film(fcfg, params, rng=rng)
+        fam = quasistatic_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, **sweep_options(fcfg))
     return {"curves": fam.curves_mz.astype(np.float32), "image": rasterize_grid_family(fam.curves_mz),
-            "cpu_s": time.process_time() - cpu, "unconverged": int(fam.stats["unconverged"])}
+            "cpu_s": time.process_time() - cpu, "unconverged": int(fam.stats.get("unconverged", 0))}
 
 
 def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> None:
@@ -366,10 +388,11 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                     row["sigma_w_alignment_matched_deg"] = _matched_plane_angle(center[:, ok], plus[:, :, ok],
                                                                                 minus[:, :, ok], steps, (i, j),
                                                                                 g_sw[[i, j]], floor)
-                    k3 = [names.index(n) for n in ("K_u", "A_ex", "D")]
-                    lam3, V3 = best_direction(res.F, names, ("K_u", "A_ex", "D"))
-                    row["KAD_best_direction"] = V3[:, 0].tolist()
-                    row["sigma_w_alignment_KAD_deg"] = principal_angle_deg(V3[:, 0], g_sw[k3])
+                    if "K_u" in names:
+                        k3 = [names.index(n) for n in ("K_u", "A_ex", "D")]
+                        lam3, V3 = best_direction(res.F, names, ("K_u", "A_ex", "D"))
+                        row["KAD_best_direction"] = V3[:, 0].tolist()
+                        row["sigma_w_alignment_KAD_deg"] = principal_angle_deg(V3[:, 0], g_sw[k3])
                 res_ch[f"R{Rs}_d{d:g}"] = row
         out["channels"][channel] = res_ch
     if has_aD:
@@ -477,7 +500,8 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
 
 def paired_to(analyses: list[dict], reference: list[dict], names) -> dict:
     """A film against a reference film on the fiducials both measured (same Hamiltonian, float channel,
-    each film's primary R and δ): per parameter, the ratio film/reference of the conditional matched-filter
+    each film's primary δ; the reference at the film's R where it has that many realisations (its first R:
+    the laptop film at R = 8 also has R = 4), else at its own): per parameter, the ratio film/reference of the conditional matched-filter
     bound (conservative) and of the Ledoit–Wolf marginal bound, per fiducial and as a median, and how many
     fiducials the film bounds tighter. ∞ (unidentified) compares as larger than any finite bound."""
     ref = {a["sample_id"]: a for a in reference}
@@ -485,8 +509,10 @@ def paired_to(analyses: list[dict], reference: list[dict], names) -> dict:
     ref_names = ref[shared[0]["sample_id"]]["names"] if shared else []
     out = {"n_fiducials": len(shared), "sample_ids": [a["sample_id"] for a in shared], "per_parameter": {}}
 
-    def bound(a, key, n):
-        row = a["channels"]["float"][f"R{a['R']}_d{a['deltas'][0]:g}"]
+    def bound(a, key, n, R=None):
+        rows = a["channels"]["float"]
+        wanted = f"R{R}_d{a['deltas'][0]:g}"
+        row = rows[wanted] if wanted in rows else rows[f"R{a['R']}_d{a['deltas'][0]:g}"]
         v = row.get(key, [None] * len(a["names"]))[a["names"].index(n)]
         return float("inf") if v is None else float(v)
 
@@ -495,7 +521,7 @@ def paired_to(analyses: list[dict], reference: list[dict], names) -> dict:
             continue
         block = {}
         for key in ("crb_conditional_matched", "crb_single"):
-            pairs = [(bound(a, key, n), bound(ref[a["sample_id"]], key, n)) for a in shared]
+            pairs = [(bound(a, key, n), bound(ref[a["sample_id"]], key, n, R=a["R"])) for a in shared]
             ratios = [f / r if np.isfinite(f) and np.isfinite(r) and r > 0 else
                       (0.0 if np.isfinite(f) and not np.isfinite(r) else (float("inf") if np.isfinite(r) else None))
                       for f, r in pairs]
