@@ -345,3 +345,38 @@ def test_an_llg_family_on_a_tiny_film_switches_no_earlier_than_the_quasistatic_o
     rows = range(descending_switch(llg) + 1)
     delays = [ascending_switch(llg, i) - ascending_switch(quasistatic, i) for i in rows]
     assert min(delays) >= 0 and max(delays) >= 1
+
+
+def test_the_bound_on_an_A_ex_D_combination_matches_the_closed_form(bench):
+    """``matched_direction_crb`` on the closed-form ensemble: along a direction v of the plane of the two
+    parameters that enter, the matched-filter bound sqrt(J_vᵀΣJ_v)/|J_v|² (J_v = J v, Σ the analytic
+    covariance) within the tolerance; along an axis exactly ``matched_filter_crb``'s entry; never below
+    the true conditional bound 1/sqrt(vᵀFv); the best direction beats both axes and stays above the
+    largest eigenvalue's bound."""
+    from forcdecode.bench.information import best_matched_direction, matched_direction_crb, matched_filter_crb
+
+    f, _ = bench
+    reals = range(R)
+    center = np.stack([f(U, r) for r in reals])
+    d, J = [], []
+    for i in range(2):
+        lo, hi = stencil(U[i], DELTA)
+        up, um = U.copy(), U.copy()
+        up[i], um[i] = hi, lo
+        d.append(np.stack([f(up, r) - f(um, r) for r in reals]) / (hi - lo))
+        J.append((check.analytic_mean(up, n_fields=N_FIELDS) - check.analytic_mean(um, n_fields=N_FIELDS)) / (hi - lo))
+    d, J = np.stack(d), np.stack(J).T
+    S = check.analytic_covariance(U, N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)
+    F = check.analytic_fisher(U, N_PARTICLES, NOISE_SD, n_fields=N_FIELDS)[:2, :2]
+    for v in (np.array([1.0, 0.0]), np.array([0.6, -0.8]), np.array([1.0, 1.0]) / np.sqrt(2)):
+        Jv = J @ v
+        analytic = np.sqrt(Jv @ S @ Jv) / (Jv @ Jv)
+        got = matched_direction_crb(center, d, (0, 1), 3 * v)  # the direction's length does not matter
+        assert abs(got / analytic - 1) < TOLERANCE, (v, got, analytic)
+        assert got >= 0.95 / np.sqrt(v @ F @ v)
+    assert matched_direction_crb(center, d, (0, 1), np.array([0.0, 2.0])) == pytest.approx(
+        matched_filter_crb(center, d)[1], rel=1e-12)
+    best, v_best = best_matched_direction(center, d, (0, 1))
+    assert best <= min(matched_filter_crb(center, d)) + 1e-12
+    assert best >= 0.95 / np.sqrt(np.linalg.eigvalsh(F).max())
+    assert np.linalg.norm(v_best) == pytest.approx(1.0)

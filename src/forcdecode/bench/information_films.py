@@ -44,8 +44,8 @@ import numpy as np
 
 from ..core.parameters import denormalize, normalize
 from .films import film_config
-from .information import (QUANT_STEP, _finite_list, best_direction, compressed_fisher, crb, fisher_from_families,
-                          principal_angle_deg, stencil, upper_triangle)
+from .information import (QUANT_STEP, _finite_list, best_direction, best_matched_direction, compressed_fisher, crb,
+                          fisher_from_families, matched_direction_crb, principal_angle_deg, stencil, upper_triangle)
 
 MU0 = 4e-7 * np.pi
 
@@ -388,6 +388,13 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                     row["sigma_w_alignment_matched_deg"] = _matched_plane_angle(center[:, ok], plus[:, :, ok],
                                                                                 minus[:, :, ok], steps, (i, j),
                                                                                 g_sw[[i, j]], floor)
+                    d_all = (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None]
+                    row["crb_matched_sigma_w_direction"] = _finite_or_none(
+                        matched_direction_crb(center[:, ok], d_all, (i, j), g_sw[[i, j]], floor))
+                    best, v_best = best_matched_direction(center[:, ok], d_all, (i, j), floor)
+                    row["crb_matched_best_AD_direction"] = _finite_or_none(best)
+                    row["best_AD_direction_matched"] = v_best.tolist()
+                    row["sigma_w_alignment_best_matched_deg"] = principal_angle_deg(v_best, g_sw[[i, j]])
                     if "K_u" in names:
                         k3 = [names.index(n) for n in ("K_u", "A_ex", "D")]
                         lam3, V3 = best_direction(res.F, names, ("K_u", "A_ex", "D"))
@@ -399,6 +406,10 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
         out["grad_sigma_w_u"] = g_sw.tolist()
         out["grad_wall_width_u"] = g_ww.tolist()
     return out
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def _matched_plane_angle(center, plus, minus, steps, idx, grad, floor) -> float:
@@ -474,7 +485,8 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
     for i, n in enumerate(names):
         single = _stats([r["crb_single"][i] for _, r in rows])
         meanR = _stats([r["crb_mean_R"][i] for _, r in rows])
-        noise = [r["noise_fraction"][i] for _, r in rows if r["noise_fraction"][i] is not None]
+        noise = [r["noise_fraction"][i] for _, r in rows
+                 if r["noise_fraction"][i] is not None and np.isfinite(r["noise_fraction"][i])]
         cond = {key: _stats([r.get(key, [None] * len(names))[i] for _, r in rows])
                 for key in ("crb_conditional", "crb_conditional_noise_corrected", "crb_conditional_matched")}
         per[n] = {"crb_single_median": single["median"], "crb_single_iqr": single["iqr"],
@@ -491,7 +503,15 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
         vals = [r[key] for _, r in rows if key in r]
         if vals:
             compressed[key] = {n: _stats([v[m] for v in vals])["median"] for m, n in enumerate(sub)}
+    combination = {}
+    for key in ("crb_matched_sigma_w_direction", "crb_matched_best_AD_direction", "sigma_w_alignment_best_matched_deg"):
+        vals = [r.get(key, "missing") for _, r in rows]
+        vals = [np.inf if v is None else v for v in vals if v != "missing"]
+        if vals:
+            stats = _stats(vals)
+            combination[key] = {"median": stats["median"], "iqr": stats["iqr"], "n": len(vals)}
     return {"n_fiducials": len(rows), "per_parameter": per, "compressed_median": compressed,
+            "AD_combination": combination,
             "sigma_w_alignment_deg_median": float(np.median(angles)) if angles else None,
             "sigma_w_alignment_n": len(angles),
             "sigma_w_alignment_matched_deg_median": float(np.median(matched)) if matched else None,
@@ -641,7 +661,7 @@ def summarize(out_dir, films=None) -> dict:
         film_row.update(n_fiducials=main["n_fiducials"], per_parameter=main["per_parameter"],
                         sigma_w_alignment_deg_median=main["sigma_w_alignment_deg_median"],
                         sigma_w_alignment_matched_deg_median=main["sigma_w_alignment_matched_deg_median"],
-                        compressed_median=main["compressed_median"],
+                        compressed_median=main["compressed_median"], AD_combination=main["AD_combination"],
                         rho_median=main["rho_median"])
         film_row["image"] = _block(analyses, names, "image", primary)
         film_row["per_regime"] = {r: {"float": _block([a for a in analyses if a["regime"] == r], names, "float", primary),
@@ -682,6 +702,12 @@ ESTIMATORS = {
     "crb_AD_compressed": "marginal bounds of A_ex and D (the other four known) from the 2 projections [J_A, J_D]^T x "
                          "with their 2x2 sample covariance, Hartlap-debiased ((R-4)/(R-1)); crb_KAD_compressed: the "
                          "same for (K_u, A_ex, D) ((R-5)/(R-1)); conservative",
+    "crb_matched_sigma_w_direction": "the matched-filter conditional bound on the combination v^T u, v = grad sigma_w "
+                                     "in the normalized (A_ex, D) plane (a direction fixed by physics, not by the data; "
+                                     "K_u, N_pin, ... known), in prior widths along v",
+    "crb_matched_best_AD_direction": "the same along the direction of the (A_ex, D) plane that minimizes it (a 1-degree "
+                                     "grid; chosen on the same families, slightly optimistic); "
+                                     "sigma_w_alignment_best_matched_deg: its angle to grad sigma_w",
     "sigma_w_alignment_deg": "angle between the top eigenvector of F's (A_ex, D) block and grad sigma_w (normalized u)",
     "sigma_w_alignment_matched_deg": "the same from the 2x2 Fisher of the projections [J_A, J_D]^T x",
 }
@@ -731,6 +757,14 @@ def choose_film(films: dict) -> dict:
             "note": "only the films measured compete" + ("" if len(competing) > 1 else ": one film measured, chosen by default")}
 
 
+def _combination_line(c: dict) -> str:
+    """The matched bounds of the A_ex-D combinations (medians over the fiducials)."""
+    fmt = lambda k: "n/a" if k not in c else ("inf" if c[k]["median"] is None else f"{c[k]['median']:.3g}")  # noqa: E731
+    return (f"A_ex-D combinations, matched-filter conditional: along grad sigma_w {fmt('crb_matched_sigma_w_direction')}, "
+            f"best direction {fmt('crb_matched_best_AD_direction')} at {fmt('sigma_w_alignment_best_matched_deg')} deg "
+            "from grad sigma_w")
+
+
 def summary_lines(summary: dict) -> list[str]:
     lines = []
     fids = summary.get("fiducials") or {}
@@ -752,6 +786,8 @@ def summary_lines(summary: dict) -> list[str]:
                          f"{fmt(p['crb_conditional_matched_median'])}")
         lines.append(f"  sigma_w alignment (A_ex-D best direction vs grad sigma_w), median: "
                      f"{row['sigma_w_alignment_deg_median']}")
+        if row.get("AD_combination"):
+            lines.append("  " + _combination_line(row["AD_combination"]))
         job = row["main_job"]
         lines.append(f"  main job: {job['cost_ratio_to_laptop']:.2f}x the laptop family, {job['wall_hours_2_cores']:.2f} h "
                      f"on 2 cores at 1000 draws; {job['draws_within_2h']} draws fit 2 h")
@@ -777,6 +813,8 @@ def summary_lines(summary: dict) -> list[str]:
                     f"{n} {'inf' if v is None else format(v, '.3g')}" for n, v in c.items())
                     for k, c in b["compressed_median"].items())
                 lines.append(f"      matched-filter conditional {matched}")
+                if b.get("AD_combination"):
+                    lines.append("      " + _combination_line(b["AD_combination"]))
                 lines.append(f"      {comp}")
     for film, why in summary["not_measured"].items():
         lines.append(f"not measured: {film}: {why}")
@@ -844,7 +882,8 @@ def figure(summary: dict, path) -> None:
 def _main(spec_json: str) -> int:
     spec = json.loads(spec_json)
     cfg = json.loads(Path(spec["config"]).read_text())
-    FILMS.setdefault(spec["film"], {**spec["film_spec"], "names": tuple(spec["film_spec"]["names"])})
+    # the parent's film spec is authoritative (a film of a test, or one the parent changed, runs as specified)
+    FILMS[spec["film"]] = {**spec["film_spec"], "names": tuple(spec["film_spec"]["names"])}
     run_fiducial(cfg, spec["film"], spec["fiducial"], int(spec["R"]), spec["deltas"], spec["out"])
     return 0
 
