@@ -214,6 +214,28 @@ def matched_filter_crb(center: np.ndarray, d: np.ndarray, floor: float = 0.0) ->
     return out
 
 
+def matched_filter_crb_pooled(groups: Sequence[np.ndarray], d: np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """``matched_filter_crb`` with the scatter of the projection J_iᵀx pooled over every stencil point
+    (``groups``: the R × p families at the centre and at each u ± δ eᵢ, each about its own mean) instead
+    of the centre's alone: an average of the points' unbiased variances, so unbiased where Σ is the same
+    across the stencil and never noisier than one of them, but with common random numbers the points'
+    deviations are correlated, so fewer than (points × (R − 1)) degrees of freedom. The bound is then
+    that of the stencil's neighbourhood (size δ), not of the point u alone."""
+    d = np.asarray(d, float)
+    R = d.shape[1]
+    centred = [np.asarray(g, float) - np.asarray(g, float).mean(axis=0) for g in groups]
+    out = np.full(d.shape[0], np.inf)
+    for i in range(d.shape[0]):
+        J = d[i].mean(axis=0)
+        norm2 = float(J @ J)
+        if R > 1:
+            norm2 -= float(np.sum(d[i].var(axis=0, ddof=1))) / R
+        var = float(np.mean([np.sum((X @ J) ** 2) / max(R - 1, 1) for X in centred])) + floor * float(J @ J)
+        if norm2 > 0 and var > 0:
+            out[i] = np.sqrt(var) / norm2
+    return out
+
+
 def matched_direction_crb(center: np.ndarray, d: np.ndarray, idx: Sequence[int], direction: np.ndarray,
                           floor: float = 0.0) -> float:
     """The conservative conditional bound (``matched_filter_crb``) on the combination s = vᵀu of the
@@ -306,5 +328,6 @@ def best_direction(F: np.ndarray, names: Sequence[str], which: Sequence[str]) ->
 
 
 __all__ = ["EPS_U", "QUANT_STEP", "upper_triangle", "Shrunk", "ledoit_wolf", "stencil", "crb", "FisherResult",
-           "fisher_from_families", "fisher_by_simulation", "matched_filter_crb", "matched_direction_crb",
+           "fisher_from_families", "fisher_by_simulation", "matched_filter_crb", "matched_filter_crb_pooled",
+           "matched_direction_crb",
            "best_matched_direction", "compressed_fisher", "principal_angle_deg", "best_direction"]
