@@ -199,19 +199,7 @@ def matched_filter_crb(center: np.ndarray, d: np.ndarray, floor: float = 0.0) ->
     ``center`` (R × p) plus ``floor``·I, a scalar variance per parameter (R − 1 degrees of freedom:
     stable at small R, unlike Σ⁻¹ in p ≫ R dimensions); ‖J_i‖² with the noise of Ĵ_i taken out,
     tr Cov(d_i)/R (``d``: k × R × p per-realisation differences). ∞ where ‖J_i‖² is not above it."""
-    center, d = np.asarray(center, float), np.asarray(d, float)
-    R = center.shape[0]
-    X = center - center.mean(axis=0)
-    out = np.full(d.shape[0], np.inf)
-    for i in range(d.shape[0]):
-        J = d[i].mean(axis=0)
-        norm2 = float(J @ J)
-        if R > 1:
-            norm2 -= float(np.sum(d[i].var(axis=0, ddof=1))) / R
-        var = float(np.sum((X @ J) ** 2)) / max(R - 1, 1) + floor * float(J @ J)
-        if norm2 > 0 and var > 0:
-            out[i] = np.sqrt(var) / norm2
-    return out
+    return matched_filter_crb_pooled([center], d, floor)
 
 
 def matched_filter_crb_pooled(groups: Sequence[np.ndarray], d: np.ndarray, floor: float = 0.0) -> np.ndarray:
