@@ -41,3 +41,19 @@ def test_adaptive_family_agrees_with_quasistatic_path(families):
     assert llg.curves_mz.shape == quasi.curves_mz.shape == (8, 8)
     np.testing.assert_allclose(llg.descending_mz[[0, -1]], quasi.descending_mz[[0, -1]], atol=0.02)
     assert np.nanmean(np.abs(llg.curves_mz - quasi.curves_mz)) < 0.1
+
+
+def test_slew_rate_options_are_the_configs_with_the_schemas_defaults():
+    """The three callers of the llg protocol (dataset, re-simulation, information bench) read SlewRate from
+    one helper: an empty protocol section gives the schema's defaults, which are the dataclass's own, and a
+    config's values reach it."""
+    import dataclasses
+
+    from forcdecode.forc.adaptive import SlewRate
+    from forcdecode.micromag.build import slew_rate_options
+
+    assert SlewRate(**slew_rate_options({})) == SlewRate()
+    given = {"protocol": {"name": "llg", "alpha": 1.0, "safety": 0.2, "rate_min_T_per_s": 1e8}}
+    settings = dataclasses.asdict(SlewRate(**slew_rate_options(given)))
+    assert (settings["alpha"], settings["safety"], settings["rate_min_T_per_s"], settings["rate_max_T_per_s"]) == \
+        (1.0, 0.2, 1e8, 1e9)

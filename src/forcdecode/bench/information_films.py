@@ -63,8 +63,8 @@ FILMS: dict[str, dict] = {
     "period_box": dict(nx=136, ny=136, nz=1, n_grains=72, protocol="quasistatic",
                        names=("K_u", "A_ex", "D", "N_pin"), regimes=("spirals",)),
 }
-"""Films of the issue (cells 2 × 2 × 4 nm, grains ≈ 32 nm). ``paper`` (256²×2) and ``laptop_llg``
-are listed so the summary can say they were not measured. ``laptop_llg`` is the laptop film under the
+"""Films of the issue (cells 2 × 2 × 4 nm, grains ≈ 32 nm). ``paper`` (256²×2)
+is listed so the summary can say it was not measured. ``laptop_llg`` is the laptop film under the
 seed paper's adaptive slew-rate LLG protocol (``forc.adaptive``, pinning cells slaved as in the dataset's
 ``llg`` protocol), differentiated in A_ex and D only (the issue's question: does a finite sweep rate
 carry information on them that a magnetometer-like quasi-static sweep does not); ``disorder_of`` makes
@@ -80,8 +80,8 @@ NOT_MEASURED = {
              "R >= 4 is days of 2 shared cores, and no GPU machine was lent",
 }
 NOT_YET = {
-    "laptop_llg": "the LLG sweep-rate protocol is ~360x dearer than quasi-static (docs/engine.md, 2026-11-28): ~4 CPU-h "
-                  "a fiducial at R = 4 (A_ex and D); not run yet",
+    "laptop_llg": "the LLG sweep-rate protocol is ~360x dearer than quasi-static (docs/engine.md, 2026-11-28): 4-6 CPU-h "
+                  "a fiducial at R = 4 (A_ex and D; 189 CPU-s a 12-field family measured); not run yet",
     "period_box": "a box of >= 2 spiral periods (136^2x1, 272 nm, for the spiral fiducials): ~40 CPU-s a family, "
                   "72 families at R = 4 for the two spiral fiducials; not run yet",
 }
@@ -231,7 +231,7 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
     CPU seconds of this process."""
     from ..forc.protocol import quasistatic_family
     from ..forc.raster import rasterize_grid_family
-    from ..micromag.build import build_film, sweep_options
+    from ..micromag.build import build_film, slew_rate_options, sweep_options
 
     spec = FILMS[film]
     fcfg = film_config(cfg, film, FILMS)
@@ -244,9 +244,7 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
         from ..forc.adaptive import SlewRate, adaptive_family
 
         f, m0, _ = build_film(fcfg, params, pinning="slaved", rng=rng)
-        p = fcfg.get("protocol", {})
-        settings = SlewRate(**{k: p[k] for k in ("alpha", "safety", "rate_min_T_per_s", "rate_max_T_per_s") if k in p})
-        fam = adaptive_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, settings=settings)
+        fam = adaptive_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, settings=SlewRate(**slew_rate_options(fcfg)))
     else:
         f, m0, _ = build_film(fcfg, params, rng=rng)
         fam = quasistatic_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, **sweep_options(fcfg))
@@ -373,12 +371,11 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                 res = fisher_from_families(center[:, ok], plus[:, :, ok], minus[:, :, ok], steps, names, u, floor)
                 row = res.to_json()
                 row["points_used"] = int(ok.sum())
+                dd = (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None]  # k × R × p per realisation
                 groups = [center[:, ok]] + [plus[k][:, ok] for k in range(len(names))] + \
                     [minus[k][:, ok] for k in range(len(names))]
-                row["crb_conditional_matched_pooled"] = _finite_list(matched_filter_crb_pooled(
-                    groups, (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None], floor))
+                row["crb_conditional_matched_pooled"] = _finite_list(matched_filter_crb_pooled(groups, dd, floor))
                 if "A_ex" in names and "D" in names and "K_u" in names:
-                    dd = (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None]
                     sub2 = [names.index("A_ex"), names.index("D")]
                     sub3 = [names.index("K_u")] + sub2
                     row["crb_AD_compressed"] = _finite_list(crb(compressed_fisher(center[:, ok], dd, sub2, floor)))
@@ -393,10 +390,9 @@ def analyse_fiducial(out_dir, film: str, fid: dict, R: int, deltas) -> dict:
                     row["sigma_w_alignment_matched_deg"] = _matched_plane_angle(center[:, ok], plus[:, :, ok],
                                                                                 minus[:, :, ok], steps, (i, j),
                                                                                 g_sw[[i, j]], floor)
-                    d_all = (plus[:, :, ok] - minus[:, :, ok]) / steps[:, None, None]
                     row["crb_matched_sigma_w_direction"] = _finite_or_none(
-                        matched_direction_crb(center[:, ok], d_all, (i, j), g_sw[[i, j]], floor))
-                    best, v_best = best_matched_direction(center[:, ok], d_all, (i, j), floor)
+                        matched_direction_crb(center[:, ok], dd, (i, j), g_sw[[i, j]], floor))
+                    best, v_best = best_matched_direction(center[:, ok], dd, (i, j), floor)
                     row["crb_matched_best_AD_direction"] = _finite_or_none(best)
                     row["best_AD_direction_matched"] = v_best.tolist()
                     row["sigma_w_alignment_best_matched_deg"] = principal_angle_deg(v_best, g_sw[[i, j]])
@@ -511,11 +507,10 @@ def _block(analyses: list[dict], names, channel: str, key_of) -> dict:
             compressed[key] = {n: _stats([v[m] for v in vals])["median"] for m, n in enumerate(sub)}
     combination = {}
     for key in ("crb_matched_sigma_w_direction", "crb_matched_best_AD_direction", "sigma_w_alignment_best_matched_deg"):
-        vals = [r.get(key, "missing") for _, r in rows]
-        vals = [np.inf if v is None else v for v in vals if v != "missing"]
+        vals = [r[key] for _, r in rows if key in r]
         if vals:
             stats = _stats(vals)
-            combination[key] = {"median": stats["median"], "iqr": stats["iqr"], "n": len(vals)}
+            combination[key] = {"median": stats["median"], "iqr": stats["iqr"], "n": stats["n"]}
     return {"n_fiducials": len(rows), "per_parameter": per, "compressed_median": compressed,
             "AD_combination": combination,
             "sigma_w_alignment_deg_median": float(np.median(angles)) if angles else None,

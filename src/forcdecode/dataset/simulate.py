@@ -17,7 +17,8 @@ from ..core.streams import stream_rng
 from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.protocol import descending_branch, quasistatic_family
 from ..forc.raster import fill_below_reversal, rasterize_grid_family
-from ..micromag.build import REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells, sweep_options
+from ..micromag.build import (REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells, slew_rate_options,
+                              sweep_options)
 
 __all__ = ["REFERENCE_CELLS", "build_film", "mesh_from_config", "pinning_cells", "field_grid", "hysteresis_area",
            "screen", "simulate", "simulate_realisation", "realisation_rng"]  # the first four live in micromag.build (re-exported for old callers)
@@ -86,9 +87,7 @@ def simulate_realisation(cfg: dict, params: dict, sample_id: int, realisation: i
     rng = realisation_rng(cfg, sample_id, realisation)
     if cfg["protocol"]["name"] == "llg":
         film, m0, _ = build_film(cfg, params, sample_id, pinning="slaved", rng=rng)
-        p = cfg["protocol"]
-        settings = SlewRate(alpha=p["alpha"], safety=p["safety"], rate_min_T_per_s=p["rate_min_T_per_s"],
-                            rate_max_T_per_s=p["rate_max_T_per_s"])
+        settings = SlewRate(**slew_rate_options(cfg))
         fam = adaptive_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
                               settings=settings)
         fam.stats.setdefault("relaxations", 0)

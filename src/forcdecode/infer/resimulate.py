@@ -23,7 +23,7 @@ from ..core.streams import stream_rng
 from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.protocol import quasistatic_family
-from ..micromag.build import build_film, sweep_options
+from ..micromag.build import build_film, slew_rate_options, sweep_options
 
 DISORDER_STREAM = "closed_loop_disorder"
 """Named stream of every re-simulation's disorder (keys: sample id or a label, realisation); never a
@@ -54,10 +54,8 @@ def simulate_family(cfg: dict, params: dict, rng: np.random.Generator) -> np.nda
         reversal, fields = grid_protocol(n_fields, B_max_T)
         return protocol_to_grid(simulate_measured(cfg, params, rng, reversal, fields), n_fields)
     if protocol_name(cfg) == "llg":
-        p = cfg["protocol"]
         film, m0, _ = build_film(cfg, params, rng=rng, pinning="slaved")
-        settings = SlewRate(alpha=p["alpha"], safety=p["safety"], rate_min_T_per_s=p["rate_min_T_per_s"],
-                            rate_max_T_per_s=p["rate_max_T_per_s"])
+        settings = SlewRate(**slew_rate_options(cfg))
         family = adaptive_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, settings=settings)
     else:
         film, m0, _ = build_film(cfg, params, rng=rng)

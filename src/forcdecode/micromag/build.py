@@ -90,4 +90,14 @@ def sweep_options(cfg: dict) -> dict:
             "merge_memory_MB": float(protocol["merge_memory_MB"])}
 
 
-__all__ = ["REFERENCE_CELLS", "mesh_from_config", "pinning_cells", "build_film", "sweep_options"]
+def slew_rate_options(cfg: dict) -> dict:
+    """Keyword arguments of the ``llg`` protocol's ``forc.adaptive.SlewRate`` from the config's
+    ``protocol`` section (schema defaults where absent): Gilbert damping ``alpha``, the rate's
+    ``safety`` factor and its clip ``rate_min_T_per_s``/``rate_max_T_per_s`` (T/s)."""
+    from ..config import defaults
+
+    protocol = {**defaults("protocol"), **cfg.get("protocol", {})}
+    return {key: float(protocol[key]) for key in ("alpha", "safety", "rate_min_T_per_s", "rate_max_T_per_s")}
+
+
+__all__ = ["REFERENCE_CELLS", "mesh_from_config", "pinning_cells", "build_film", "sweep_options", "slew_rate_options"]
