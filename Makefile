@@ -7,6 +7,12 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 CORES  ?= 2
+# test processes (pytest-xdist): numba runs one thread in the tests (tests/conftest.py), the training tests
+# one torch thread, so one process per core;
+# a test module stays in one process (--dist loadfile: its module-scoped fixtures are built once), and modules
+# start in collection order (--no-loadscope-reorder; tests/conftest.py puts the longest first)
+TEST_WORKERS ?= 2
+PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 .PHONY: install install-test run test test-all lint report bench clean clean-cache
 
@@ -29,10 +35,10 @@ run: install
 	$(BIN)/snakemake --cores $(CORES) --configfile config/config.yaml
 
 test: install-test
-	$(BIN)/python -m pytest
+	$(PYTEST)
 
 test-all: install-test
-	$(BIN)/python -m pytest -m ""
+	$(PYTEST) -m ""
 
 lint: install-test
 	$(BIN)/snakemake --lint --configfile config/config.yaml
