@@ -16,8 +16,11 @@ import pytest
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-# measured 2026-11-30 (`pytest --durations`): the tiny main job ~11 min, the four magnum.np comparisons ~6.5 min
-LONGEST_MODULES_FIRST = ("workflow/test_workflow.py", "reference/test_independent.py")
+# measured 2026-11-30 (`pytest --durations`, beside a two-process bench): in the default run the tiny main
+# job ~11 min and the four magnum.np comparisons ~6.5 min; among the slow tests the effects bench's two
+# end-to-end cases 14 and 8 min
+LONGEST_MODULES_FIRST = ("workflow/test_workflow.py", "reference/test_independent.py",
+                         "bench/test_effects_independent.py", "bench/test_effects_cases.py")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
