@@ -20,7 +20,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 # job ~11 min and the four magnum.np comparisons ~6.5 min; among the slow tests the effects bench's two
 # end-to-end cases 14 and 8 min. The Slurm test (CI only: FORCDECODE_SLURM_TEST=1) runs the same tiny
 # main job through Slurm, so it goes first: collected as it was, alphabetically near the end, it started
-# last and ran alone on one core
+# among the last and could run alone on one core at the end (CI keeps no log of a passing run to show it)
 LONGEST_MODULES_FIRST = ("workflow/test_slurm.py", "workflow/test_workflow.py", "reference/test_independent.py",
                          "bench/test_effects_independent.py", "bench/test_effects_cases.py")
 
