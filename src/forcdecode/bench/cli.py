@@ -137,7 +137,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.add_argument("--pool", type=int, default=200, help="information: draws screened for the regimes' mass")
     info.add_argument("--info-dir", default="results/bench/information", help="information: families, "
                       "fiducials.json, one JSON per fiducial, summary.json (resumable)")
-    info.add_argument("--stop-at", default=None, help="information: start no fiducial after this UTC time (HH:MM)")
+    info.add_argument("--stop-at", default=None, help="information: start no fiducial process after this UTC time (HH:MM)")
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge); "
                        "prior-class: the families whose rates the prior-class rule is measured on (read only)")

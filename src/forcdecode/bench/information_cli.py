@@ -52,7 +52,7 @@ def bench_information(args, say) -> int:
         plan.append((name, n, R))
     if not args.summarize_only:
         if args.workers < 1:
-            raise ConfigError(f"--workers must be >= 1 (fiducial processes at once; got {args.workers})")
+            raise ConfigError(f"--workers must be >= 1 (simulation processes at once; got {args.workers})")
         cfg = load_config(args.config or shipped_config("config"))
         fid_file = out / "fiducials.json"
         n_max = max(n for _, n, _ in plan)

@@ -18,8 +18,10 @@ Per fiducial and film: the families at u and at u ± δ e_i (normalized units, s
 fixed) for the realisations r = 0..R−1, each realisation's disorder from the ``bench_film`` stream
 ("information", film, sample id, r): the same at every stencil point (common random numbers; N_pin
 changes the number of pinning cells, which re-draws their positions: its differences carry that
-noise). One file per family, ``OUT/<film>/s<id>/<point>_r<r>.npz`` (resumable); the fiducial's
-whole set is simulated in one process (its peak RSS and CPU time read with ``wait4``). The first
+noise). One file per family, ``OUT/<film>/s<id>/<point>_r<r>.npz`` (resumable); a fiducial's
+families are simulated by processes of their own (peak RSS and CPU time read with ``wait4``), one per
+fiducial and, where the workers outnumber the fiducials left, more on one fiducial, each claiming a
+family before simulating it (``<point>_r<r>.claim``). The first
 ``stability`` fiducials are simulated at every δ asked for (the stability check in R and δ);
 the others at the first δ only.
 
@@ -252,35 +254,69 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
             "cpu_s": time.process_time() - cpu, "unconverged": int(fam.stats.get("unconverged", 0))}
 
 
-def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> None:
-    """Every family of one fiducial not yet on disk (this process)."""
-    from ..core.io import atomic_path
+def claim_path(family: Path) -> Path:
+    """The claim a process holds on a family while it simulates it (``<point>_r<r>.claim``)."""
+    return Path(family).with_suffix(".claim")
 
+
+def _claim(family: Path) -> bool:
+    """Claim ``family`` for this process: True if no other process holds it and it is not on disk
+    (the claim file is created exclusively, so two processes cannot both get it)."""
+    if family.exists():
+        return False
+    family.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.close(os.open(claim_path(family), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    if family.exists():  # written, and its claim released, between the first look and the claim
+        claim_path(family).unlink()
+        return False
+    return True
+
+
+def fiducial_families(film: str, fid: dict, R: int, deltas, out_dir) -> list[tuple[Path, np.ndarray, dict, int]]:
+    """(file, u, SI parameters, realisation) of every family of one fiducial: the stencil's points
+    (``points``) × the realisations 0..R−1."""
     names = FILMS[film]["names"]
     sid = int(fid["sample_id"])
     base = {k: fid[k] for k in ("Ms", "A_ex", "K_u", "D", "N_pin", "sigma_theta_deg", "sigma_K")}
-    u = to_unit(base, names)
-    for label, up, _ in points(u, names, deltas):
-        params = from_unit(up, base, names)
-        for r in range(R):
-            path = family_path(out_dir, film, sid, label, r)
-            if path.exists():
-                continue
-            try:
-                fam = simulate_family(cfg, film, params, sid, r)
-            except Exception as error:  # recorded, the analysis drops the point
-                fam = {"curves": np.full((64, 64), np.nan, np.float32), "image": np.zeros((64, 64), np.uint8),
-                       "cpu_s": float("nan"), "unconverged": -1, "error": f"{type(error).__name__}: {error}"}
-            fam["rss_MiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-            with atomic_path(path) as tmp:
-                with open(tmp, "wb") as fh:
-                    np.savez(fh, u=up, **fam)
+    return [(family_path(out_dir, film, sid, label, r), up, from_unit(up, base, names), r)
+            for label, up, _ in points(to_unit(base, names), names, deltas) for r in range(R)]
+
+
+def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> None:
+    """Every family of one fiducial that is neither on disk nor claimed by another process (this
+    process; several may work on one fiducial, each family is simulated once)."""
+    from ..core.io import atomic_path
+
+    sid = int(fid["sample_id"])
+    for path, up, params, r in fiducial_families(film, fid, R, deltas, out_dir):
+        if not _claim(path):
+            continue
+        try:
+            fam = simulate_family(cfg, film, params, sid, r)
+        except Exception as error:  # recorded, the analysis drops the point
+            fam = {"curves": np.full((64, 64), np.nan, np.float32), "image": np.zeros((64, 64), np.uint8),
+                   "cpu_s": float("nan"), "unconverged": -1, "error": f"{type(error).__name__}: {error}"}
+        fam["rss_MiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, u=up, **fam)
+        claim_path(path).unlink()
 
 
 def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stability: int, out_dir, say=print,
                   stop_at: float | None = None, workers: int = 1) -> None:
-    """Each fiducial in its own process, ``workers`` at a time (``costs.jsonl``: each process's CPU time and
-    peak RSS, from ``wait4``, so the cost per family does not depend on how many ran beside it)."""
+    """The fiducials' families in processes of their own, ``workers`` at a time. Each worker starts a
+    process on the open fiducial with the fewest processes (the first in the list on a tie): one per
+    fiducial while there are more fiducials than workers, then the workers a finished fiducial frees
+    join the fiducials still running that have a family left unclaimed (a process ends when its fiducial
+    has none, which closes the fiducial to new processes). The last process of a fiducial to end
+    analyses it.
+    ``costs.jsonl``: each process's CPU time and peak RSS, from ``wait4``, so the cost per family does not
+    depend on how many ran beside it. Claims left by a killed run are removed first: one run per
+    results directory at a time."""
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
@@ -290,14 +326,24 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
     cfg_path = out_dir / "config.json"
     cfg_path.parent.mkdir(parents=True, exist_ok=True)
     cfg_path.write_text(json.dumps(cfg))
-    costs_lock = threading.Lock()
+    lock = threading.Lock()
 
-    def one(k: int, fid: dict) -> None:
-        if stop_at is not None and time.time() > stop_at:
-            say(f"{film}: stop time reached before fiducial {fid['sample_id']}")
-            return
-        ds = list(deltas) if k < stability else list(deltas)[:1]
-        result = out_dir / film / f"s{int(fid['sample_id']):05d}.json"
+    def result_path(fid: dict) -> Path:
+        return out_dir / film / f"s{int(fid['sample_id']):05d}.json"
+
+    todo = [(k, fid) for k, fid in enumerate(fids) if not result_path(fid).exists()]
+    for _, fid in todo:  # stale claims of a run that was killed
+        for stale in (out_dir / film / f"s{int(fid['sample_id']):05d}").glob("*.claim"):
+            stale.unlink()
+    running = {k: 0 for k, _ in todo}
+    closed: set[int] = set()
+    failed: set[int] = set()
+
+    def deltas_of(k: int) -> list:  # the first ``stability`` fiducials at every δ, the others at the first
+        return list(deltas) if k < stability else list(deltas)[:1]
+
+    def process(k: int, fid: dict) -> dict:
+        ds = deltas_of(k)
         spec = json.dumps({"config": str(cfg_path), "film": film, "film_spec": FILMS[film], "fiducial": fid,
                            "R": R, "deltas": ds, "out": str(out_dir)})
         start = time.perf_counter()
@@ -307,24 +353,51 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
         row = {"film": film, "sample_id": int(fid["sample_id"]), "exit": os.waitstatus_to_exitcode(status),
                "wall_s": time.perf_counter() - start, "cpu_s": usage.ru_utime + usage.ru_stime,
                "peak_rss_MiB": usage.ru_maxrss / 1024, "deltas": ds, "R": R, "workers": workers}
-        with costs_lock, open(out_dir / "costs.jsonl", "a") as fh:
+        with lock, open(out_dir / "costs.jsonl", "a") as fh:
             fh.write(json.dumps(row) + "\n")
-        if row["exit"] == 0:
-            analysis = analyse_fiducial(out_dir, film, fid, R, ds)
-            analysis["process"] = row
-            write_json(result, analysis)
-            say(fiducial_line(analysis))
-        else:
-            say(f"{film} fiducial {fid['sample_id']}: exit {row['exit']}")
+        return row
 
-    todo = [(k, fid) for k, fid in enumerate(fids)
-            if not (out_dir / film / f"s{int(fid['sample_id']):05d}.json").exists()]
+    def finish(k: int, fid: dict, row: dict) -> None:
+        """The fiducial's analysis, by its last process (the families of all of them on disk)."""
+        if k in failed:
+            say(f"{film} fiducial {fid['sample_id']}: a process exited non-zero (exit {row['exit']} last); not analysed")
+            return
+        analysis = analyse_fiducial(out_dir, film, fid, R, deltas_of(k))
+        analysis["process"] = row
+        write_json(result_path(fid), analysis)
+        say(fiducial_line(analysis))
+
+    def unclaimed_left(k: int, fid: dict) -> bool:
+        return any(not (path.exists() or claim_path(path).exists())
+                   for path, *_ in fiducial_families(film, fid, R, deltas_of(k), out_dir))
+
+    def worker() -> None:
+        while True:
+            with lock:  # a fiducial is open to its first process, and to more while a family is unclaimed
+                open_ = [(running[k], n, k, fid) for n, (k, fid) in enumerate(todo)
+                         if k not in closed and (running[k] == 0 or unclaimed_left(k, fid))]
+                if not open_:
+                    return
+                if stop_at is not None and time.time() > stop_at:
+                    say(f"{film}: stop time reached before a process on fiducial {open_[0][3]['sample_id']}")
+                    return
+                _, _, k, fid = min(open_, key=lambda x: x[:2])
+                running[k] += 1
+            row = process(k, fid)
+            with lock:
+                running[k] -= 1
+                closed.add(k)  # this process found no family left to claim (or failed): no new ones
+                if row["exit"] != 0:
+                    failed.add(k)
+                last = running[k] == 0
+            if last:
+                finish(k, fid, row)
+
     if workers <= 1:
-        for k, fid in todo:
-            one(k, fid)
+        worker()
         return
     with ThreadPoolExecutor(max_workers=workers) as pool:  # threads only wait on the processes
-        for future in [pool.submit(one, k, fid) for k, fid in todo]:
+        for future in [pool.submit(worker) for _ in range(workers)]:
             future.result()
 
 
