@@ -331,16 +331,16 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
     def result_path(fid: dict) -> Path:
         return out_dir / film / f"s{int(fid['sample_id']):05d}.json"
 
+    def deltas_of(k: int) -> list:  # the first ``stability`` fiducials at every δ, the others at the first
+        return list(deltas) if k < stability else list(deltas)[:1]
+
     todo = [(k, fid) for k, fid in enumerate(fids) if not result_path(fid).exists()]
-    for _, fid in todo:  # stale claims of a run that was killed
-        for stale in (out_dir / film / f"s{int(fid['sample_id']):05d}").glob("*.claim"):
-            stale.unlink()
+    for k, fid in todo:  # stale claims of a run that was killed
+        for path, *_ in fiducial_families(film, fid, R, deltas_of(k), out_dir):
+            claim_path(path).unlink(missing_ok=True)
     running = {k: 0 for k, _ in todo}
     closed: set[int] = set()
     failed: set[int] = set()
-
-    def deltas_of(k: int) -> list:  # the first ``stability`` fiducials at every δ, the others at the first
-        return list(deltas) if k < stability else list(deltas)[:1]
 
     def process(k: int, fid: dict) -> dict:
         ds = deltas_of(k)
