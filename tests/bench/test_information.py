@@ -455,3 +455,30 @@ def test_the_pooled_matched_bound_agrees_with_the_centres_where_the_scatter_is_t
         spread["pooled"].append(np.log(matched_filter_crb_pooled([c, *p, *m], dd) / reference))
     sd = {k: np.std(np.array(v), axis=0) for k, v in spread.items()}
     assert np.all(sd["pooled"] < 0.8 * sd["centre"]), sd
+
+
+def test_the_figure_puts_every_film_in_its_legend_in_a_fixed_colour():
+    """The LLG film has no K_u panel, where the old legend lived: it must still be in the legend, and a
+    film keeps its colour whichever films the summary holds (its place in FILMS)."""
+    import matplotlib.pyplot as plt
+
+    from forcdecode.bench.information_films import draw_figure
+
+    def row(names, cost):
+        stats = {n: {"crb_single_median": 0.01, "crb_single_iqr": [0.005, 0.02],
+                     "crb_conditional_matched_median": None if n == "D" else 0.1,
+                     "crb_conditional_matched_iqr": [0.05, None]} for n in names}
+        return {"per_parameter": stats, "image": {"per_parameter": stats}, "cost_core_s_per_family": cost}
+
+    def legend_colours(films):
+        fig = draw_figure({"films": films})
+        handles = fig.legends[0].legend_handles
+        colours = {h.get_label(): h.get_color() for h in handles}
+        plt.close(fig)
+        return colours
+
+    both = legend_colours({"laptop_llg": row(("A_ex", "D"), 600.0), "laptop": row(("K_u", "A_ex", "D"), 2.0)})
+    assert {"laptop", "laptop_llg"} <= set(both)
+    assert [label for label in both if label in ("laptop", "laptop_llg")] == ["laptop", "laptop_llg"]
+    alone = legend_colours({"laptop_llg": row(("A_ex", "D"), 600.0)})
+    assert alone["laptop_llg"] == both["laptop_llg"] != both["laptop"]

@@ -903,24 +903,41 @@ def summary_lines(summary: dict) -> list[str]:
 
 
 def figure(summary: dict, path) -> None:
-    """CRB (single family, median with IQR over the fiducials) per parameter against the CPU cost of
-    a family, one colour per film; circles: float ⟨m_z⟩ (Ledoit–Wolf, marginal), open squares: the
-    8-bit image, triangles: the conservative conditional matched-filter bound (float); a marker at
-    the top edge: unidentified (∞) at the median. Dotted: the prior's width (1)."""
+    """Write ``draw_figure``'s figure to ``path`` (PNG, atomically)."""
     import matplotlib
-    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from ..core.io import atomic_path
 
+    fig = draw_figure(summary)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+
+
+def draw_figure(summary: dict):
+    """CRB (single family, median with IQR over the fiducials) per parameter against the CPU cost of
+    a family. One colour per film, fixed by its place in ``FILMS``. Circles: float ⟨m_z⟩ (Ledoit–Wolf,
+    marginal); open squares: the 8-bit image; triangles: the conservative conditional matched-filter
+    bound (float); a marker at the top edge: unidentified (∞) at the median. Dotted: the prior's
+    width (1). One legend beside the panels lists every film, whichever panels it has. Returns the
+    matplotlib Figure."""
+    import matplotlib
+    import matplotlib.lines
+    import matplotlib.ticker
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     top = 30.0
-    fig, axes = plt.subplots(2, 3, figsize=(10, 6), sharex=True, sharey=True)
+    fig, axes = plt.subplots(2, 3, figsize=(12, 6), sharex=True, sharey=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     lowest = 1.0
     for ax, n in zip(axes.flat, ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")):
-        for k, (film, row) in enumerate(summary["films"].items()):
+        for film, row in summary["films"].items():
+            k = list(FILMS).index(film)
             for blk, fmt, shift, what in ((row, "o", 1.0, "crb_single"), (row["image"], "s", 1.08, "crb_single"),
                                           (row, "^", 0.93, "crb_conditional_matched")):
                 p = blk["per_parameter"].get(n)
@@ -934,8 +951,7 @@ def figure(summary: dict, path) -> None:
                 lowest = min(lowest, lo)
                 ax.errorbar([row["cost_core_s_per_family"] * shift], [y], yerr=[[max(y - lo, 0)], [max(hi - y, 0)]],
                             fmt=fmt, capsize=3, color=colours[k % len(colours)],
-                            mfc="none" if fmt == "s" or med is None else None,
-                            label=f"{film} ({ {'o': 'float', 's': 'image', '^': 'float, matched-filter, conditional'}[fmt]})")
+                            mfc="none" if fmt == "s" or med is None else None)
         ax.axhline(1.0, color="k", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_xscale("log")
@@ -949,13 +965,18 @@ def figure(summary: dict, path) -> None:
         ax.set_xlabel("CPU-s per family")
     for ax in axes[:, 0]:
         ax.set_ylabel("CRB, one family (normalized u)")
-    axes.flat[0].legend(fontsize=7)
+    line = matplotlib.lines.Line2D
+    handles = [line([], [], color=colours[list(FILMS).index(film) % len(colours)], lw=6, label=film)
+               for film in sorted(summary["films"], key=list(FILMS).index)]
+    handles += [line([], [], color="grey", ls="none", marker=m, mfc=mfc, label=what) for m, mfc, what in (
+        ("o", None, "float, Ledoit–Wolf"), ("s", "none", "8-bit image, Ledoit–Wolf"),
+        ("^", None, "float, matched filter\n(conservative, conditional)"),
+        ("^", "none", "open at the top edge:\nunidentified at the median"))]
+    fig.legend(handles=handles, loc="center right", fontsize=8, frameon=False)
     fig.suptitle("Cramér–Rao bound per parameter vs cost of a family (median, IQR over fiducials; dotted: prior width)",
                  fontsize=10)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
+    fig.tight_layout(rect=(0, 0, 0.8, 1))
+    return fig
 
 
 def _main(spec_json: str) -> int:
