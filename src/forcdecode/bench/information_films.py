@@ -933,11 +933,11 @@ def draw_figure(summary: dict):
 
     top = 30.0
     fig, axes = plt.subplots(2, 3, figsize=(12, 6), sharex=True, sharey=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colour = {film: cycle[k % len(cycle)] for k, film in enumerate(FILMS)}
     lowest = 1.0
     for ax, n in zip(axes.flat, ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")):
         for film, row in summary["films"].items():
-            k = list(FILMS).index(film)
             for blk, fmt, shift, what in ((row, "o", 1.0, "crb_single"), (row["image"], "s", 1.08, "crb_single"),
                                           (row, "^", 0.93, "crb_conditional_matched")):
                 p = blk["per_parameter"].get(n)
@@ -950,7 +950,7 @@ def draw_figure(summary: dict):
                 hi = iqr[1] if iqr[1] is not None else top
                 lowest = min(lowest, lo)
                 ax.errorbar([row["cost_core_s_per_family"] * shift], [y], yerr=[[max(y - lo, 0)], [max(hi - y, 0)]],
-                            fmt=fmt, capsize=3, color=colours[k % len(colours)],
+                            fmt=fmt, capsize=3, color=colour[film],
                             mfc="none" if fmt == "s" or med is None else None)
         ax.axhline(1.0, color="k", lw=0.8, ls=":")
         ax.set_yscale("log")
@@ -966,8 +966,7 @@ def draw_figure(summary: dict):
     for ax in axes[:, 0]:
         ax.set_ylabel("CRB, one family (normalized u)")
     line = matplotlib.lines.Line2D
-    handles = [line([], [], color=colours[list(FILMS).index(film) % len(colours)], lw=6, label=film)
-               for film in sorted(summary["films"], key=list(FILMS).index)]
+    handles = [line([], [], color=colour[film], lw=6, label=film) for film in FILMS if film in summary["films"]]
     handles += [line([], [], color="grey", ls="none", marker=m, mfc=mfc, label=what) for m, mfc, what in (
         ("o", None, "float, Ledoit–Wolf"), ("s", "none", "8-bit image, Ledoit–Wolf"),
         ("^", None, "float, matched filter\n(conservative, conditional)"),
