@@ -114,7 +114,7 @@ def test_the_ambiguous_verdict_names_its_set():
     report = {"status": "analysed", "verdict": "ambiguous: background, additive_drift", "effect": "none",
               "analysis": {}}
     assert bench._answer_of_report(report) == {**_answer("additive_drift", "background", ambiguous=True),
-                                               "hedged": False}
+                                               "hedged": False, "no_effect_member": []}
     report["analysis"] = {"ambiguous_set": ["scale", "background"]}
     assert bench._answer_of_report(report)["named"] == ["background", "scale"]
     assert bench._answer_of_report({"status": "out of domain"})["refused"] == "out of domain"
@@ -123,6 +123,18 @@ def test_the_ambiguous_verdict_names_its_set():
     hedged = bench._answer_of_report({"status": "analysed", "verdict": "ambiguous", "effect": "none",
                                       "analysis": {"ambiguous": ["K_u change", "second_phase"]}})
     assert hedged["named"] == ["second_phase"] and hedged["ambiguous"] and hedged["hedged"]
+    # realisation noise in the set (the floor withheld the candidate): an answer that may be no effect,
+    # not an attribution on a control; partial on a case of the effect it names
+    noise = bench._answer_of_report({"status": "analysed", "verdict": "ambiguous", "effect": "none",
+                                     "analysis": {"ambiguous": ["background", "realisation noise"]}})
+    assert noise["named"] == ["background"] and noise["no_effect_member"] == ["realisation noise"]
+    assert score_answer("control", "none", noise) == "correct"
+    assert score_answer("library", "background", noise) == "partial"
+    thermal = bench._answer_of_report({"status": "analysed", "verdict": "ambiguous", "effect": "thermal_activation",
+                                       "analysis": {"ambiguous": ["switching-field distribution",
+                                                                  "thermal_activation"]}})
+    assert score_answer("library", "thermal_activation", thermal) == "partial"
+    assert score_answer("control", "none", thermal) == "correct"
     assert score_answer("control", "none", hedged) == "wrong"
     assert score_answer("library", "second_phase", hedged) == "partial"
     assert score_answer("library", "K_2", hedged) == "wrong"

@@ -248,3 +248,35 @@ def test_the_posterior_saves_its_validation_flags_and_predict_carries_them(poste
     old = json.loads(capsys.readouterr().out)
     assert old["K_u"]["read_from_image"] is None and old["K_u"]["basis"] == PREDATES
     assert old["combinations"]["Q"]["basis"] == PREDATES
+
+
+def test_a_quantity_whose_interval_spans_most_of_its_prior_is_not_read_for_this_file():
+    """Per-file honesty (issue 59 item 5): the global flag says D is read from the image on average, but
+    for this file D's 90 % interval spans 90 % of its prior range, so it is printed as not read for this
+    file with the reason; K_u, narrow here, is; a prior-only parameter stays prior only; a combination
+    whose interval covers its whole prior range at this M_s is not read for this file either."""
+    from forcdecode.learn.answer import NOT_FOR_THIS_FILE, per_file_identification
+    from forcdecode.learn.predictor import prediction_lines
+
+    bounds = dict(DEFAULT_BOUNDS)
+    ms = 8e5
+
+    def entry(name, lo, hi, read=True):
+        mid = (lo + hi) / 2
+        return {"value": float(denormalize(name, mid, bounds)), "normalized": mid,
+                "interval_68": [float(denormalize(name, mid - 0.01, bounds)), float(denormalize(name, mid + 0.01, bounds))],
+                "interval_90": [float(denormalize(name, lo, bounds)), float(denormalize(name, hi, bounds))],
+                "interval_90_normalized": [lo, hi], "read_from_image": read, "basis": "validation skill …"}
+
+    result = {"Ms": ms, "K_u": entry("K_u", 0.45, 0.52), "D": entry("D", 0.05, 0.95),
+              "N_pin": entry("N_pin", 0.1, 0.9, read=False),
+              "combinations": {"Q": {"value": 2.0, "interval_68": [1.9, 2.1], "interval_90": [1e-3, 1e3], "unit": "",
+                                     "defined_fraction": 1.0, "read_from_image": True, "basis": "…"}}}
+    out = per_file_identification(result, bounds)
+    assert out["K_u"]["read_for_this_file"] and out["K_u"]["interval_90_prior_share"] == pytest.approx(0.07)
+    assert out["D"]["read_for_this_file"] is False and NOT_FOR_THIS_FILE in out["D"]["per_file_basis"]
+    assert out["N_pin"]["read_for_this_file"] is False and "per_file_basis" not in out["N_pin"]
+    assert out["combinations"]["Q"]["read_for_this_file"] is False
+    assert out["identified_for_this_file"] == ["K_u"]
+    text = "\n".join(prediction_lines(out, "file", ms / 1e3))
+    assert "no: not for this file" in text and "this file identifies: K_u" in text

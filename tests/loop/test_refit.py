@@ -129,7 +129,12 @@ def test_the_null_films_are_the_structure_tests_disorder_floor(film):
     noise_only = analyse_with_refit(film.cfg, disordered, measured, film.fields, floor_variance=None, **options)
     assert with_floor["chosen"] == noise_only["chosen"] == "none"
     assert with_floor["structure"]["chi2_ratio"] < noise_only["structure"]["chi2_ratio"]
-    assert noise_only["verdict"] == "unexplained structured residual"
+    # against the noise alone the residual is structured; where a candidate the realisation floor withheld
+    # would have been named, the verdict says so (ambiguous with realisation noise) instead
+    assert noise_only["structure"]["structured"]
+    assert (noise_only["verdict"] == "unexplained structured residual"
+            or (noise_only["verdict"] == "ambiguous" and "realisation noise" in noise_only["ambiguous"])), \
+        noise_only["verdict_text"]
     assert with_floor["verdict"] == "none", with_floor["verdict_text"]
 
 

@@ -62,13 +62,21 @@ def test_white_noise_alone_gets_the_plain_none(seed):
     assert result["structure"]["chi2_ratio"] == pytest.approx(1.0, abs=0.2)
 
 
-def test_thermal_activation_is_named_and_sized():
-    """A family whose coercivities are reduced by 15 % (forc.thermal) is traced to thermal activation."""
+def test_thermal_activation_is_sized_and_named_only_with_a_second_sweep_rate():
+    """A family whose coercivities are reduced by 15 % (forc.thermal) is traced to thermal activation
+    and sized. From one sweep rate the verdict is ambiguous with a switching-field distribution the model
+    draws differently (a Sharrock shift and such a distribution move the same switching fields), with
+    the separating measurement named; a file carrying a second sweep rate gets the effect itself."""
     from forcdecode.forc.thermal import coercivity_scaled_family
+    from forcdecode.loop.effects import SWITCHING_FIELD_DISTRIBUTION
 
     rng = np.random.default_rng(2)
     measured = coercivity_scaled_family(BASE, FIELDS, 0.15) + 0.005 * rng.normal(size=BASE.shape)
-    result = analyse_residual(measured, BASE, FIELDS, seed=2)
+    one_rate = analyse_residual(measured, BASE, FIELDS, seed=2)
+    assert one_rate["chosen"] == "thermal_activation" and one_rate["verdict"] == "ambiguous"
+    assert one_rate["ambiguous"] == sorted(["thermal_activation", SWITCHING_FIELD_DISTRIBUTION])
+    assert "another sweep rate" in one_rate["separating_measurements"][SWITCHING_FIELD_DISTRIBUTION]
+    result = analyse_residual(measured, BASE, FIELDS, seed=2, sweep_rates=2)
     assert result["chosen"] == "thermal_activation" and result["verdict"] == "thermal_activation"
     epsilon, error = result["parameters"]["epsilon"], result["uncertainties"]["epsilon"]
     assert epsilon == pytest.approx(0.15, abs=0.01) and 0 < error < 0.01

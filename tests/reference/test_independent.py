@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from forcdecode.reference.independent import (IndependentFilm, InstrumentModel, SampleFamily, _langevin,
-                                              independent_disorder, measurement_protocol, record)
+                                              independent_disorder, independent_pins, measurement_protocol,
+                                              pins_for_density, record)
 
 
 def _toy_family():
@@ -91,6 +92,40 @@ def test_disorder_statistics(distribution):
     np.testing.assert_allclose(np.linalg.norm(axis, axis=0), 1.0)
     tilt = np.degrees(np.arccos(np.unique(axis[2])))
     assert np.sqrt(np.mean(tilt**2)) == pytest.approx(10.0, rel=0.12)  # |N(0, σ)|: rms = σ
+
+
+def test_lognormal_grains_spread_their_areas_and_keep_the_other_draws():
+    """Log-normal grain sizes (a power diagram): the grains' areas spread more than equal seeds give (the
+    coefficient of variation of the areas at least 1.5 times), and the anisotropy values drawn per grain
+    are the equal grains' (the radii are drawn last)."""
+    equal = IndependentFilm(nx=64, ny=64, n_grains=60)
+    lognormal = IndependentFilm(nx=64, ny=64, n_grains=60, grain_sizes="lognormal")
+    f_equal, _ = independent_disorder(equal, 0.2, 5.0, np.random.default_rng(4))
+    f_log, _ = independent_disorder(lognormal, 0.2, 5.0, np.random.default_rng(4))
+
+    def area_cv(factor):
+        _, counts = np.unique(factor, return_counts=True)
+        return np.std(counts) / np.mean(counts)
+
+    assert area_cv(f_log) > 1.5 * area_cv(f_equal)
+    assert set(np.unique(f_log)) <= set(np.unique(f_equal))
+    with pytest.raises(ValueError, match="equal or lognormal"):
+        independent_disorder(IndependentFilm(grain_sizes="voronoi"), 0.1, 5.0, np.random.default_rng(0))
+
+
+def test_pins_at_the_density_of_N_pin_isotropic_or_along_z():
+    """N_pin counts sites on the seed paper's 256 × 256 × 2 grid of 2 × 2 × 4 nm cells: a 128 nm × 128 nm ×
+    4 nm film holds 1/32 of that volume, so N_pin = 64 gives 2 pinning cells. Isotropic pins are unit
+    vectors of every orientation; pins along z are ±ẑ exactly."""
+    film = IndependentFilm(nx=32, ny=32, cell_nm=4.0)
+    assert pins_for_density(64, film) == 2 and pins_for_density(0, film) == 0
+    cells, moments = independent_pins(IndependentFilm(nx=32, ny=32, pinning_cells=500), np.random.default_rng(1))
+    assert np.unique(cells).size == 500
+    np.testing.assert_allclose(np.linalg.norm(moments, axis=0), 1.0)
+    assert abs(np.mean(moments[2])) < 0.1 and np.mean(np.abs(moments[2])) == pytest.approx(0.5, abs=0.05)
+    _, along_z = independent_pins(IndependentFilm(nx=32, ny=32, pinning_cells=500, pin_orientation="z"),
+                                  np.random.default_rng(1))
+    assert set(np.unique(along_z[2])) == {-1.0, 1.0} and not along_z[:2].any()
 
 
 def test_unknown_distribution_is_refused():

@@ -20,9 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
                              "each run through `forcdecode loop` as a user runs it (needs the reference extra and "
                              "the trained estimator)")
-    parser.add_argument("--set", dest="case_set", choices=["dev", "eval"], default="eval",
-                        help="effects --independent: the committed cases run (bench/effects_cases.yaml): dev for "
-                             "choices, eval only reported (default eval)")
+    parser.add_argument("--set", dest="case_set", choices=["dev", "eval", "laptop-dev", "laptop-eval"], default="eval",
+                        help="effects --independent: the committed cases run: dev for choices, eval only reported "
+                             "(default eval): the cluster set (bench/effects_cases.yaml, 207 cases) or the laptop set "
+                             "(laptop-dev, laptop-eval: bench/effects_cases_laptop.yaml, pinned and few-patch films "
+                             "sized for a 2-core machine)")
     parser.add_argument("--loop-args", default=None,
                         help="effects --independent: the `forcdecode loop` options measured, one string (default: "
                              "the README's first loop command, bench.effects_independent.USER_LOOP_ARGS); the "
@@ -280,7 +282,12 @@ def _bench_effects_user(args, say) -> int:
                           "loop's own options (--loop-args)")
     loop_args = tuple(USER_LOOP_ARGS if args.loop_args is None else shlex.split(args.loop_args))
     check_loop_args(loop_args)
-    cases = load_cases(args.case_set)
+    if args.case_set.startswith("laptop-"):
+        from .laptop_cases import load_cases as load_laptop_cases
+
+        cases = load_laptop_cases(args.case_set.removeprefix("laptop-"))
+    else:
+        cases = load_cases(args.case_set)
     if args.cases:
         unknown = set(args.cases) - {c["name"] for c in cases}
         if unknown:

@@ -25,11 +25,13 @@ from __future__ import annotations
 import json
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import ModelFileError
+from ..loop.effects import NO_EFFECT_MEMBERS
 
 CONFIG = {"seed": 11, "n_grains": 255, "mesh": {"nx": 64, "ny": 64, "nz": 1, "dx_nm": 2.0, "dy_nm": 2.0, "dz_nm": 4.0},
           "field": {"B_max_T": 1.0, "n_fields": 24}, "minimizer": {"torque_tol_T": 0.001, "max_iterations": 20000},
@@ -584,16 +586,20 @@ def _screened(h: dict) -> bool:
             and h["D"] <= SCREEN["D_over_D_c_max"] * d_c)
 
 
-def draw_hamiltonians(first_id: int, count: int) -> list[tuple[int, dict]]:
+def draw_hamiltonians(first_id: int, count: int, seed: int = CASES_SEED, keep_pinning: bool = False,
+                      wall_nm_min: float | None = None) -> list[tuple[int, dict]]:
     """``count`` in-prior Hamiltonians passing ``SCREEN``: (dataset sample id, SI dict rounded to 4
-    significant digits, N_pin = 0), ids from ``first_id`` on."""
+    significant digits, N_pin = 0 unless ``keep_pinning``: then the drawn N_pin), ids from ``first_id`` on,
+    drawn under ``seed``; ``wall_nm_min`` overrides the screen's wall width."""
     from ..dataset.params import draw_parameters
 
     out, k = [], first_id
     while len(out) < count:
-        h = draw_parameters(CASES_SEED, k)
-        if _screened(h):
-            out.append((k, {**{n: _sig(v) for n, v in h.items() if n != "N_pin"}, "N_pin": 0}))
+        h = draw_parameters(seed, k)
+        wall_ok = wall_nm_min is None or np.sqrt(h["A_ex"] / h["K_u"]) * 1e9 >= wall_nm_min
+        if _screened(h) and wall_ok:
+            pins = int(h["N_pin"]) if keep_pinning else 0
+            out.append((k, {**{n: _sig(v) for n, v in h.items() if n != "N_pin"}, "N_pin": pins}))
         k += 1
     return out
 
@@ -813,10 +819,15 @@ def case_film(case: dict):
     """The magnum.np film of a case (``reference.independent.IndependentFilm``)."""
     from ..reference.independent import IndependentFilm
 
+    from ..reference.independent import pins_for_density
+
     s = case["sample"]
-    return IndependentFilm(nx=s["nx"], ny=s["ny"], cell_nm=s["cell_nm"], n_grains=s["n_grains"],
+    film = IndependentFilm(nx=s["nx"], ny=s["ny"], cell_nm=s["cell_nm"], n_grains=s["n_grains"],
                            anisotropy_distribution=s["anisotropy_distribution"],
-                           sweep_step_T=case["protocol"]["sweep_step_T"])
+                           sweep_step_T=case["protocol"]["sweep_step_T"],
+                           grain_sizes=s.get("grain_sizes", "equal"), pin_orientation=s.get("pin_orientation", "isotropic"))
+    pins = pins_for_density(case["hamiltonian"].get("N_pin", 0), film)
+    return film if not pins else replace(film, pinning_cells=pins)
 
 
 def case_file(case: dict, work_dir, cache_dir=None, samples_dir=None) -> tuple[Path, float]:
@@ -827,7 +838,8 @@ def case_file(case: dict, work_dir, cache_dir=None, samples_dir=None) -> tuple[P
     truth = dict(case["hamiltonian"])
     protocol = measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
     start = time.perf_counter()
-    sample = stored_sample(samples_dir, truth, dict(case["physics"]), case["realisation_seed"], cache_dir, protocol, film)
+    sample = stored_sample(samples_dir, truth, dict(case["physics"]), case["realisation_seed"], cache_dir, protocol, film,
+                           patches=int(case.get("patches", 1)))
     sample_s = time.perf_counter() - start
     suffix = {"micromag0015": "frc", "lakeshore_csv": "csv"}[case["format"]]
     path = write_measurement(Path(work_dir) / f"{case['name']}.{suffix}", sample, truth["Ms"] * film.moment_Am2,
@@ -892,8 +904,9 @@ def _answer_of_report(report: dict) -> dict:
         names = analysis.get("ambiguous_set") or analysis.get("ambiguous")
         if not isinstance(names, (list, tuple)):
             names = [n.strip() for n in verdict.partition(":")[2].strip(" ()").split(",") if n.strip()]
-        return {"named": sorted(n for n in names if n != HAMILTONIAN_CHANGE), "ambiguous": True, "refused": None,
-                "hedged": HAMILTONIAN_CHANGE in names}
+        return {"named": sorted(n for n in names if n != HAMILTONIAN_CHANGE and n not in NO_EFFECT_MEMBERS),
+                "ambiguous": True, "refused": None, "hedged": HAMILTONIAN_CHANGE in names,
+                "no_effect_member": sorted(n for n in names if n in NO_EFFECT_MEMBERS)}
     return {"named": [report.get("effect") or verdict], "ambiguous": False, "refused": None}
 
 
@@ -918,10 +931,14 @@ def score_answer(kind: str, true_class: str, answer: dict) -> str:
     set holds it (never correct); else wrong. Control or outside case: correct when no effect is named
     (none, an unexplained structured residual, or a refusal), else wrong: an ambiguous set naming an
     effect is an attribution, also where it holds the Hamiltonian's own change ("hedged", counted
-    apart by ``rule_metrics``). ``named`` never holds ``HAMILTONIAN_CHANGE``."""
+    apart by ``rule_metrics``), but not where it holds realisation noise or a switching-field
+    distribution (``no_effect_member``: the loop says the residual may be no effect). ``named`` never
+    holds ``HAMILTONIAN_CHANGE`` or those members."""
     named = answer["named"]
     if kind in ("control", "outside"):
-        return "wrong" if named else "correct"
+        # an ambiguous set that holds realisation noise (or a switching-field distribution) says the
+        # residual may be no effect: not an attribution (``loop.effects.NO_EFFECT_MEMBERS``)
+        return "wrong" if named and not answer.get("no_effect_member") else "correct"
 
     def matches(name):
         return name == true_class or any({name, true_class} <= group for group in SAME_OBSERVABLE)
@@ -965,7 +982,10 @@ def user_row(case: dict, report: dict, argv=(), estimator: str = "", sample_s: f
             "null_realisations": loop_namespace(argv).null_realisations if argv else None,
             "candidates": candidates, "answers": answers,
             "scores": {rule: score_answer(case["kind"], case["class"], a) for rule, a in answers.items()},
-            "heldout_reduction": reductions, "sample_s": sample_s, "loop_s": loop_s}
+            "heldout_reduction": reductions, "sample_s": sample_s, "loop_s": loop_s,
+            "patches": int(case.get("patches", 1)), "pinned": bool(case["hamiltonian"].get("N_pin", 0)),
+            "variant": (case.get("sample") or {}).get("variant", "standard"),
+            "patch_estimate": (report.get("patches") or {}).get("estimate")}
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.9):
@@ -1137,6 +1157,10 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "samples_failed": [{"case": r["case"], "error": r["error"]} for r in failed],
             **loop, "trivial": trivial, "targets": target_verdicts(loop, trivial), "intervals": INTERVALS,
             "detection": detection_by_size(rows), "median_case_s": float(np.median(costs)) if costs else None,
+            "n_pinned": sum(bool(r.get("pinned")) for r in rows),
+            "patches": sorted({int(r.get("patches", 1)) for r in rows}),
+            "loop_seconds_median": (float(np.median([r["loop_s"] for r in rows if np.isfinite(r.get("loop_s", np.nan))]))
+                                    if rows else None),
             "wall_s": wall_s, "cases": rows + failed}
 
 

@@ -43,6 +43,8 @@ _REGISTRY: dict[str, tuple[int, str]] = {
     "propagation": (20, "Monte-Carlo draws propagating Alice's per-parameter intervals into the combinations (key: purpose)"),
     "disorder_realisation": (21, "grains, anisotropy disorder and pinning sites of disorder realisation r >= 1 of one "
                                  "dataset sample (keys: sample id, r); realisation 0 is the sample's `disorder` stream"),
+    "patch_estimate": (22, "noise and subsets of single realisations for the loop's patch estimate and its null films "
+                           "(key: purpose)"),
 }
 
 _LEGACY_PER_SAMPLE = frozenset({"parameters", "disorder"})

@@ -60,6 +60,13 @@ ALICE_COMBINATIONS_METHOD = (
     "correlations between parameters (unlike the joint posterior); value = the combination of the predictions")
 
 
+PER_FILE_SPAN = 0.8
+"""A quantity read from the image on average over the prior is still not read *for this file* when its
+90 % interval here spans at least this share of its prior range (``per_file_identification``)."""
+
+NOT_FOR_THIS_FILE = "not read for this file"
+
+
 # ---------------------------------------------------------------- the flag
 def _basis(record: dict) -> str:
     lo, hi = record["skill_ci90"]
@@ -247,7 +254,7 @@ def alice_answer(models: dict, result: dict, n_draws: int = 4000, seed: int = 0)
         rows[c] = row
     out["combinations"] = rows
     out["combinations_method"] = f"{ALICE_COMBINATIONS_METHOD}; {n_draws} draws"
-    return out
+    return per_file_identification(out, bounds, seed=seed)
 
 
 def _normalized_intervals(entry: dict) -> dict:
@@ -257,6 +264,64 @@ def _normalized_intervals(entry: dict) -> dict:
         if key.startswith("interval_") and key.endswith("_normalized") and key.count("_") == 2:
             out[int(key.split("_")[1]) / 100] = tuple(value)
     return out
+
+
+# ---------------------------------------------------------------- per file
+def _prior_ranges(result: dict, bounds: dict, names, combos, n_draws: int, seed: int) -> dict:
+    """The prior range (1 %–99 % quantiles, SI) of each combination at this file's M_s: the combination of
+    parameters drawn uniformly in their normalized coordinates (each parameter's prior range; the prior
+    class's joint constraint, K_eff > 0, is not applied, so the range is the wider one)."""
+    from ..core.parameters import normalize
+    from .combinations import combinations_of
+
+    rng = stream_rng(int(seed), "propagation", "prior_ranges")
+    u = rng.random((n_draws, len(names)))
+    values = combinations_of(u[None], list(names), [float(normalize("Ms", result["Ms"], bounds))], bounds, combos)[0]
+    out = {}
+    for k, c in enumerate(combos):
+        defined = values[np.isfinite(values[:, k]), k]
+        if defined.size:
+            out[c] = [float(v) for v in np.quantile(defined, [0.01, 0.99])]
+    return out
+
+
+def _per_file(entry: dict, share: float | None) -> None:
+    if share is None or not np.isfinite(share):
+        return
+    entry["interval_90_prior_share"] = float(share)
+    wide = share >= PER_FILE_SPAN
+    entry["read_for_this_file"] = bool(entry.get("read_from_image") is not False and not wide)
+    if wide and entry.get("read_from_image") is not False:
+        entry["per_file_basis"] = (f"{NOT_FOR_THIS_FILE}: its 90 % interval spans {share:.0%} of its prior range "
+                                   f"(≥ {PER_FILE_SPAN:.0%}), whatever its skill over the prior on average")
+
+
+def per_file_identification(result: dict, bounds: dict, n_draws: int = 4000, seed: int = 0) -> dict:
+    """Which quantities this file identifies (issue 59 item 5). The flag ``read_from_image`` is a property
+    of the model on average over the prior; for one file a quantity is ``read_for_this_file`` only when it
+    is read from the image and its 90 % interval here spans less than ``PER_FILE_SPAN`` of its prior
+    range: for a parameter the width of ``interval_90_normalized`` (its prior range is 1 in normalized
+    units), for a combination the width of ``interval_90`` over its prior range at this M_s
+    (``_prior_ranges``). Adds ``interval_90_prior_share``, ``read_for_this_file`` and, where the interval
+    is too wide, ``per_file_basis``; ``identified_for_this_file``: the names read for this file."""
+    names = [n for n in TARGETS if isinstance(result.get(n), dict) and "value" in result[n]]
+    for name in names:
+        interval = result[name].get("interval_90_normalized")
+        _per_file(result[name], None if interval is None else abs(float(interval[1]) - float(interval[0])))
+    combinations = result.get("combinations") or {}
+    if combinations and "Ms" in result and names:
+        ranges = _prior_ranges(result, bounds, names, list(combinations), n_draws, seed)
+        for name, row in combinations.items():
+            interval, prior = row.get("interval_90"), ranges.get(name)
+            if interval is None or prior is None or not prior[1] > prior[0]:
+                continue
+            _per_file(row, abs(float(interval[1]) - float(interval[0])) / (prior[1] - prior[0]))
+    result["identified_for_this_file"] = (
+        [n for n in names if result[n].get("read_for_this_file")]
+        + [n for n, row in combinations.items() if row.get("read_for_this_file")])
+    result["per_file_rule"] = (f"read for this file when read from the image and its 90 % interval spans less than "
+                               f"{PER_FILE_SPAN:.0%} of its prior range")
+    return result
 
 
 # ---------------------------------------------------------------- the posterior
@@ -309,9 +374,9 @@ def posterior_flags(metadata: dict, result: dict, bounds: dict) -> dict:
                 entry["prior_range"] = [float(v) for v in bounds[name]]
     for name, row in (result.get("combinations") or {}).items():
         row.update(flag((block.get("combinations") or {}).get(name)))
-    return result
+    return per_file_identification(result, bounds)
 
 
-__all__ = ["FORMAT", "RULE", "PRIOR_ONLY", "PREDATES", "ALICE_COMBINATIONS_METHOD", "identification_record", "flag",
+__all__ = ["FORMAT", "RULE", "PRIOR_ONLY", "PER_FILE_SPAN", "NOT_FOR_THIS_FILE", "per_file_identification", "PREDATES", "ALICE_COMBINATIONS_METHOD", "identification_record", "flag",
            "alice_identification", "alice_combination_identification", "quantile_draws", "alice_answer",
            "posterior_identification", "posterior_flags"]

@@ -176,6 +176,8 @@ def _read_mark(entry: dict) -> str:
     if "read_from_image" not in entry:
         return ""
     read = entry["read_from_image"]
+    if read and entry.get("read_for_this_file") is False:
+        return "no: not for this file"
     return "yes" if read else ("no: prior only" if read is False else "unknown")
 
 
@@ -209,7 +211,8 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
                          f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry.get('bob_error_normalized', np.nan):>18.3f}  "
                          f"{unit:<8}{_read_mark(entry)}")
         if "basis" in entry:
-            bases.append(f"  {name}: {entry['basis']}")
+            bases.append(f"  {name}: {entry['basis']}" + (f"; {entry['per_file_basis']}" if entry.get("per_file_basis")
+                                                          else ""))
     combinations = result.get("combinations") or {}
     if combinations:
         method = result.get("combinations_method") or ("transforms of the joint posterior's draws (correlations "
@@ -228,12 +231,16 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
                 lines.append(f"{name:<16}{shown}  [{i68[0]:>11.4g}, {i68[1]:>11.4g}]  [{i90[0]:>11.4g}, {i90[1]:>11.4g}]  "
                              f"{row.get('defined_fraction', np.nan):>8.2f}  {row.get('unit', ''):<8}{_read_mark(row)}")
             if "basis" in row:
-                bases.append(f"  {name}: {row['basis']}")
+                bases.append(f"  {name}: {row['basis']}" + (f"; {row['per_file_basis']}" if row.get("per_file_basis")
+                                                             else ""))
     if bases:
         rule = result.get("identification_rule")
         lines += ["", f"read from the image? ({rule})" if rule else "read from the image?", *bases]
         if any(PREDATES in b for b in bases):
             lines.append("  (retrain the models to get the flag: the model files predate it)")
+    if "identified_for_this_file" in result:
+        named = ", ".join(result["identified_for_this_file"]) or "nothing"
+        lines.append(f"this file identifies: {named} ({result.get('per_file_rule', '')})")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
     check = result.get("prior_check")

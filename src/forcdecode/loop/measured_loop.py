@@ -297,6 +297,18 @@ class Residual:
 
 
 @dataclass
+class FileFloor:
+    """The realisation floor of this file: how many patches it averages (``patches.PatchEstimate``), the
+    pool of single realisations of the decoded Hamiltonian it was read against, and the null gains of
+    every candidate on effect-free films at that patch number (None where not computed here: the refit
+    path computes its own on the refitted Hamiltonian)."""
+
+    patches: object
+    pool: list
+    null_gain: dict | None = None
+
+
+@dataclass
 class Judgement:
     """The residual analysis (``analyse_residual``'s dict, or the refit's) and the Hamiltonian it ends on."""
 
@@ -566,21 +578,55 @@ def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
             if s.physics else {})
 
 
+def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Residual, report: dict,
+                 log) -> FileFloor:
+    """How many patches the file averages (``loop.patches.estimate_patches``: its step heights against
+    P-averages of ``patches.POOL_SIZE`` single realisations of ``params``, the file's noise added); report
+    key ``patches``."""
+    from .patches import POOL_SIZE, estimate_patches, single_realisations
+
+    pool = single_realisations(cfg, params, POOL_SIZE, progress=counter("single realisations", "families"))
+    estimate = estimate_patches(m.family, pool, noise_sigma=r.noise, seed=cfg["seed"])
+    report["patches"] = estimate.report()
+    log(f"patches averaged by the file: {estimate.label()} (step height {estimate.step_height:.3f}; consistent with "
+        f"{', '.join(map(str, estimate.consistent)) or 'none of 1-8'}); the realisation floor is drawn at "
+        f"{estimate.floor_patches}")
+    return FileFloor(estimate, pool)
+
+
+def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r: Residual, floor: FileFloor,
+               candidates: dict) -> FileFloor:
+    """The realisation floor of every candidate (``physics_effects.null_gains``, K_u's neighbourhood
+    included): its largest held-out gain on ``s.null_realisations`` effect-free films of the decoded
+    Hamiltonian averaging the file's patch number (``patches.null_films``, each also mirrored, with the
+    file's noise), analysed against the same re-simulation with the same candidates."""
+    from .patches import null_films
+    from .physics_effects import null_gains
+
+    films = null_films(floor.pool, floor.patches.floor_patches, count=max(s.null_realisations, 1), seed=cfg["seed"])
+    null = null_gains(films, resim, m.fields, noise_sigma=r.noise, seed=cfg["seed"], hamiltonian_floor=True,
+                      every_k=s.every_k, n_profiles=s.profiles, **candidates)
+    return FileFloor(floor.patches, floor.pool, null)
+
+
 def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
-                   r: Residual, candidates: dict) -> Judgement:
-    """The residual traced to an effect against the re-simulation (``analyse_residual``)."""
+                   r: Residual, candidates: dict, floor: FileFloor) -> Judgement:
+    """The residual traced to an effect against the re-simulation (``analyse_residual``), every candidate
+    judged against its realisation floor at the file's patch number."""
     from .physics_effects import analyse_residual
     from .refit import measured_saturation
 
     saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
     analysis = analyse_residual(m.family, resim, m.fields, every_k=s.every_k, seed=cfg["seed"], noise_sigma=r.noise,
                                 floor_variance=spread, n_profiles=s.profiles, field_shift=r.shift, drift=r.drift,
-                                moment_tolerance=s.moment_tolerance, saturation_points=saturated, **candidates)
+                                moment_tolerance=s.moment_tolerance, saturation_points=saturated,
+                                null_gain=floor.null_gain, measured_patches=floor.patches.floor_patches,
+                                **candidates)
     return Judgement(analysis, params)
 
 
 def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r: Residual, report: dict,
-                     log) -> Judgement:
+                     log, floor: FileFloor) -> Judgement:
     """The residual traced to an effect against the Hamiltonian refitted without it
     (``refit.analyse_with_refit``), or iterated to a fixed point (``fixed_point``); report entries."""
     from ..infer.resimulate import protocol_name
@@ -602,6 +648,8 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
 
         analysis = analyse_with_refit(cfg, e.params, m.family, fields, names=tuple(refit), every_k=s.every_k,
                                       null_realisations=s.null_realisations,
+                                      null_patches=floor.patches.floor_patches,
+                                      measured_patches=floor.patches.floor_patches,
                                       n_profiles=s.sweep_profiles, budget=s.refit_budget, physics=s.physics,
                                       noise_sigma=r.noise, field_shift=r.shift, drift=r.drift,
                                       moment_tolerance=s.moment_tolerance, measured_points=r.points,
@@ -719,11 +767,13 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
         return report
     resim, spread = resimulate_estimate(cfg, s, hamiltonian)  # re-simulate
     residual = residual_evidence(cfg, measurement, resim, report)  # residual
+    floor = file_patches(cfg, s, measurement, hamiltonian.params, residual, report, log)  # patches averaged
     if refit:  # candidates and judge, against the Hamiltonian refitted without each candidate
-        judgement = judge_with_refit(cfg, s, measurement, hamiltonian, residual, report, log)
-    else:  # candidates, judge
+        judgement = judge_with_refit(cfg, s, measurement, hamiltonian, residual, report, log, floor)
+    else:  # candidates, the realisation floor, judge
         candidates = physics_candidates(cfg, s, hamiltonian.params)
-        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, resim, spread, residual, candidates)
+        floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
+        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, resim, spread, residual, candidates, floor)
     return write_report(out, path, cfg, s, measurement, resim, residual, judgement, report)  # report
 
 
@@ -798,6 +848,8 @@ def _read_cell(entry: dict) -> str:
     read = entry.get("read_from_image")
     if "read_from_image" not in entry:
         return "—"
+    if read and entry.get("read_for_this_file") is False:
+        return f"no: {entry.get('per_file_basis', 'not read for this file')}"
     return "yes" if read else ("no" if read is False else entry.get("basis", "unknown"))
 
 
@@ -826,6 +878,9 @@ def _combination_lines(prediction: dict) -> list[str]:
              if isinstance(e, dict) and "basis" in e]
     if bases:
         lines += ["", f"Read from the image? {prediction.get('identification_rule', '')}:", "", *bases]
+    if "identified_for_this_file" in prediction:
+        lines += ["", f"This file identifies: {', '.join(prediction['identified_for_this_file']) or 'nothing'} "
+                  f"({prediction.get('per_file_rule', '')}; `learn.answer.per_file_identification`)."]
     return lines
 
 
@@ -933,9 +988,18 @@ def _markdown(path, report, analysis) -> str:
                      f"{floor} | {c.get('beats_null', '—')} | "
                      f"{c.get('accepted', '')} |")
     if any("null_gain" in c for c in analysis["candidates"].values()):
-        lines += ["", "Floor: the refitted Hamiltonian simulated on other disorder realisations (mirrored, with the "
+        lines += ["", f"Floor: the {'refitted' if report.get('refit') else 'decoded'} Hamiltonian simulated on other "
+                  "disorder realisations, each averaging as many patches as this file (below; mirrored, with the "
                   "measurement's noise) and analysed as if measured; a candidate must gain more here than there, "
-                  "relatively and in mean-square error (`loop.refit.analyse_with_refit`)."]
+                  "relatively and in mean-square error (`loop.patches`, `physics_effects.null_gains`). Field-shift "
+                  "and drift candidates with model-free evidence are judged by that evidence (their floor is printed, "
+                  "not applied)."]
+    patches = report.get("patches")
+    if patches:
+        consistent = ", ".join(map(str, patches["consistent"])) or "none of 1–8"
+        lines += ["", f"Patches averaged by the file (`loop.patches`): {patches['estimate']} (effective step height "
+                  f"{patches['step_height']:.3f}; consistent with {consistent}); the floor is drawn at "
+                  f"{patches['floor_patches']} patch(es), the most realisation noise the file may hold."]
     shift = analysis.get("field_shift")
     if shift and shift.get("offset_T") is not None:
         lines += ["", f"Symmetry of the major loop (model-free evidence for a field shift, `loop.signatures`): centre "

@@ -45,7 +45,8 @@ from .signatures import (candidate_shift, drift_agreement, saturation_gated, sat
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
                       measurement_clock, bootstrap_resamples)
-from .effects import HAMILTONIAN_CHANGE, equivalent_candidates, separating_measurements
+from .effects import (HAMILTONIAN_CHANGE, REALISATION_NOISE, beats_null_gain, SWITCHING_FIELD_DISTRIBUTION, equivalent_candidates,
+                      separating_measurements)
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -269,7 +270,8 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     gains: dict = {}
     for family in pseudo:
         result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
-        found = {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"]}
+        none_mse = result["candidates"]["none"]["heldout_rms"] ** 2
+        found = {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"], "none_mse": none_mse}
                  for name, record in result["candidates"].items()}
         if result["hamiltonian_neighbourhood"] is not None:
             found[HAMILTONIAN_CHANGE] = _neighbourhood_gain(result)
@@ -286,11 +288,15 @@ def _neighbourhood_gain(result: dict) -> dict:
 
 
 def merge_null_gains(a: dict, b: dict) -> dict:
-    """Per candidate, the larger of two null gains (relative and mean-square, each on its own)."""
+    """Per candidate, the larger of two null gains (relative and mean-square, each on its own; and the
+    larger held-out mean-square residual of "none" on the null films, ``none_mse``, where recorded)."""
     out = dict(a)
     for name, g in b.items():
         old = out.get(name, {"relative": -np.inf, "mse": -np.inf})
-        out[name] = {"relative": max(old["relative"], g["relative"]), "mse": max(old["mse"], g["mse"])}
+        merged = {"relative": max(old["relative"], g["relative"]), "mse": max(old["mse"], g["mse"])}
+        if "none_mse" in g or "none_mse" in old:
+            merged["none_mse"] = max(old.get("none_mse", -np.inf), g.get("none_mse", -np.inf))
+        out[name] = merged
     return out
 
 
@@ -386,6 +392,7 @@ class Offered:
 
     mse: dict
     evidenced: set
+    floored: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -526,6 +533,7 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
     none_mse = float(np.nanmean(mse["none"]))
     offered = dict(mse)
     evidenced = set()  # shown by the model-free shift or drift test: ``choose_candidate(evidenced=)``
+    floored = {}  # passed every gate but the realisation floor
     for name in records:
         gain_mse = none_mse - float(np.nanmean(mse[name]))
         records[name]["gain_mse_mean"] = gain_mse
@@ -537,9 +545,8 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
             # recorded for every candidate (the gates below may spare one the floor)
             null = null_gain.get(name, {"relative": 0.0, "mse": 0.0})
             records[name]["null_gain"] = dict(null)
-            records[name]["beats_null"] = bool(
-                records[name]["relative_gain"] > max(null["relative"], 0.0) + null_margin
-                and gain_mse > max(null["mse"], 0.0) * (1 + null_margin))
+            records[name]["beats_null"] = beats_null_gain(records[name]["relative_gain"], gain_mse, none_mse, null,
+                                                          null_margin)
         if name in EFFECTS and "scale" in EFFECTS[name].components:
             scale = records[name]["parameters"].get("scale", 1.0)
             records[name]["within_moment_tolerance"] = bool(abs(scale - 1.0) <= moment_tolerance)
@@ -603,8 +610,10 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
                 offered.pop(name, None)
                 continue
         if null_gain is not None and not records[name]["beats_null"]:
-            offered.pop(name)
-    return Offered(offered, evidenced)
+            withheld = offered.pop(name)  # withheld by the realisation floor
+            if records[name]["relative_gain"] >= records[name]["null_gain"]["relative"]:
+                floored[name] = withheld  # and gaining as much as effect-free films give it: ambiguous, not none
+    return Offered(offered, evidenced, floored)
 
 
 def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int, n_boot: int,
@@ -624,7 +633,7 @@ def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int,
 
 
 def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, floor_variance, n_profiles: int,
-          saturation_gate: bool, saturation_points, moment_tolerance: float) -> Verdict:
+          saturation_gate: bool, saturation_points, moment_tolerance: float, measured_patches: int = 1) -> Verdict:
     """The structure test of the chosen model's residual (``loop.structure``) and the saturation test:
     the chosen effect, "none", or "unexplained structured residual" (and where it lives)."""
     from .structure import describe, residual_structure
@@ -632,7 +641,8 @@ def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, 
     measured, base_family, fields = p.measured, p.base_family, p.fields
     records, models = fits.records, fits.models
     residual_after = measured - models[chosen]
-    structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles)
+    structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles,
+                                   measured_patches=measured_patches)
     saturation = None
     if saturation_gate:
         saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
@@ -691,6 +701,48 @@ def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: st
     separating = separating_measurements(members)
     text = (f"ambiguous: {', '.join(members)} explain the held-out residual equally (neither beats the other "
             "beyond its noise); to tell them apart: " + "; ".join(f"{k}: {v}" for k, v in separating.items()))
+    return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
+
+
+def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, verdict: Verdict, *, seed: int,
+                          n_boot: int, min_relative_gain: float, equivalence: float, sweep_rates: int = 1) -> Verdict:
+    """The two answers one FORC family cannot give, made ``ambiguous`` (after ``ambiguity``; the choice is
+    unchanged, its own bootstrap stream ``realisation_ambiguity``):
+
+    - Realisation noise. Nothing was chosen, but the selection would have named X had the realisation
+      floor not withheld it: X beats "none" on held-out curves, and its relative gain reaches the largest
+      it has on effect-free films of the decoded Hamiltonian at the file's patch number without beating it
+      by the margin (or beats it relatively but not in mean-square error). The verdict is then "ambiguous"
+      with {X, ``effects.REALISATION_NOISE``}, never X alone. A candidate gaining less than effect-free
+      films give it leaves the verdict as it is ("none": the floor explains it).
+    - Thermal activation at one sweep rate (``sweep_rates`` < 2). A Sharrock shift of the switching
+      fields and a switching-field distribution the model draws differently (realisation noise, disorder
+      statistics) move the same switching fields on one family: a verdict that names thermal activation,
+      alone or in a set, becomes "ambiguous" with ``effects.SWITCHING_FIELD_DISTRIBUTION`` beside it, the
+      separating measurement a FORC family at another sweep rate."""
+    members = list(verdict.ambiguous) if verdict.verdict == "ambiguous" else []
+    if chosen == "none" and verdict.verdict != "ambiguous" and offered.floored:
+        rng = stream_rng(seed, "bootstrap", "realisation_ambiguity")
+        pool = {**offered.mse, **offered.floored}
+        without_floor, _ = choose_candidate(pool, {k: v["n_parameters"] for k, v in fits.records.items()}, rng,
+                                            n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced)
+        if without_floor != "none":
+            members = [without_floor, REALISATION_NOISE]
+    named = set(members) if members else ({chosen} if chosen != "none" else set())
+    if sweep_rates < 2 and "thermal_activation" in named:
+        members = sorted(named | {SWITCHING_FIELD_DISTRIBUTION})
+    if not members or members == list(verdict.ambiguous):
+        return verdict
+    members = sorted(set(members))
+    separating = separating_measurements(members)
+    if REALISATION_NOISE in members and SWITCHING_FIELD_DISTRIBUTION not in members:
+        lead = ("ambiguous: realisation noise: " + ", ".join(m for m in members if m != REALISATION_NOISE)
+                + " gains on held-out curves, but no more than on effect-free films of the decoded Hamiltonian "
+                  "averaging as many patches as this file")
+    else:
+        lead = (f"ambiguous: {', '.join(members)} explain the held-out residual equally on one FORC family at "
+                "one sweep rate")
+    text = lead + "; to tell them apart: " + "; ".join(f"{k}: {v}" for k, v in separating.items())
     return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
 
 
@@ -767,7 +819,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None,
                      physics_reference_family=None, hamiltonian_families=None,
                      moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
-                     saturation_gate: bool = True, saturation_points=None) -> dict:
+                     saturation_gate: bool = True, saturation_points=None, measured_patches: int = 1,
+                     sweep_rates: int = 1) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -864,6 +917,15 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     closure with the re-simulated saturated film there; the saturation gate and the verdict's
     saturation test then run on them (``signatures.saturation_residual_points``) instead of on the
     deep-saturated grid points.
+
+    ``measured_patches``: the number of independent patches the measurement averages
+    (``loop.patches``): the structure test's disorder floor is v·(1/patches + 1/``n_profiles``).
+
+    Two verdicts no single FORC family can settle are answered ``ambiguous`` (``realisation_ambiguity``):
+    a candidate the selection would name without the realisation floor but that gains no more than it
+    gains on effect-free films ("ambiguous: X, realisation noise"), and thermal activation from a file at
+    one sweep rate (``sweep_rates`` < 2: "ambiguous: thermal_activation, switching-field distribution",
+    the separating measurement a FORC family at another sweep rate).
     """
     g = gated_candidates(measured, base_family, fields, order, physics_families=physics_families,
                          soft_phase_families=soft_phase_families, measured_candidates=measured_candidates,
@@ -877,7 +939,10 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     choice = choose(p, fits, offered, seed, n_boot, min_relative_gain, equivalence)
     verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
                     n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,
-                    moment_tolerance=moment_tolerance)
+                    moment_tolerance=moment_tolerance, measured_patches=measured_patches)
     verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
                         min_relative_gain=min_relative_gain, equivalence=equivalence)
+    verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
+                                    min_relative_gain=min_relative_gain, equivalence=equivalence,
+                                    sweep_rates=sweep_rates)
     return residual_report(p, fits, base, choice, verdict, field_shift, drift)

@@ -35,6 +35,7 @@ from ..core.errors import ConfigError
 from ..core.streams import stream_rng
 from .effects import (HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors, _per_curve_mse, beats_floor,
                       equivalent_candidates, separating_measurements)
+from .patches import PATCH_CHOICES, POOL_SIZE, null_films, single_realisations
 from .signatures import calibrated_shift
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
@@ -143,7 +144,7 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
             "family": family, "spread": spread, "model": model, "effect_parameters": theta}
 
 
-def realisation_floor(profile_spread, n_profiles: int, null_squares) -> np.ndarray:
+def realisation_floor(profile_spread, n_profiles: int, null_squares, null_patches: int | None = None) -> np.ndarray:
     """The variance v of m between single disorder realisations of the refitted Hamiltonian at every
     point (NaN below the diagonal): the structure test's disorder floor. Two estimates, pooled by their
     degrees of freedom: the spread between the refit's own ``n_profiles`` profiles (ddof 1: P − 1
@@ -151,14 +152,19 @@ def realisation_floor(profile_spread, n_profiles: int, null_squares) -> np.ndarr
     whose mean is 2v/P (one degree of freedom each). v = ((P − 1)·v_profiles + R·v_null)/(P − 1 + R);
     zeros when neither exists (one profile, no null film). Where a curve starts at a reversal field on
     which the profiles disagree (one switched, one not: the family averages them), v is of order 1,
-    and a measured curve that followed one of them is not a structured residual."""
+    and a measured curve that followed one of them is not a structured residual. ``null_patches``: the
+    null films average that many singles instead of ``n_profiles`` (``loop.patches``); then
+    E[(pseudo − base)²] = v·(1/null_patches + 1/n_profiles)."""
     profile_spread = np.asarray(profile_spread, float)
     dof_profiles, dof_null = max(n_profiles - 1, 0), len(null_squares)
     if dof_profiles + dof_null == 0:
         return np.zeros_like(profile_spread)
     if dof_null == 0:
         return profile_spread
-    null_floor = n_profiles / 2 * np.mean(null_squares, axis=0)
+    if null_patches is None or null_patches == n_profiles:
+        null_floor = n_profiles / 2 * np.mean(null_squares, axis=0)
+    else:
+        null_floor = np.mean(null_squares, axis=0) / (1 / null_patches + 1 / max(n_profiles, 1))
     if dof_profiles == 0:
         return null_floor  # one profile: the null films' estimate as it was, to the last bit
     return (dof_profiles * profile_spread + dof_null * null_floor) / (dof_profiles + dof_null)
@@ -363,7 +369,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                        null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
                        drift: dict | None = None, cross_fit: bool = False, shift_protocol=None,
                        shift_realisations: int = SHIFT_NULL_REALISATIONS, shift_max_step_T: float = 0.002,
-                       measured_points=None, progress=None, **analysis) -> dict:
+                       measured_points=None, null_patches: int | None = None, progress=None, **analysis) -> dict:
     """The held-out selection against the Hamiltonian refitted without the candidate (module
     docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
     None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
@@ -394,6 +400,12 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     pooled with the spread between the refit's own P profiles (``realisation_floor``; with R = 0 that
     spread alone), so a residual no larger than another film of the same Hamiltonian leaves is not
     reported as an "unexplained structured residual".
+
+    ``null_patches`` (``loop.patches``: the number of patches the file averages): each null film is then
+    the average of that many single realisations of the refitted Hamiltonian (``patches.null_films`` over
+    a pool of at most ``patches.POOL_SIZE`` singles, stream key "refit_null_pool"), not a P-profile
+    average: the floor is drawn at the realisation noise of the file, not of the re-simulation (not with
+    ``null_refit``).
 
     ``field_shift``, ``drift``: the measurement's model-free evidence for a field shift and for a
     drift (``signatures``), which field-shift and drift candidates need (``analyse_residual``); the
@@ -444,13 +456,22 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     options = dict(every_k=every_k, cross_fit=cross_fit, seed=cfg["seed"] if seed is None else seed,
                    n_profiles=n_profiles, **candidates, **analysis)
     null, squares = None, []
+    if null_realisations > 0 and null_patches is not None and null_refit:
+        raise ValueError("null_patches and null_refit exclude each other")
+    patch_films = None
+    if null_realisations > 0 and null_patches is not None:
+        pool = single_realisations(cfg, refit["params"], min(POOL_SIZE, max(null_patches * null_realisations,
+                                                                            PATCH_CHOICES[-1])),
+                                   key="refit_null_pool")
+        patch_films = null_films(pool, null_patches, count=null_realisations, seed=options["seed"])
     if null_realisations > 0:
         null = {}
         for r in range(null_realisations):
             # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
             # on the same curves (its residual is then the floor after a refit), else against ``base``
-            pseudo = resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
-                                first_profile=r * n_profiles)
+            pseudo = (patch_films[r] if patch_films is not None else
+                      resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
+                                 first_profile=r * n_profiles))
             squares.append((pseudo - base) ** 2)
             pseudo_base = base
             if null_refit:
@@ -460,7 +481,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
                                                      **{k: v for k, v in options.items() if k != "seed"},
                                                      seed=options["seed"] + r, hamiltonian_floor=True))
     if "floor_variance" not in options:
-        options["floor_variance"] = realisation_floor(refit["spread"], n_profiles, squares)
+        options["floor_variance"] = realisation_floor(refit["spread"], n_profiles, squares, null_patches=null_patches)
     if measured_points is not None:
         options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points,
                                                            key="refit_major_loop")
@@ -494,7 +515,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
         refit={"names": list(names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
                "training_mse_prediction": refit["objective_at_prediction"], "training_mse_refit": refit["objective"],
                "heldout_rms_prediction": held_rms, "relative_bounds": relative_bounds, "n_profiles": n_profiles,
-               "null_realisations": null_realisations, "null_gain": null},
+               "null_realisations": null_realisations, "null_patches": null_patches, "null_gain": null},
         split={"train": list(map(int, train)), "held": list(map(int, held))})
     return result
 

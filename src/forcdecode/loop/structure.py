@@ -61,9 +61,12 @@ def _ranges(values, step):
 
 
 def residual_structure(residual, fields, noise_sigma: float | None = None, floor_variance=None, n_profiles: int = 1,
-                       min_chi2_ratio: float = MIN_CHI2_RATIO, z_pattern: float = Z_PATTERN) -> dict:
+                       min_chi2_ratio: float = MIN_CHI2_RATIO, z_pattern: float = Z_PATTERN,
+                       measured_patches: int = 1) -> dict:
     """The statistics and decision of the module docstring for the n × n ``residual`` on ``fields`` (T).
-    ``floor_variance``: v per point (n × n) or a scalar. Returns a JSON-ready dict: ``structured``,
+    ``floor_variance``: v per point (n × n) or a scalar, the variance between single disorder
+    realisations; the residual's variance from disorder is v·(1/``measured_patches`` + 1/``n_profiles``)
+    (the measurement averages that many independent patches, the re-simulation that many profiles). Returns a JSON-ready dict: ``structured``,
     ``noise_sigma``, ``noise_source``, ``chi2_ratio``, ``chi2_p``, ``runs_z``, ``lag1``, ``lag1_z``,
     ``n_points``, ``where`` {``reversal_fields_T`` (ranges), ``fields_T``, ``branch``,
     ``descending_branch_share``}, ``per_curve_chi2`` (None where a curve has no point)."""
@@ -76,7 +79,7 @@ def residual_structure(residual, fields, noise_sigma: float | None = None, floor
         noise_sigma = noise_level([c for c in curves if c[0].size >= 3])
         source = "estimated from the residual (point-to-point scatter)"
     floor = np.zeros_like(r) if floor_variance is None else np.broadcast_to(np.asarray(floor_variance, float), r.shape)
-    s2 = noise_sigma**2 + np.nan_to_num(floor) * (1 + 1 / max(n_profiles, 1))
+    s2 = noise_sigma**2 + np.nan_to_num(floor) * (1 / max(measured_patches, 1) + 1 / max(n_profiles, 1))
     z = r / np.sqrt(np.where(s2 > 0, s2, np.nan))
     ok = np.isfinite(z)
     N = int(ok.sum())

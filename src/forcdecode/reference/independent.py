@@ -10,7 +10,14 @@ Sample (``IndependentFilm``): ``nx`` × ``ny`` × 1 cells of ``cell_nm`` (defaul
 ≈ √2 t / (π (P + ½) L), part of what makes it another code). Disorder: ``n_grains`` columnar grains from
 a periodic nearest-seed tessellation drawn here; per grain K_u·(1 + Δ) with Δ of standard deviation
 σ_K, Gaussian as ours or **uniform** (a disorder model ours does not have), and the easy axis tilted by |θ| with θ ~ N(0, σ_θ) at uniform azimuth.
-No pinning cells (the fitting film of the bench has none either).
+Grain sizes: equal seeds (nearest-seed cells, as ours) or **log-normal** (a power diagram: seed k claims
+the cells minimizing d² − r_k², r_k log-normal; grain areas then spread far more than ours). Pinning
+(``pinning_cells`` > 0): that many cells, drawn here, with K_u = ``PIN_K_U`` along z, whose moment
+starts at a random orientation (isotropic, as ours draws it) or along **±z only**
+(``pin_orientation="z"``, which ours does not draw) and, with an anisotropy field of ≈ 100 T, keeps it
+through the protocol. ``pins_for_density`` converts the Hamiltonian's N_pin (sites on the seed paper's
+256 × 256 × 2 grid of 2 × 2 × 4 nm cells) into a count at the same density per volume: a pinning cell
+here is one cell of this grid, so its volume differs from ours (another pin size).
 
 Physics of the sample (magnum.np terms): exchange, uniaxial anisotropy, interfacial DMI, demag,
 Zeeman, optionally a second-order anisotropy −K_2 (u·m)⁴ (``UniaxialAnisotropyField2``), a bias
@@ -71,6 +78,18 @@ import numpy as np
 
 MU0 = 4e-7 * math.pi
 
+PIN_K_U = 5e7
+"""Anisotropy of a pinning cell (J/m³, along z): the seed paper's 50 MJ/m³."""
+
+REFERENCE_PIN_VOLUME_NM3 = 256 * 256 * 2 * 2.0 * 2.0 * 4.0
+"""The volume (nm³) over which the Hamiltonian's N_pin counts pinning sites: the seed paper's grid."""
+
+
+def pins_for_density(N_pin: float, film: "IndependentFilm") -> int:
+    """Pinning cells of ``film`` at the density per volume of N_pin sites on the seed paper's grid."""
+    volume = film.nx * film.ny * film.cell_nm**2 * film.thickness_nm
+    return int(round(float(N_pin) * volume / REFERENCE_PIN_VOLUME_NM3))
+
 
 @dataclass(frozen=True)
 class IndependentFilm:
@@ -88,6 +107,9 @@ class IndependentFilm:
     same_state_tol: float = 0.02
     anisotropy_distribution: str = "gaussian"
     sweep_step_T: float | None = None
+    grain_sizes: str = "equal"
+    pinning_cells: int = 0
+    pin_orientation: str = "isotropic"
 
     @property
     def moment_Am2(self) -> float:
@@ -98,7 +120,11 @@ class IndependentFilm:
 def independent_disorder(film: IndependentFilm, sigma_K: float, sigma_theta_deg: float, rng: np.random.Generator):
     """Per-cell anisotropy factor (1 + Δ) and easy axis, shape (ny, nx) and (3, 1, ny, nx): periodic
     nearest-seed grains, Δ of standard deviation σ_K, Gaussian or uniform on [−√3 σ_K, √3 σ_K]
-    (``film.anisotropy_distribution``; clipped at −0.95), axis tilted by |N(0, σ_θ)|."""
+    (``film.anisotropy_distribution``; clipped at −0.95), axis tilted by |N(0, σ_θ)|. With
+    ``film.grain_sizes == "lognormal"`` the grains are a power diagram of log-normal radii (drawn after
+    everything else, so the other draws are those of equal grains)."""
+    if film.grain_sizes not in ("equal", "lognormal"):
+        raise ValueError(f"unknown grain sizes {film.grain_sizes!r} (equal or lognormal)")
     n = film.n_grains
     seeds = rng.uniform(0.0, 1.0, size=(n, 2)) * (film.nx, film.ny)
     y, x = np.mgrid[0:film.ny, 0:film.nx] + 0.5
@@ -117,7 +143,33 @@ def independent_disorder(film: IndependentFilm, sigma_K: float, sigma_theta_deg:
     theta = np.abs(rng.normal(0.0, math.radians(sigma_theta_deg), size=n))
     phi = rng.uniform(0.0, 2 * math.pi, size=n)
     axes = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    if film.grain_sizes == "lognormal":
+        # radii of the mean grain's size, spread log-normally (σ_ln 0.6): big grains swallow small ones
+        radius = math.sqrt(film.nx * film.ny / (math.pi * n)) * rng.lognormal(0.0, LOGNORMAL_SIGMA, size=n)
+        grain = np.argmin(dx**2 + dy**2 - radius**2, axis=-1)
     return 1.0 + delta[grain], axes[:, grain][:, None, :, :]
+
+
+LOGNORMAL_SIGMA = 0.6
+"""σ of ln(radius) of the log-normal grains (``independent_disorder``)."""
+
+
+def independent_pins(film: IndependentFilm, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``film.pinning_cells`` distinct cells (flat indices into ny × nx) and their initial unit moments
+    (3, n): isotropic directions, or ±z with a random sign (``film.pin_orientation == "z"``)."""
+    if film.pin_orientation not in ("isotropic", "z"):
+        raise ValueError(f"unknown pin orientation {film.pin_orientation!r} (isotropic or z)")
+    n = int(film.pinning_cells)
+    if not 0 <= n <= film.nx * film.ny:
+        raise ValueError(f"{n} pinning cells on {film.nx} x {film.ny} cells")
+    cells = rng.choice(film.nx * film.ny, size=n, replace=False)
+    if film.pin_orientation == "z":
+        moments = np.zeros((3, n))
+        moments[2] = rng.choice([-1.0, 1.0], size=n)
+    else:
+        moments = rng.normal(size=(3, n))
+        moments /= np.linalg.norm(moments, axis=0)
+    return cells, moments
 
 
 @dataclass
@@ -149,9 +201,17 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
     rng = np.random.default_rng([int(seed), 9001])  # our streams are not used: another code, another draw
     factor, axis = independent_disorder(film, float(params["sigma_K"]), float(params["sigma_theta_deg"]), rng)
     K_u = float(params["K_u"] if K_u is None else K_u)
+    K_cells = (K_u * factor)[None]
+    pins, pin_moments = independent_pins(film, np.random.default_rng([int(seed), 9002]))
+    if pins.size:
+        j, i = np.unravel_index(pins, (film.ny, film.nx))
+        K_cells = K_cells.copy()
+        K_cells[0, j, i] = PIN_K_U
+        axis = np.array(axis, copy=True)
+        axis[:, 0, j, i] = np.array([0.0, 0.0, 1.0])[:, None]
     d = film.cell_nm * 1e-9
     sample = MagnumFilm(film.nx, film.ny, 1, d, d, film.thickness_nm * 1e-9, float(params["Ms"]), float(params["A_ex"]),
-                        K_u=(K_u * factor)[None], easy_axis=axis, D=float(params["D"]), pbc_images=film.pbc_images,
+                        K_u=K_cells, easy_axis=axis, D=float(params["D"]), pbc_images=film.pbc_images,
                         cache_dir=cache_dir, alpha=1.0)
     if K_2:
         _add_second_order_anisotropy(sample, K_2)
@@ -178,6 +238,8 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
     top = max(float(np.max(np.concatenate([np.atleast_1d(f) for f in curve_fields_T]))), float(reversal.max()))
     m = np.zeros((3, 1, film.ny, film.nx))
     m[2] = 1.0
+    if pins.size:
+        m[:, 0, j, i] = pin_moments  # a pinning cell keeps (near) its initial pole throughout
     m = relax(m, top)
     if film.sweep_step_T is not None:
         curves = _lattice_sweep(film, m, top, reversal, curve_fields_T, order, relax, project, stats, progress)
@@ -420,6 +482,6 @@ def write_measurement(path, family: SampleFamily, moment_Am2: float, instrument:
     raise ValueError(f"unknown format {fmt!r} (micromag0015 or lakeshore_csv)")
 
 
-__all__ = ["IndependentFilm", "InstrumentModel", "SampleFamily", "average_families", "independent_disorder",
-           "magnumnp_family",
+__all__ = ["IndependentFilm", "InstrumentModel", "LOGNORMAL_SIGMA", "PIN_K_U", "SampleFamily", "average_families",
+           "independent_disorder", "independent_pins", "magnumnp_family", "pins_for_density",
            "measurement_protocol", "mix_phases", "record", "write_measurement"]

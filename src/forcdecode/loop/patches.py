@@ -1,0 +1,149 @@
+"""How many independent patches a measured family averages, read from the family's own steps, and the
+effect-free films (null films) of the decoded Hamiltonian drawn at that number.
+
+A FORC measurement averages the moment of the whole sample. A millimetre film averages millions of
+independent patches of the size of our simulation box and its curves are smooth; a small element, or a
+film with a handful of nucleation sites, averages a few, and each of its curves reverses in a few jumps.
+The re-simulation averages ``profiles`` disorder realisations (20 by default), so it is smooth whatever
+the file. How far a file may lie from that smooth mean without any effect (the realisation floor)
+depends on the number of patches P the file averages: the variance between two P-patch films of one
+Hamiltonian is v·(1/P + 1/profiles), v the variance between single realisations.
+
+The estimate uses the family's **effective step height** (``step_height``): Σ Δm² / Σ |Δm| over the
+increments Δm between successive grid fields of every curve (m in units of the saturation moment, so a
+full reversal is 2). A curve that reverses in one jump gives the jump (≈ 2); P patches reversing apart
+give ≈ 2/P; a smooth family gives its largest per-step change, which the grid and the film's
+switching-field distribution set. Because that smooth limit depends on the Hamiltonian, the file's value
+is compared with the same statistic of P-averages of single realisations of the decoded Hamiltonian
+(disjoint groups of a pool of ``POOL_SIZE`` singles, the file's noise added), for P in
+``PATCH_CHOICES``, and not with 2/P (``estimate_patches``). The floor is drawn at the smallest P the
+file is consistent with (the most realisation noise it may hold: a bound, conservative for the
+verdict), and the null films are P-averages of the pool (``null_films``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.streams import stream_rng
+from ..infer.resimulate import DISORDER_STREAM, simulate_family
+
+PATCH_CHOICES = (1, 2, 4, 8)
+"""Patch numbers the estimate tells apart; a family smoother than 8-patch averages of the decoded
+Hamiltonian is reported as averaging "more than 8" and its floor drawn at 8 (conservative)."""
+
+POOL_SIZE = 16
+"""Single disorder realisations simulated for the estimate and the null films (two disjoint 8-patch
+groups). Cost: 16 families of the decoded Hamiltonian (on the laptop film ≈ 30 s on one core)."""
+
+NULL_FILMS = 6
+"""Effect-free P-patch films whose gains make the default path's realisation floor; each is also
+mirrored (``physics_effects.null_gains``), so the floor is the largest gain over 12 films: a candidate
+gaining no more than effect-free films do passes with probability ≤ 1/13."""
+
+CONSISTENCY_MARGIN = 1.25
+"""A P is consistent with the file when the file's step height lies within the range of the P-groups'
+values widened by this factor each way (the groups are few: 16/P of them)."""
+
+
+def step_height(family) -> float:
+    """The effective step height Σ Δm² / Σ |Δm| of a grid family (rows: reversal fields, columns: fields,
+    NaN below the diagonal; m in units of the saturation moment), over the increments between successive
+    fields along every curve. 0 for a family without increments."""
+    family = np.asarray(family, float)
+    increments = np.diff(family, axis=1)
+    increments = increments[np.isfinite(increments)]
+    total = float(np.sum(np.abs(increments)))
+    return float(np.sum(increments**2) / total) if total > 0 else 0.0
+
+
+def single_realisations(cfg: dict, params: dict, count: int = POOL_SIZE, key: str = "loop_null",
+                        progress=None) -> list[np.ndarray]:
+    """``count`` single-realisation grid families of ``params`` (SI), realisation k drawing its disorder
+    from stream ``closed_loop_disorder`` with keys (``key``, k): independent of the re-simulation's own
+    profiles (key "measured")."""
+    singles = []
+    for k in range(count):
+        singles.append(simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k)))
+        if progress is not None:
+            progress(k + 1, count)
+    return singles
+
+
+@dataclass(frozen=True)
+class PatchEstimate:
+    """The file's effective step height, the same statistic over P-averages of the pool (per P: median,
+    range), the P closest to the file (``estimate``; ``None`` when the file is smoother than every P),
+    the P it is consistent with, and the P the floor is drawn at (``floor_patches``)."""
+
+    step_height: float
+    by_patches: dict
+    estimate: int | None
+    consistent: tuple
+    floor_patches: int
+
+    def label(self) -> str:
+        """The estimate as the report prints it: "1", "2", …, or "more than 8"."""
+        return str(self.estimate) if self.estimate is not None else f"more than {PATCH_CHOICES[-1]}"
+
+    def report(self) -> dict:
+        return {"step_height": self.step_height, "estimate": self.label(), "consistent": list(self.consistent),
+                "floor_patches": self.floor_patches,
+                "by_patches": {str(p): v for p, v in self.by_patches.items()},
+                "rule": ("effective step height Σ Δm²/Σ|Δm| of the file against P-averages of single "
+                         "realisations of the decoded Hamiltonian (the file's noise added); the floor is "
+                         "drawn at the smallest consistent P (loop.patches)")}
+
+
+def _with_noise(family, noise_sigma, rng):
+    family = np.asarray(family, float)
+    return family if not noise_sigma else family + float(noise_sigma) * rng.normal(size=family.shape)
+
+
+def estimate_patches(measured, singles, noise_sigma: float | None = None, seed: int = 0) -> PatchEstimate:
+    """How many patches the measured family averages (module docstring), from its step height against
+    disjoint P-averages of ``singles`` (each with Gaussian noise of ``noise_sigma``, m units, from stream
+    ``patch_estimate``). ValueError for fewer singles than the largest P needs (one group)."""
+    singles = [np.asarray(s, float) for s in singles]
+    if len(singles) < PATCH_CHOICES[-1]:
+        raise ValueError(f"the patch estimate needs >= {PATCH_CHOICES[-1]} single realisations, got {len(singles)}")
+    rng = stream_rng(seed, "patch_estimate", "step_height")
+    measured_height = step_height(measured)
+    by_patches = {}
+    for p in PATCH_CHOICES:
+        groups = [np.mean(singles[i:i + p], axis=0) for i in range(0, len(singles) - p + 1, p)]
+        heights = [step_height(_with_noise(g, noise_sigma, rng)) for g in groups]
+        by_patches[p] = {"median": float(np.median(heights)), "min": float(np.min(heights)),
+                         "max": float(np.max(heights)), "groups": len(heights)}
+    consistent = tuple(p for p, v in by_patches.items()
+                       if v["min"] / CONSISTENCY_MARGIN <= measured_height <= v["max"] * CONSISTENCY_MARGIN)
+    smoothest = by_patches[PATCH_CHOICES[-1]]
+    if measured_height < smoothest["min"] / CONSISTENCY_MARGIN:
+        estimate = None  # smoother than every P the pool can form
+    else:
+        estimate = min(PATCH_CHOICES, key=lambda p: abs(np.log(max(measured_height, 1e-12))
+                                                         - np.log(max(by_patches[p]["median"], 1e-12))))
+    floor = min(consistent) if consistent else (estimate if estimate is not None else PATCH_CHOICES[-1])
+    return PatchEstimate(measured_height, by_patches, estimate, consistent, int(floor))
+
+
+def null_films(singles, patches: int, count: int = NULL_FILMS, seed: int = 0) -> list[np.ndarray]:
+    """``count`` effect-free films, each the average of ``patches`` singles: disjoint groups of a random
+    order of the pool where it holds ``patches``·``count`` of them, else subsets drawn without
+    replacement inside each film (films then share singles: their gains are correlated, so the largest
+    of them is a somewhat lower quantile than with independent films). Stream ``patch_estimate``."""
+    singles = [np.asarray(s, float) for s in singles]
+    if not 1 <= patches <= len(singles):
+        raise ValueError(f"{patches} patches need 1..{len(singles)} singles in the pool")
+    rng = stream_rng(seed, "patch_estimate", "null_films")
+    if patches * count <= len(singles):
+        order = rng.permutation(len(singles))
+        return [np.mean([singles[i] for i in order[k * patches:(k + 1) * patches]], axis=0) for k in range(count)]
+    return [np.mean([singles[i] for i in rng.choice(len(singles), size=patches, replace=False)], axis=0)
+            for _ in range(count)]
+
+
+__all__ = ["CONSISTENCY_MARGIN", "NULL_FILMS", "PATCH_CHOICES", "POOL_SIZE", "PatchEstimate", "estimate_patches",
+           "null_films", "single_realisations", "step_height"]
