@@ -25,6 +25,7 @@ COMMANDS = {
     "fit-step": ("forcdecode.infer.fit_step_cli", "workflow stage: the refinement of `fit` one round per job (init, round, report)"),
     "posterior-loop": ("forcdecode.infer.posterior_loop_cli", "workflow stage: re-simulate posterior draws of the simulated test set against the floor"),
     "predict": ("forcdecode.learn.predict_cli", "predict the Hamiltonian (with uncertainties) from a FORC file or image and M_s"),
+    "models": ("forcdecode.learn.models_cli", "the trained models shipped with the package: show, ship, check a fresh run against them"),
 }
 
 

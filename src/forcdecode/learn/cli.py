@@ -304,7 +304,9 @@ def run(args) -> int:
 def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="FORC file, 64×64 image (.npy) or dataset.h5 (with --sample-id)")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, required=True, help="saturation magnetization M_s (kA/m)")
-    parser.add_argument("--models", default="results/models", help="directory with <parameter>.pt files")
+    parser.add_argument("--models", default=None, help="directory with <parameter>.pt files (default: the models "
+                                                       "shipped with the package, learn.shipped; results/models "
+                                                       "where none are)")
     parser.add_argument("--sample-id", type=int, help="sample of dataset.h5 to read")
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training "
@@ -333,7 +335,12 @@ def run_predict(args) -> int:
     from .prior_class import check_prior_class
 
     from .estimator_choice import default_posterior_path
+    from .shipped import resolve_models
 
+    models_dir, models_line = resolve_models(args.models)
+    args.models = str(models_dir)
+    if not args.json:
+        print(models_line)
     args.posterior = args.posterior or default_posterior_path(args.models)
     choice = None
     if args.estimator == "auto":
@@ -359,6 +366,7 @@ def run_predict(args) -> int:
 
         result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     result["prior_class"], result["prior_check"] = trained_on, check
+    result["models"] = models_line
     if note:
         result["out_of_domain"] = note
     if choice is not None:

@@ -244,6 +244,25 @@ def _splits_of(dataset_path: Path, h5, models_dir: Path) -> tuple[dict, str]:
     return {"seed": int(cfg["seed"]), "learning": {**defaults("learning"), **(cfg.get("learning") or {})}}, source
 
 
+def _shipped_reference(models_dir: Path, config_hashes=None) -> tuple[dict, str] | None:
+    """The reference shipped beside the models (``learn.shipped``: made from the train split of their
+    dataset when the set was shipped, key ``shipped``), when its config hash is the models'."""
+    cache = models_dir / IMAGE_REFERENCE_FILE
+    if not cache.exists():
+        return None
+    try:
+        cached = json.loads(cache.read_text())
+        key = cached["key"]
+        if not key.get("shipped"):
+            return None
+        hashes = sorted(set(config_hashes or ()))
+        if hashes and hashes != [key.get("config_hash")]:
+            return None
+        return cached["reference"], f"shipped with the models ({cache})"
+    except (OSError, ValueError, KeyError, AttributeError, TypeError):
+        return None
+
+
 def training_image_reference(models_dir, dataset=None, config_hashes=None, log=None) -> tuple[dict | None, str]:
     """(reference, note) of the image-only check of Alice's networks in ``models_dir``: fitted on the
     train split of their dataset (``dataset``, default ``models_dir``/../dataset.h5; splits of
@@ -259,6 +278,9 @@ def training_image_reference(models_dir, dataset=None, config_hashes=None, log=N
     models_dir = Path(models_dir)
     path = Path(dataset) if dataset is not None else models_dir.parent / "dataset.h5"
     if not path.exists():
+        shipped = _shipped_reference(models_dir, config_hashes)
+        if shipped is not None and dataset is None:
+            return shipped
         return None, f"no training dataset at {path} (the networks' training data; --dataset names it)"
     try:
         h5 = h5py.File(path, "r")

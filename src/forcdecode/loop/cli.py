@@ -17,7 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--models", default="results/models", help="trained Alice/Bob model files (<parameter>.pt)")
+    parser.add_argument("--models", default=None, help="trained Alice/Bob model files (<parameter>.pt; default: the "
+                                                       "models shipped with the package, learn.shipped; results/models "
+                                                       "where none are)")
     parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
                         help="auto (default): whichever validation shows better (learn.estimator_choice: the lower "
                              "mean validation MAE; Alice without a posterior model; the posterior with --refine); "
@@ -92,9 +94,14 @@ def load_config(path=None) -> dict:
 def resolve_estimator(args) -> dict | None:
     """``--estimator auto`` resolved in place (``learn.estimator_choice``): the posterior where --refine asks
     for it, else whichever validation shows better; returns the choice's record (None when the user chose),
-    and fills in the default posterior path (beside the --models directory)."""
+    and fills in the default models (``learn.shipped.resolve_models``: the shipped set unless --models;
+    ``args.models_line`` says which) and posterior path (beside the models directory)."""
     from ..learn.estimator_choice import choose_estimator, default_posterior_path
+    from ..learn.shipped import resolve_models
 
+    if not getattr(args, "models_line", None):
+        models_dir, args.models_line = resolve_models(args.models)
+        args.models = str(models_dir)
     args.posterior = args.posterior or default_posterior_path(args.models)
     if args.estimator != "auto":
         return None
@@ -118,6 +125,8 @@ def run(args) -> int:
     cfg = load_config(args.config)
     params = read_json(args.params, what="Hamiltonian file") if args.params else None
     choice = resolve_estimator(args)
+    if not args.json and not params:
+        print(args.models_line)
     if args.ms_kA_m is not None:
         ms_values = [args.ms_kA_m * 1e3]
     else:
@@ -145,6 +154,7 @@ def run(args) -> int:
         from .measured_loop import _json_ready
 
         report["estimator_choice"] = choice
+        report["models"] = args.models_line
         write_json(Path(args.out) / "report.json", _json_ready(report))
         if not args.json:
             print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")

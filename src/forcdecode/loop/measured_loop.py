@@ -14,7 +14,7 @@ points in A·m². Writes OUT/report.json, OUT/report.md and figures (fields μ0H
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
+from ..core.streams import stream_rng
 from ..learn.answer import PRIOR_ONLY
 from .physics_effects import MOMENT_TOLERANCE, NULL_REALISATIONS
 from .report_page import diagrams_figure, write_report_page
@@ -306,6 +307,8 @@ class FileFloor:
     patches: object
     pool: list
     null_gain: dict | None = None
+    null_squares: list = field(default_factory=list)
+    null_residuals: list = field(default_factory=list)
 
 
 @dataclass
@@ -582,12 +585,24 @@ def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Re
                  log) -> FileFloor:
     """How many patches the file averages (``loop.patches.estimate_patches``: its step heights against
     P-averages of ``patches.POOL_SIZE`` single realisations of ``params``, the file's noise added); report
-    key ``patches``."""
-    from .patches import POOL_SIZE, estimate_patches, single_realisations
+    key ``patches``. The pool is simulated on the file's own protocol and put on the grid as the file is
+    (``patches.rasterized_singles``) where the file holds at most ``patches.RASTERIZED_MAX_POINTS`` points
+    and the protocol is quasi-static, else on the training grid (``pool`` says which)."""
+    from ..infer.resimulate import protocol_name
+    from .patches import POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, rasterized_singles, single_realisations
 
-    pool = single_realisations(cfg, params, POOL_SIZE, progress=counter("single realisations", "families"))
+    points = sum(len(c) for c in m.data.curves)
+    progress = counter("single realisations", "families")
+    if points <= RASTERIZED_MAX_POINTS and protocol_name(cfg) == "quasistatic" and m.moment_saturation > 0:
+        pool = rasterized_singles(cfg, params, m.data, m.moment_saturation, m.domain.moment_offset_Am2, POOL_SIZE,
+                                  max_step_T=s.measured_max_step_T or MEASURED_MAX_STEP_T, progress=progress)
+        where = "the file's own protocol, put on the grid as the file is"
+    else:
+        pool = single_realisations(cfg, params, POOL_SIZE, progress=progress)
+        where = (f"the training grid (the file's {points} points exceed {RASTERIZED_MAX_POINTS}, or its protocol is "
+                 "not re-simulated: its rasterization is not in the floor)")
     estimate = estimate_patches(m.family, pool, noise_sigma=r.noise, seed=cfg["seed"])
-    report["patches"] = estimate.report()
+    report["patches"] = {**estimate.report(), "pool": where}
     log(f"patches averaged by the file: {estimate.label()} (step height {estimate.step_height:.3f}; consistent with "
         f"{', '.join(map(str, estimate.consistent)) or 'none of 1-8'}); the realisation floor is drawn at "
         f"{estimate.floor_patches}")
@@ -601,12 +616,19 @@ def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r:
     Hamiltonian averaging the file's patch number (``patches.null_films``, each also mirrored, with the
     file's noise), analysed against the same re-simulation with the same candidates."""
     from .patches import null_films
-    from .physics_effects import null_gains
+    from .physics_effects import merge_null_gains, null_gains
 
     films = null_films(floor.pool, floor.patches.floor_patches, count=max(s.null_realisations, 1), seed=cfg["seed"])
-    null = null_gains(films, resim, m.fields, noise_sigma=r.noise, seed=cfg["seed"], hamiltonian_floor=True,
-                      every_k=s.every_k, n_profiles=s.profiles, **candidates)
-    return FileFloor(floor.patches, floor.pool, null)
+    progress = counter("realisation floor", "effect-free films")
+    null = {}
+    for k, film in enumerate(films):  # each film with its own noise (seed + k), as the refit path's
+        null = merge_null_gains(null, null_gains([film], resim, m.fields, noise_sigma=r.noise, seed=cfg["seed"] + k,
+                                                 hamiltonian_floor=True, every_k=s.every_k, n_profiles=s.profiles,
+                                                 **candidates))
+        progress(k + 1, len(films))
+    noise = stream_rng(cfg["seed"], "null_noise", "structure_floor")
+    residuals = [film - resim + (r.noise or 0.0) * noise.normal(size=film.shape) for film in films]
+    return FileFloor(floor.patches, floor.pool, null, [(film - resim) ** 2 for film in films], residuals)
 
 
 def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
@@ -616,11 +638,21 @@ def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, res
     from .physics_effects import analyse_residual
     from .refit import measured_saturation
 
+    from .refit import realisation_floor
+    from .structure import null_structure_floor
+
     saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
+    # the disorder floor of the structure test: the re-simulation's profile spread pooled with the null
+    # films' (P-patch films against the re-simulation: their tails, where every profile happened to agree)
+    variance = realisation_floor(spread, s.profiles, floor.null_squares, null_patches=floor.patches.floor_patches)
+    # and the structure test's own floor: what it finds on those films (each with the file's noise)
+    null_structure = null_structure_floor(floor.null_residuals, m.fields, r.noise, variance, s.profiles,
+                                          measured_patches=floor.patches.floor_patches)
     analysis = analyse_residual(m.family, resim, m.fields, every_k=s.every_k, seed=cfg["seed"], noise_sigma=r.noise,
-                                floor_variance=spread, n_profiles=s.profiles, field_shift=r.shift, drift=r.drift,
+                                floor_variance=variance, n_profiles=s.profiles, field_shift=r.shift, drift=r.drift,
                                 moment_tolerance=s.moment_tolerance, saturation_points=saturated,
                                 null_gain=floor.null_gain, measured_patches=floor.patches.floor_patches,
+                                null_structure=null_structure,
                                 **candidates)
     return Judgement(analysis, params)
 
@@ -999,7 +1031,8 @@ def _markdown(path, report, analysis) -> str:
         consistent = ", ".join(map(str, patches["consistent"])) or "none of 1–8"
         lines += ["", f"Patches averaged by the file (`loop.patches`): {patches['estimate']} (effective step height "
                   f"{patches['step_height']:.3f}; consistent with {consistent}); the floor is drawn at "
-                  f"{patches['floor_patches']} patch(es), the most realisation noise the file may hold."]
+                  f"{patches['floor_patches']} patch(es), the most realisation noise the file may hold. Its single "
+                  f"realisations were simulated on {patches.get('pool', 'the training grid')}."]
     shift = analysis.get("field_shift")
     if shift and shift.get("offset_T") is not None:
         lines += ["", f"Symmetry of the major loop (model-free evidence for a field shift, `loop.signatures`): centre "

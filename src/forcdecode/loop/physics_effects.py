@@ -54,6 +54,10 @@ PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_ti
 SAME_OBSERVABLE = ({"field_offset", "bias_field"},)
 """Candidates no FORC measurement can tell apart."""
 
+NULL_BOOTSTRAPS = 100
+"""Bootstrap resamples of a null film's analysis (``null_gains``): its gains are means over held-out
+curves and do not depend on them; they enter only the gates, which decide nothing there."""
+
 NULL_REALISATIONS = 10
 """Other disorder realisations of the refitted Hamiltonian whose gains make the realisation floor.
 Each is also mirrored, so the floor is the largest gain over 2R effect-free films, and a candidate
@@ -263,28 +267,29 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     if noise_sigma:
         rng = stream_rng(seed, "null_noise", "null_gains")
         pseudo = [p + float(noise_sigma) * rng.normal(size=p.shape) for p in pseudo]
-    # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here
-    analysis = {**analysis, "moment_tolerance": 0.0, "saturation_gate": False, "saturation_points": None}
+    # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here, so the
+    # candidates are fitted and scored (``gated_candidates``) without the selection, the structure test
+    # and the ambiguity stages, and with few bootstrap resamples (they enter only the gates' booleans)
+    import inspect
+
+    analysis = {**analysis, "moment_tolerance": 0.0, "saturation_gate": False, "saturation_points": None,
+                "n_boot": NULL_BOOTSTRAPS}
     if not hamiltonian_floor:
         analysis["hamiltonian_families"] = None
+    accepted = set(inspect.signature(gated_candidates).parameters)
+    analysis = {k: v for k, v in analysis.items() if k in accepted}
     gains: dict = {}
     for family in pseudo:
-        result = analyse_residual(family, base_family, fields, seed=seed, noise_sigma=noise_sigma, **analysis)
-        none_mse = result["candidates"]["none"]["heldout_rms"] ** 2
+        g = gated_candidates(family, base_family, fields, seed=seed, **analysis)
+        none_mse = float(np.nanmean(g.fits.mse["none"]))
         found = {name: {"relative": record["relative_gain"], "mse": record["gain_mse_mean"], "none_mse": none_mse}
-                 for name, record in result["candidates"].items()}
-        if result["hamiltonian_neighbourhood"] is not None:
-            found[HAMILTONIAN_CHANGE] = _neighbourhood_gain(result)
+                 for name, record in g.fits.records.items()}
+        if g.baselines.hamiltonian is not None:
+            knob = g.baselines.hamiltonian["heldout_rms"] ** 2
+            found[HAMILTONIAN_CHANGE] = {"relative": 1 - knob / none_mse if none_mse > 0 else 0.0,
+                                         "mse": none_mse - knob}
         gains = merge_null_gains(gains, found)
     return gains
-
-
-def _neighbourhood_gain(result: dict) -> dict:
-    """The held-out gain of K_u's neighbourhood over "none" in an ``analyse_residual`` result, as a
-    null gain {"relative", "mse"} (mean-square, m² in units of the saturation moment)."""
-    none = result["candidates"]["none"]["heldout_rms"] ** 2
-    knob = result["hamiltonian_neighbourhood"]["heldout_rms"] ** 2
-    return {"relative": 1 - knob / none if none > 0 else 0.0, "mse": none - knob}
 
 
 def merge_null_gains(a: dict, b: dict) -> dict:
@@ -633,7 +638,8 @@ def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int,
 
 
 def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, floor_variance, n_profiles: int,
-          saturation_gate: bool, saturation_points, moment_tolerance: float, measured_patches: int = 1) -> Verdict:
+          saturation_gate: bool, saturation_points, moment_tolerance: float, measured_patches: int = 1,
+          null_structure: dict | None = None) -> Verdict:
     """The structure test of the chosen model's residual (``loop.structure``) and the saturation test:
     the chosen effect, "none", or "unexplained structured residual" (and where it lives)."""
     from .structure import describe, residual_structure
@@ -642,7 +648,7 @@ def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, 
     records, models = fits.records, fits.models
     residual_after = measured - models[chosen]
     structure = residual_structure(residual_after, fields, noise_sigma, floor_variance, n_profiles,
-                                   measured_patches=measured_patches)
+                                   measured_patches=measured_patches, null_structure=null_structure)
     saturation = None
     if saturation_gate:
         saturation = (saturation_residual_points(saturation_points, moment_tolerance=moment_tolerance)
@@ -820,7 +826,7 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
                      physics_reference_family=None, hamiltonian_families=None,
                      moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
                      saturation_gate: bool = True, saturation_points=None, measured_patches: int = 1,
-                     sweep_rates: int = 1) -> dict:
+                     sweep_rates: int = 1, null_structure: dict | None = None) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
     Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
@@ -920,6 +926,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
 
     ``measured_patches``: the number of independent patches the measurement averages
     (``loop.patches``): the structure test's disorder floor is v·(1/patches + 1/``n_profiles``).
+    ``null_structure`` (``structure.null_structure_floor``): the structure test's statistics on
+    effect-free films; a residual is structured only beyond them.
 
     Two verdicts no single FORC family can settle are answered ``ambiguous`` (``realisation_ambiguity``):
     a candidate the selection would name without the realisation floor but that gains no more than it
@@ -939,7 +947,8 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     choice = choose(p, fits, offered, seed, n_boot, min_relative_gain, equivalence)
     verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
                     n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,
-                    moment_tolerance=moment_tolerance, measured_patches=measured_patches)
+                    moment_tolerance=moment_tolerance, measured_patches=measured_patches,
+                    null_structure=null_structure)
     verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
                         min_relative_gain=min_relative_gain, equivalence=equivalence)
     verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,

@@ -213,15 +213,29 @@ def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fi
     return offsets
 
 
-def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "major_loop"):
+SATURATION_PROFILES = 8
+"""Disorder realisations averaged in the major loop whose closure says where the film is saturated
+(``measured_saturation``). The mean of R realisations stays open wherever any one of them is (each
+contributes 2/R ≫ the closure tolerance where it has not switched), so its closure is the widest of
+theirs: a file averaging an unknown number of patches is saturated only past every patch's closure.
+With one realisation (before 2026-12-02) the laptop example film (8 patches of a film whose single
+realisations switch 0.2 T apart) was judged saturated where it was not, and its true Hamiltonian got
+"unexplained structured residual: a reversible residual where the film is saturated". Cost: R major
+loops (≈ 1–2 s each on the laptop film)."""
+
+
+def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "major_loop",
+                        n_profiles: int = SATURATION_PROFILES):
     """The measured points (reversal field, field, m per point: ``signatures.measured_point_arrays``)
-    past the closure of ``params``' major loop, re-simulated on a 10 mT lattice over the points' window
-    (``resimulate.major_loop_branches``, disorder stream ``key``): ``signatures.SaturatedPoints``."""
+    past the closure of ``params``' major loop averaged over ``n_profiles`` realisations, re-simulated on
+    a 10 mT lattice over the points' window (``resimulate.major_loop_branches``, disorder stream ``key``):
+    ``signatures.SaturatedPoints``."""
     from ..infer.resimulate import major_loop_branches
     from .signatures import saturated_measured_points
 
     window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
-    return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key))
+    return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key,
+                                                                           n_profiles=n_profiles))
 
 
 AMBIGUITY_VERDICTS = ("none", "ambiguous")
@@ -520,7 +534,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     return result
 
 
-__all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "JOINT_TOLERANCE", "SHIFT_NULL_REALISATIONS", "analyse_with_refit",
+__all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "JOINT_TOLERANCE", "SATURATION_PROFILES", "SHIFT_NULL_REALISATIONS", "analyse_with_refit",
            "crossfit_refit_mse", "hamiltonian_change_explains", "joint_generalises", "measured_saturation",
            "realisation_floor",
            "refit_ambiguity", "refit_hamiltonian", "simulated_shift_offsets", "with_refit_ambiguity"]

@@ -62,11 +62,16 @@ def _ranges(values, step):
 
 def residual_structure(residual, fields, noise_sigma: float | None = None, floor_variance=None, n_profiles: int = 1,
                        min_chi2_ratio: float = MIN_CHI2_RATIO, z_pattern: float = Z_PATTERN,
-                       measured_patches: int = 1) -> dict:
+                       measured_patches: int = 1, null_structure: dict | None = None) -> dict:
     """The statistics and decision of the module docstring for the n × n ``residual`` on ``fields`` (T).
     ``floor_variance``: v per point (n × n) or a scalar, the variance between single disorder
     realisations; the residual's variance from disorder is v·(1/``measured_patches`` + 1/``n_profiles``)
-    (the measurement averages that many independent patches, the re-simulation that many profiles). Returns a JSON-ready dict: ``structured``,
+    (the measurement averages that many independent patches, the re-simulation that many profiles).
+    ``null_structure`` (``null_structure_floor``: the largest mean z² and lag-1 z, the lowest runs z, of
+    the same test on effect-free films of the re-simulated Hamiltonian): the residual is structured only
+    where it is also beyond them, in size and in pattern. Realisation noise is correlated along curves
+    and shared by every curve that follows one branch, so it fails the point-independent test; what the
+    test finds on films without any effect is its floor. Returns a JSON-ready dict: ``structured``,
     ``noise_sigma``, ``noise_source``, ``chi2_ratio``, ``chi2_p``, ``runs_z``, ``lag1``, ``lag1_z``,
     ``n_points``, ``where`` {``reversal_fields_T`` (ranges), ``fields_T``, ``branch``,
     ``descending_branch_share``}, ``per_curve_chi2`` (None where a curve has no point)."""
@@ -106,6 +111,10 @@ def residual_structure(residual, fields, noise_sigma: float | None = None, floor
     lag1_z = float(lag1 * np.sqrt(pairs)) if pairs else 0.0
     size = chi2_ratio > min_chi2_ratio and chi2_p < P_SIZE
     pattern = runs_z < -z_pattern or lag1_z > z_pattern
+    if null_structure:
+        size = size and chi2_ratio > null_structure["chi2_ratio"]
+        pattern = pattern and (runs_z < min(null_structure["runs_z"], -z_pattern)
+                               or lag1_z > max(null_structure["lag1_z"], z_pattern))
     excess = np.where(ok, np.clip(np.nan_to_num(z) ** 2 - 1, 0, None), 0.0)
     step = float(fields[1] - fields[0]) if fields.size > 1 else 1.0
     flagged = [fields[i] for i, c in enumerate(per_curve) if c is not None and c > min_chi2_ratio]
@@ -121,8 +130,24 @@ def residual_structure(residual, fields, noise_sigma: float | None = None, floor
     return {"structured": bool(size and pattern), "noise_sigma": float(noise_sigma), "noise_source": source,
             "chi2_ratio": chi2_ratio, "chi2_p": chi2_p, "runs_z": runs_z, "lag1": float(lag1), "lag1_z": lag1_z,
             "n_points": N, "where": where, "per_curve_chi2": per_curve,
+            "null_structure": null_structure,
             "rule": (f"structured: mean z^2 > {min_chi2_ratio:g} (chi-square p < {P_SIZE:g}) and (runs z < "
-                     f"-{z_pattern:g} or lag-1 autocorrelation z > {z_pattern:g})")}
+                     f"-{z_pattern:g} or lag-1 autocorrelation z > {z_pattern:g})"
+                     + (", each beyond its largest value on effect-free films" if null_structure else ""))}
+
+
+def null_structure_floor(null_residuals, fields, noise_sigma: float | None = None, floor_variance=None,
+                         n_profiles: int = 1, measured_patches: int = 1) -> dict | None:
+    """The structure test's own floor: its statistics on ``null_residuals`` (effect-free films minus the
+    re-simulation, each with the measurement's noise), the same floor and settings; the largest mean z²
+    and lag-1 z and the lowest runs z over them (None without films)."""
+    stats = [residual_structure(r, fields, noise_sigma, floor_variance, n_profiles, measured_patches=measured_patches)
+             for r in null_residuals]
+    stats = [s for s in stats if "chi2_ratio" in s]
+    if not stats:
+        return None
+    return {"chi2_ratio": max(s["chi2_ratio"] for s in stats), "runs_z": min(s["runs_z"] for s in stats),
+            "lag1_z": max(s["lag1_z"] for s in stats), "films": len(stats)}
 
 
 def describe(structure: dict) -> str:

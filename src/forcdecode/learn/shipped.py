@@ -1,0 +1,215 @@
+"""The laptop default's trained models, shipped with the package (issue 60 item 1): a physicist with a
+file decodes it minutes after install, with the answer the project has validated, instead of re-training
+for 105 minutes first.
+
+What ships (``SHIPPED``, package data ``forcdecode/shipped/laptop``), as the main job (`make run`) writes
+it under ``results/``:
+
+- ``models/<parameter>.pt``: Alice and Bob per parameter with their conformal calibration and their
+  identification block (the "read from the image" flags), weights stored in half precision
+  (``HALF_PRECISION``; loading casts them back to float32: ``load_state_dict`` copies into the network's
+  own dtype);
+- ``models/ood_image_reference.json``: the image-only training-data check's reference, fitted on the
+  train split of the networks' dataset (``learn.ood.training_image_reference``), so that the check runs
+  without the 600-family dataset;
+- ``posterior/model.pt``: the posterior ensemble and its recalibration (half precision as well);
+- ``manifest.json``: the config hash, the code commit, the dataset's SHA-256, the prior class, the film,
+  the files with their SHA-256, and the sealed-set figures the models scored (``results/metrics.json``
+  → ``sealed``).
+
+``predict`` and ``loop`` use them when ``--models`` is not given and say so on their first line
+(``resolve_models``). `make run` re-makes the models into ``results/models``; ``compare`` (the CLI's
+`forcdecode models check`) says whether a fresh run's sealed figures agree with the manifest's within
+their 90 % intervals; ``ship`` (`forcdecode models ship`) writes a new shipped set from a finished run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import ConfigError, ModelFileError
+from ..core.io import atomic_path, read_json, write_json
+
+SHIPPED = Path(__file__).resolve().parents[1] / "shipped" / "laptop"
+MANIFEST = "manifest.json"
+FORMAT = "forcdecode-shipped-models/1"
+HALF_PRECISION = True
+"""Weights stored as float16 (sizes halve); ``check_half_precision`` measures what it changes."""
+
+
+def sha256(path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_manifest(directory=SHIPPED) -> dict:
+    """The manifest of a shipped set; ModelFileError when it is missing or not one."""
+    path = Path(directory) / MANIFEST
+    if not path.exists():
+        raise ModelFileError(f"no shipped models at {directory} (no {MANIFEST}): train them with `make run` and give "
+                             "--models results/models")
+    manifest = read_json(path, what="shipped models manifest")
+    if manifest.get("format") != FORMAT:
+        raise ModelFileError(f"{path} is not a shipped-models manifest (format {manifest.get('format')!r})")
+    return manifest
+
+
+WORKFLOW_MODELS = Path("results/models")
+"""Where the main job writes the models (`make run`), used when no set is shipped."""
+
+
+def resolve_models(models, directory=SHIPPED) -> tuple[Path, str]:
+    """(the Alice models directory, the line that says which models answer). ``models``: the user's
+    ``--models`` (used as given), or None: the shipped set, or where none is installed the main job's
+    ``results/models``."""
+    if models is not None:
+        return Path(models), f"models: {models} (--models)"
+    if not (Path(directory) / MANIFEST).exists():
+        return WORKFLOW_MODELS, (f"models: {WORKFLOW_MODELS} (no shipped models in this installation; `make run` "
+                                 "trains them there)")
+    manifest = read_manifest(directory)
+    return Path(directory) / "models", shipped_line(manifest)
+
+
+def shipped_line(manifest: dict) -> str:
+    """The first line of an answer made with the shipped models."""
+    return (f"models: the shipped {manifest['film']['name']} models ({manifest['prior_class']} prior, trained "
+            f"{manifest['trained']}, code {manifest['code_commit'][:10]}, config {manifest['config_hash'][:12]}); "
+            "--models DIR for your own")
+
+
+def _half(obj):
+    """``obj`` (a state dict or a nested payload) with floating tensors as float16."""
+    import torch  # heavy: only when a set is written
+
+    if isinstance(obj, torch.Tensor):
+        return obj.half() if obj.is_floating_point() else obj
+    if isinstance(obj, dict):
+        return type(obj)((k, _half(v)) for k, v in obj.items())
+    if isinstance(obj, list):
+        return [_half(v) for v in obj]
+    return obj
+
+
+def _copy_model(source: Path, target: Path, half: bool) -> None:
+    import torch  # heavy: only when a set is written
+
+    if not half:
+        shutil.copyfile(source, target)
+        return
+    payload = torch.load(source, map_location="cpu", weights_only=True)
+    with atomic_path(target) as tmp:
+        torch.save(_half(payload), tmp)
+
+
+def _code_commit(root) -> str:
+    try:
+        return subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _sealed_figures(metrics: dict) -> dict:
+    """{name: {"skill", "ci90", "mae"}} of the sealed set's parameters and combinations (Alice)."""
+    sealed = metrics.get("sealed") or {}
+    out = {}
+    for group in ("parameters", "combinations"):
+        for name, row in (sealed.get(group) or {}).items():
+            if "skill_vs_best_trivial" in row:
+                out[name] = {"skill": row["skill_vs_best_trivial"], "ci90": row.get("skill_vs_best_trivial_ci90"),
+                             "mae": row.get("mae")}
+    return out
+
+
+def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None) -> dict:
+    """Write the shipped set from a finished main job in ``results`` (models, the training-data check's
+    reference, the posterior, the manifest). Returns the manifest."""
+    from ..config import load_config
+    from ..dataset.merge import config_hash, physics_config
+    from .ood import IMAGE_REFERENCE_FILE, training_image_reference
+    from .predictor import load_models, models_prior_class
+
+    results, out = Path(results), Path(out)
+    models_dir = results / "models"
+    models = load_models(models_dir)  # ModelFileError without a trained run
+    hashes = sorted({str(m.payload.get("config_hash")) for m in models.values()})
+    reference, note = training_image_reference(models_dir, None, hashes)
+    if reference is None:
+        raise ModelFileError(f"cannot ship: the training-data check's reference: {note}")
+    cfg = load_config(results / "config.json")
+    metrics = read_json(results / "metrics.json", what="metrics")
+    if not metrics.get("sealed"):
+        raise ModelFileError(f"cannot ship: {results / 'metrics.json'} has no sealed-set figures (run the main job to "
+                             "its end)")
+    (out / "models").mkdir(parents=True, exist_ok=True)
+    (out / "posterior").mkdir(parents=True, exist_ok=True)
+    for path in sorted(models_dir.glob("*.pt")):
+        _copy_model(path, out / "models" / path.name, half)
+    write_json(out / "models" / IMAGE_REFERENCE_FILE, {"key": {"shipped": True, "config_hash": hashes[0]},
+                                                       "reference": reference})
+    posterior = results / "posterior" / "model.pt"
+    if posterior.exists():
+        _copy_model(posterior, out / "posterior" / "model.pt", half)
+    files = {str(p.relative_to(out)): {"sha256": sha256(p), "bytes": p.stat().st_size}
+             for p in sorted(out.rglob("*")) if p.is_file() and p.name != MANIFEST}
+    manifest = {"format": FORMAT, "config_hash": config_hash(physics_config(cfg)), "model_config_hashes": hashes,
+                "code_commit": _code_commit(root or Path(__file__).resolve().parents[3]),
+                "dataset_sha256": sha256(results / "dataset.h5"), "prior_class": models_prior_class(models),
+                "film": {"name": "laptop default", "mesh": cfg["mesh"], "n_grains": cfg["n_grains"],
+                         "field": cfg["field"], "thickness_nm": cfg["mesh"]["dz_nm"] * cfg["mesh"]["nz"]},
+                "trained": str(np.datetime64(int((results / "metrics.json").stat().st_mtime), "s"))[:10],
+                "half_precision": bool(half), "parameters": sorted(models), "files": files,
+                "sealed": _sealed_figures(metrics), "sealed_n": (metrics.get("sealed") or {}).get("n_sealed"),
+                "made_by": "forcdecode models ship --results " + str(results)}
+    write_json(out / MANIFEST, manifest)
+    return manifest
+
+
+def compare(results="results", directory=SHIPPED) -> dict:
+    """A fresh run's sealed figures against the manifest's: per quantity both skills and intervals, and
+    whether they agree (each point estimate inside the other's 90 % interval). ``agree``: all do."""
+    manifest = read_manifest(directory)
+    fresh = _sealed_figures(read_json(Path(results) / "metrics.json", what="metrics"))
+    rows = {}
+    for name, shipped in manifest["sealed"].items():
+        new = fresh.get(name)
+        if new is None or shipped.get("ci90") is None or new.get("ci90") is None:
+            rows[name] = {"shipped": shipped, "fresh": new, "agree": None}
+            continue
+        agree = bool(new["ci90"][0] <= shipped["skill"] <= new["ci90"][1]
+                     and shipped["ci90"][0] <= new["skill"] <= shipped["ci90"][1])
+        rows[name] = {"shipped": shipped, "fresh": new, "agree": agree}
+    judged = [r["agree"] for r in rows.values() if r["agree"] is not None]
+    if not judged:
+        raise ConfigError(f"no sealed figure of {results} to compare with the shipped manifest")
+    return {"agree": all(judged), "rows": rows, "shipped_commit": manifest["code_commit"],
+            "shipped_config_hash": manifest["config_hash"]}
+
+
+def compare_lines(result: dict) -> list[str]:
+    lines = [f"{'quantity':<12}{'shipped skill [90 % CI]':>30}{'fresh skill [90 % CI]':>30}  agree"]
+    for name, row in result["rows"].items():
+        def cell(r):
+            if r is None:
+                return "—"
+            lo, hi = r["ci90"] if r.get("ci90") else (float("nan"),) * 2
+            return f"{r['skill']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+        lines.append(f"{name:<12}{cell(row['shipped']):>30}{cell(row['fresh']):>30}  "
+                     f"{'—' if row['agree'] is None else ('yes' if row['agree'] else 'NO')}")
+    lines.append("the fresh run agrees with the shipped models' sealed figures" if result["agree"] else
+                 "the fresh run DISAGREES with the shipped models' sealed figures (a point outside the other's interval)")
+    return lines
+
+
+__all__ = ["FORMAT", "HALF_PRECISION", "MANIFEST", "SHIPPED", "compare", "compare_lines", "read_manifest",
+           "resolve_models", "sha256", "ship", "shipped_line"]
