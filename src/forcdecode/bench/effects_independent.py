@@ -698,14 +698,15 @@ CASES_HEADER = ("# The effects bench's cases (issue 45), fixed before any run: w
                 "# `eval` is only reported. Do not edit by hand.\n")
 
 
-def write_cases_file(path=CASES_FILE) -> Path:
-    """Write ``generate_cases()`` as YAML (atomically)."""
+def write_cases_file(path=CASES_FILE, cases: dict | None = None, header: str = CASES_HEADER) -> Path:
+    """Write ``cases`` (default ``generate_cases()``) as YAML under ``header`` (atomically)."""
     import yaml
 
     from ..core.io import atomic_path
 
     with atomic_path(path) as tmp:
-        tmp.write_text(CASES_HEADER + yaml.safe_dump(generate_cases(), sort_keys=False, width=120))
+        tmp.write_text(header + yaml.safe_dump(generate_cases() if cases is None else cases, sort_keys=False,
+                                               width=120))
     return Path(path)
 
 

@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import ConfigError
 from ..core.streams import stream_rng
+from . import effects_independent
 from .effects_independent import (LIBRARY_CLASSES, MS_ERROR, NOISE, OUTSIDE_CLASSES, _sig, _sizes,
                                   draw_hamiltonians)
 
@@ -166,24 +166,12 @@ HEADER = ("# The effects bench's laptop case set (issue 59), fixed before any ru
 
 def write_cases_file(path=CASES_FILE) -> Path:
     """Write ``generate_cases()`` as YAML (atomically)."""
-    import yaml
-
-    from ..core.io import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(HEADER + yaml.safe_dump(generate_cases(), sort_keys=False, width=120))
-    return Path(path)
+    return effects_independent.write_cases_file(path, generate_cases(), HEADER)
 
 
 def load_cases(split: str, path=CASES_FILE) -> list[dict]:
     """The cases of ``split`` ("dev" or "eval") of the laptop set; ConfigError otherwise."""
-    import yaml
-
-    if split not in ("dev", "eval"):
-        raise ConfigError(f"laptop case set {split!r}: dev or eval")
-    if not Path(path).exists():
-        raise ConfigError(f"no case file {path}")
-    return yaml.safe_load(Path(path).read_text())[split]
+    return effects_independent.load_cases(split, path)
 
 
 __all__ = ["CASES_FILE", "COUNTS", "GRIDS", "PATCH_PLAN", "SEED", "VARIANTS", "generate_cases", "load_cases",
