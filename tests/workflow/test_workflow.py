@@ -130,10 +130,15 @@ def test_tiny_config_builds_the_dataset(tmp_path):
     assert report["Ms_chosen_A_per_m"] in (5e5, 1.1e6) and set(report["prediction"]) >= {"K_u", "D", "N_pin", "A_ex"}
     assert report["observation_rms"] >= 0 and len(report["per_curve_rms"]) == 16
     # the loop normalizes by the file's own saturated branches, which absorbs most of a linear background,
-    # and on this 16-field film the re-simulation misses by ~0.18 RMS: a background or its scale-like
-    # remainder is named, never a drift or an offset the file does not show (before the model-free
-    # evidence, background+additive_drift was chosen here without any drift in the file)
-    assert report["effect"] in ("background", "scale")
+    # and on this 16-field film the re-simulation misses by ~0.18 RMS: never a drift or an offset the file
+    # does not show (before the model-free evidence, background+additive_drift was chosen here without any
+    # drift in the file). Since the realisation floor (2026-12-02) a background may also be withheld: the
+    # file is one patch of a 16 x 16 film the tiny decoder misses, and on effect-free films of the decoded
+    # Hamiltonian a background with a field offset explains 97 % of the residual (its decoded film does
+    # not saturate where the file does: "unexplained structured residual" in saturation)
+    assert report["effect"] in ("background", "scale", "none")
+    assert report["verdict"] in ("background", "scale", "none", "unexplained structured residual", "ambiguous")
+    assert report["patches"]["floor_patches"] in (1, 2, 4, 8)
     assert report["drift_evidence"]["significant"] is False and report["field_shift"]["significant"] is False
     # runtime per job: one benchmark table per job of every computing rule
     assert {p.name for p in (out / "benchmarks").iterdir()} == BENCHMARKED

@@ -597,6 +597,8 @@ def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Re
         pool = rasterized_singles(cfg, params, m.data, m.moment_saturation, m.domain.moment_offset_Am2, POOL_SIZE,
                                   max_step_T=s.measured_max_step_T or MEASURED_MAX_STEP_T, progress=progress)
         where = "the file's own protocol, put on the grid as the file is"
+        if pool.fallbacks:
+            where += f" ({pool.fallbacks} of {len(pool)} on the grid: they do not saturate in the file's window)"
     else:
         pool = single_realisations(cfg, params, POOL_SIZE, progress=progress)
         where = (f"the training grid (the file's {points} points exceed {RASTERIZED_MAX_POINTS}, or its protocol is "

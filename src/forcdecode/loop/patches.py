@@ -80,6 +80,12 @@ sweep would cost minutes per single) get grid singles, and the report says the r
 not in the floor."""
 
 
+class _Pool(list):
+    """A list of single realisations that counts those made on the grid instead (``fallbacks``)."""
+
+    fallbacks = 0
+
+
 def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: float, moment_offset_Am2: float,
                        count: int = POOL_SIZE, key: str = "loop_null", max_step_T: float = 0.002,
                        progress=None) -> list[np.ndarray]:
@@ -90,18 +96,31 @@ def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: flo
     with its moments replaced by M_0 + M_sat·m): an off-grid file's interpolation between its curves is
     then in the null films too. Measured on the example control (40 curves off the grid, 8 patches): the
     film on the grid and the file put on the grid differ by 0.075 RMS at the same disorder
-    (``scripts/check_rasterization.py``)."""
+    (``scripts/check_rasterization.py``). A realisation whose rasterization is out of the domain (it does
+    not saturate in the file's window) is replaced by its grid family; the list's ``fallbacks`` counts
+    them. Each family is returned in the simulation's units (m = (M − M_0)/M_sat with the file's M_0 and
+    M_sat), not re-normalized by its own saturated branches."""
     B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
     reversal = [float(c.reversal_field_T) for c in data.curves]
     fields = [np.concatenate([[h], np.asarray(c.field_T, float)[1:]]) if abs(float(c.field_T[0]) - h) < 1e-9
               else np.asarray(c.field_T, float) for h, c in zip(reversal, data.curves)]
-    singles = []
+    singles = _Pool()
     for k in range(count):
         family = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k), reversal, fields,
                                    max_step_T=max_step_T)
         pseudo = replace(data, curves=[replace(c, moment_Am2=moment_offset_Am2 + moment_saturation_Am2 * np.asarray(v))
                                        for c, v in zip(data.curves, family.curves)])
-        singles.append(measurement_on_grid(pseudo, B_max, n)[1])
+        _, grid, note, saturation, domain = measurement_on_grid(pseudo, B_max, n, with_domain=True)
+        if note is not None or not saturation > 0:
+            # this realisation does not saturate in the file's window: its own normalization would mean
+            # nothing; the grid family of the same disorder stands in (``fallbacks``)
+            singles.append(simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k)))
+            singles.fallbacks += 1
+        else:
+            # back to the simulation's units (m = (M − M_0)/M_sat with the given M_0, M_sat), as the
+            # re-simulation it is compared with
+            singles.append(grid * (saturation / moment_saturation_Am2)
+                           + (domain.moment_offset_Am2 - moment_offset_Am2) / moment_saturation_Am2)
         if progress is not None:
             progress(k + 1, count)
     return singles
