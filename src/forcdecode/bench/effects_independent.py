@@ -619,6 +619,35 @@ def _sizes(rng, n: int, bounds, signed: bool, grid=None, on_grid: int = 0) -> li
     return values
 
 
+def library_case(name: str, v: float, rng) -> tuple:
+    """(kind, class, physics, instrument, size) of an in-library case of size ``v`` (``LIBRARY_CLASSES``);
+    the companion settings a class needs are drawn from ``rng`` (a multiplicative drift's time constant, a
+    second phase's K_u,soft/K_u)."""
+    side, key = LIBRARY_CLASSES[name][:2]
+    if name == "scale":
+        settings = {"scale": _sig(1 + v, 4)}
+    elif name == "multiplicative_drift":
+        settings = {"gain_drift": v, "gain_drift_time_s": _sig(rng.uniform(100.0, 600.0), 3)}
+    elif name == "second_phase":
+        settings = {"fraction": v, "K_u_soft_over_K_u": _sig(rng.uniform(0.03, 0.35), 3)}
+    else:
+        settings = {key: v}
+    physics, instrument = (settings, {}) if side == "physics" else ({}, settings)
+    return ("library", name, physics, instrument, abs(v))
+
+
+def outside_cases(rng, per_class: int) -> list[tuple]:
+    """``per_class`` cases of each class outside the library (``OUTSIDE_CLASSES``), sizes from ``_sizes``."""
+    plan = []
+    for name, (key, bounds, signed, companion) in OUTSIDE_CLASSES.items():
+        for v in _sizes(rng, per_class, bounds, signed):
+            settings = {key: v}
+            if companion:
+                settings[companion[0]] = _sig(rng.uniform(*companion[1]), 3)
+            plan.append(("outside", name, {}, settings, abs(v)))
+    return plan
+
+
 def generate_cases() -> dict:
     """The dev and eval cases (deterministic: everything from ``CASES_SEED``); see ``write_cases_file``."""
     from ..core.streams import stream_rng
@@ -639,30 +668,15 @@ def generate_cases() -> dict:
                                "calibration_sees_drift": True}, None))
             else:
                 plan_.append(("control", "none", {}, {}, None))
-        for name, (side, key, bounds, signed, grid) in LIBRARY_CLASSES.items():
+        for name, (_, _, bounds, signed, grid) in LIBRARY_CLASSES.items():
             n = counts["per_library_class"]
             if name == "K_2":  # negative K_2 only down to −0.2 K_u (the candidate's grid reaches −0.15)
                 sizes = _sizes(rng, n, bounds, True, grid, on_grid=2 if split == "eval" else 0)
                 sizes = [max(v, -0.2) if v < 0 else v for v in sizes]
             else:
                 sizes = _sizes(rng, n, bounds, signed, grid, on_grid=2 if split == "eval" and grid else 0)
-            for v in sizes:
-                if name == "scale":
-                    settings = {"scale": _sig(1 + v, 4)}
-                elif name == "multiplicative_drift":
-                    settings = {"gain_drift": v, "gain_drift_time_s": _sig(rng.uniform(100.0, 600.0), 3)}
-                elif name == "second_phase":
-                    settings = {"fraction": v, "K_u_soft_over_K_u": _sig(rng.uniform(0.03, 0.35), 3)}
-                else:
-                    settings = {key: v}
-                physics, instrument = (settings, {}) if side == "physics" else ({}, settings)
-                plan_.append(("library", name, physics, instrument, abs(v)))
-        for name, (key, bounds, signed, companion) in OUTSIDE_CLASSES.items():
-            for v in _sizes(rng, counts["per_outside_class"], bounds, signed):
-                settings = {key: v}
-                if companion:
-                    settings[companion[0]] = _sig(rng.uniform(*companion[1]), 3)
-                plan_.append(("outside", name, {}, settings, abs(v)))
+            plan_ += [library_case(name, v, rng) for v in sizes]
+        plan_ += outside_cases(rng, counts["per_outside_class"])
         hamiltonians = draw_hamiltonians(first_id, len(plan_))
         cases = []
         for i, ((kind, name, physics, instrument, size), (h_id, h)) in enumerate(zip(plan_, hamiltonians)):

@@ -35,8 +35,8 @@ import numpy as np
 
 from ..core.streams import stream_rng
 from . import effects_independent
-from .effects_independent import (LIBRARY_CLASSES, MS_ERROR, NOISE, OUTSIDE_CLASSES, _sig, _sizes,
-                                  draw_hamiltonians)
+from .effects_independent import (LIBRARY_CLASSES, MS_ERROR, NOISE, _sig, _sizes, draw_hamiltonians, library_case,
+                                  outside_cases)
 
 CASES_FILE = Path(__file__).with_name("effects_cases_laptop.yaml")
 SEED = 59
@@ -82,33 +82,16 @@ def _plan(split: str, rng) -> list[tuple]:
     counts = COUNTS[split]
     plan = [("control", "none", {}, {}, None)] * counts["controls"]
     for name in ("background", "field_offset", "second_phase", "scale", "K_2", "bias_field", "field_tilt"):
-        side, key, bounds, signed, grid = LIBRARY_CLASSES[name]
+        _, _, bounds, signed, grid = LIBRARY_CLASSES[name]
         sizes = _sizes(rng, counts[name], bounds, signed, grid)
         if name == "K_2":
             sizes = [max(v, -0.2) if v < 0 else v for v in sizes]
-        for v in sizes:
-            if name == "scale":
-                settings = {"scale": _sig(1 + v, 4)}
-            elif name == "second_phase":
-                settings = {"fraction": v, "K_u_soft_over_K_u": _sig(rng.uniform(0.03, 0.35), 3)}
-            else:
-                settings = {key: v}
-            physics, instrument = (settings, {}) if side == "physics" else ({}, settings)
-            plan.append(("library", name, physics, instrument, abs(v)))
+        plan += [library_case(name, v, rng) for v in sizes]
     half = counts["drift"] // 2
     for name, n in (("additive_drift", half), ("multiplicative_drift", counts["drift"] - half)):
-        _, key, bounds, signed, _ = LIBRARY_CLASSES[name]
-        for v in _sizes(rng, n, bounds, signed):
-            settings = ({"gain_drift": v, "gain_drift_time_s": _sig(rng.uniform(100.0, 600.0), 3)}
-                        if name == "multiplicative_drift" else {key: v})
-            plan.append(("library", name, {}, settings, abs(v)))
-    for name, (key, bounds, signed, companion) in OUTSIDE_CLASSES.items():
-        for v in _sizes(rng, counts["per_outside_class"], bounds, signed):
-            settings = {key: v}
-            if companion:
-                settings[companion[0]] = _sig(rng.uniform(*companion[1]), 3)
-            plan.append(("outside", name, {}, settings, abs(v)))
-    return plan
+        _, _, bounds, signed, _ = LIBRARY_CLASSES[name]
+        plan += [library_case(name, v, rng) for v in _sizes(rng, n, bounds, signed)]
+    return plan + outside_cases(rng, counts["per_outside_class"])
 
 
 def _in_turn(rng, values, n: int) -> list:
