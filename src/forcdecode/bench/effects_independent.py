@@ -619,6 +619,20 @@ def _sizes(rng, n: int, bounds, signed: bool, grid=None, on_grid: int = 0) -> li
     return values
 
 
+def fresh_seed(rng, used: set) -> int:
+    """A realisation seed drawn from ``rng`` that no case in ``used`` has (added to it)."""
+    seed = int(rng.integers(1, 2**31 - 1))
+    while seed in used:
+        seed = int(rng.integers(1, 2**31 - 1))
+    used.add(seed)
+    return seed
+
+
+def case_stem(name: str) -> str:
+    """A case class as it appears in a case's name ("outside: detector lag" → "detector_lag")."""
+    return "".join(c if c.isalnum() else "_" for c in name.removeprefix("outside: ")).strip("_")
+
+
 def library_case(name: str, v: float, rng) -> tuple:
     """(kind, class, physics, instrument, size) of an in-library case of size ``v`` (``LIBRARY_CLASSES``);
     the companion settings a class needs are drawn from ``rng`` (a multiplicative drift's time constant, a
@@ -680,14 +694,11 @@ def generate_cases() -> dict:
         hamiltonians = draw_hamiltonians(first_id, len(plan_))
         cases = []
         for i, ((kind, name, physics, instrument, size), (h_id, h)) in enumerate(zip(plan_, hamiltonians)):
-            seed = int(rng.integers(1, 2**31 - 1))
-            while seed in seeds_used:
-                seed = int(rng.integers(1, 2**31 - 1))
-            seeds_used.add(seed)
+            seed = fresh_seed(rng, seeds_used)
             grid = GRIDS[int(rng.integers(len(GRIDS)))]
             physics = dict(physics)
             distribution = physics.pop("anisotropy_distribution", "gaussian")
-            stem = "".join(c if c.isalnum() else "_" for c in name.removeprefix("outside: ")).strip("_")
+            stem = case_stem(name)
             cases.append({
                 "name": f"{split}-{i:03d}-{stem}", "split": split, "kind": kind, "class": name,
                 "hamiltonian_id": h_id, "hamiltonian": h, "in_prior": True,

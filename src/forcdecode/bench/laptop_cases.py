@@ -35,8 +35,8 @@ import numpy as np
 
 from ..core.streams import stream_rng
 from . import effects_independent
-from .effects_independent import (LIBRARY_CLASSES, MS_ERROR, NOISE, _sig, _sizes, draw_hamiltonians, library_case,
-                                  outside_cases)
+from .effects_independent import (LIBRARY_CLASSES, MS_ERROR, NOISE, _sig, _sizes, case_stem, draw_hamiltonians,
+                                  fresh_seed, library_case, outside_cases)
 
 CASES_FILE = Path(__file__).with_name("effects_cases_laptop.yaml")
 SEED = 59
@@ -121,11 +121,8 @@ def generate_cases() -> dict:
         variants = _in_turn(rng, VARIANTS, len(plan))
         cases = []
         for i, ((kind, name, physics, instrument, size), (h_id, h)) in enumerate(zip(plan, hamiltonians)):
-            seed = int(rng.integers(1, 2**31 - 1))
-            while seed in seeds_used:
-                seed = int(rng.integers(1, 2**31 - 1))
-            seeds_used.add(seed)
-            stem = "".join(c if c.isalnum() else "_" for c in name.removeprefix("outside: ")).strip("_")
+            seed = fresh_seed(rng, seeds_used)
+            stem = case_stem(name)
             cases.append({
                 "name": f"laptop-{split}-{i:03d}-{stem}", "split": f"laptop-{split}", "kind": kind, "class": name,
                 "hamiltonian_id": h_id, "hamiltonian": h, "in_prior": True, "sample": _sample(rng, variants[i]),
