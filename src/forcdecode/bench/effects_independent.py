@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import physics
 from ..core.errors import ModelFileError
 from ..loop.effects import NO_EFFECT_MEMBERS
 
@@ -576,12 +577,10 @@ def _sig(x: float, digits: int = 4) -> float:
 
 
 def _screened(h: dict) -> bool:
-    mu0 = 4e-7 * np.pi
-    Q = 2 * h["K_u"] / (mu0 * h["Ms"] ** 2)
-    b_k = 2 * h["K_u"] / h["Ms"] - mu0 * h["Ms"]
+    Q = physics.quality_factor(h["K_u"], h["Ms"])
+    b_k = physics.effective_anisotropy_field(h["K_u"], h["Ms"])
     lo, hi = SCREEN["B_K_eff_T"]
-    k_eff = h["K_u"] - mu0 * h["Ms"] ** 2 / 2
-    d_c = 4 * np.sqrt(h["A_ex"] * max(k_eff, 0.0)) / np.pi
+    d_c = 4 * np.sqrt(h["A_ex"] * max(physics.k_eff(h["K_u"], h["Ms"]), 0.0)) / np.pi
     return (Q >= SCREEN["Q_min"] and lo <= b_k <= hi and np.sqrt(h["A_ex"] / h["K_u"]) * 1e9 >= SCREEN["wall_nm_min"]
             and h["D"] <= SCREEN["D_over_D_c_max"] * d_c)
 
@@ -833,10 +832,10 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
 
 def population_median_hamiltonian(Ms: float, n: int = 400) -> dict:
     """``FALLBACKS``' population-median film at ``Ms`` (no case's truth enters)."""
-    mu0 = 4e-7 * np.pi
+    mu0 = physics.MU0
     draws = [h for _, h in draw_hamiltonians(900000, n)]
-    Q = np.median([2 * h["K_u"] / (mu0 * h["Ms"] ** 2) for h in draws])
-    l_ex = np.median([np.sqrt(2 * h["A_ex"] / (mu0 * h["Ms"] ** 2)) for h in draws])
+    Q = np.median([physics.quality_factor(h["K_u"], h["Ms"]) for h in draws])
+    l_ex = np.median([physics.exchange_length(h["A_ex"], h["Ms"]) for h in draws])
     return {"Ms": float(Ms), "K_u": _sig(Q * mu0 * Ms**2 / 2), "A_ex": _sig(l_ex**2 * mu0 * Ms**2 / 2),
             **{k: _sig(np.median([h[k] for h in draws])) for k in ("D", "sigma_theta_deg", "sigma_K")}, "N_pin": 0}
 

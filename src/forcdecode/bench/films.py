@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import physics
+
 FILMS: dict[str, dict] = {
     "laptop": dict(nx=64, ny=64, nz=1, n_grains=255),
     "laptop_paper_grains": dict(nx=64, ny=64, nz=1, n_grains=16),
@@ -268,7 +270,7 @@ REGIONS = {
 
 def quality_factor(params: dict) -> float:
     """Q = 2 K_u / (μ0 M_s²): anisotropy over shape anisotropy."""
-    return 2.0 * params["K_u"] / (4e-7 * np.pi * params["Ms"] ** 2)
+    return physics.quality_factor(params["K_u"], params["Ms"])
 
 
 def by_region(rows: list[dict]) -> dict:

@@ -45,12 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from ..core.parameters import denormalize, normalize
+from ..core import physics
 from .films import film_config
 from .information import (QUANT_STEP, _finite_list, best_direction, best_matched_direction, compressed_fisher, crb,
                           fisher_from_families, matched_direction_crb, matched_filter_crb_pooled, principal_angle_deg,
                           stencil, upper_triangle)
-
-MU0 = 4e-7 * np.pi
 
 NAMES = ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")
 """The parameters differentiated (normalized units; M_s is given)."""
@@ -103,19 +102,18 @@ FLOAT_FLOOR = 1e-8
 
 
 def k_eff(p: dict) -> float:
-    """K_eff = K_u − μ0 M_s²/2 (J/m³)."""
-    return p["K_u"] - MU0 * p["Ms"] ** 2 / 2
+    """K_eff = K_u − μ0 M_s²/2 (J/m³), ``core.physics``."""
+    return physics.k_eff(p["K_u"], p["Ms"])
 
 
 def sigma_w(p: dict) -> float:
     """Wall energy 4√(A_ex K_eff) − π|D| (J/m²); NaN where K_eff ≤ 0."""
-    k = k_eff(p)
-    return float(4 * np.sqrt(p["A_ex"] * k) - np.pi * abs(p["D"])) if k > 0 else float("nan")
+    return physics.wall_energy(p["A_ex"], k_eff(p), p["D"])
 
 
 def wall_width(p: dict) -> float:
-    k = k_eff(p)
-    return float(np.sqrt(p["A_ex"] / k)) if k > 0 else float("nan")
+    """The wall parameter Δ = √(A_ex/K_eff) (m; δ_w/π); NaN where K_eff ≤ 0."""
+    return physics.wall_parameter(p["A_ex"], k_eff(p))
 
 
 def regime(p: dict) -> str:

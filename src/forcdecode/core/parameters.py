@@ -12,6 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import physics
+from .physics import MU0
+
 
 @dataclass(frozen=True)
 class Parameter:
@@ -91,8 +94,6 @@ def denormalize(name: str, unit_value, bounds=None):
 
 
 # ---------------------------------------------------------------- derived combinations
-MU0 = 4e-7 * np.pi
-"""Vacuum permeability μ0 (T·m/A), as in ``micromag.constants``."""
 
 
 # ---------------------------------------------------------------- prior classes
@@ -147,7 +148,7 @@ def _si(values: dict, name: str) -> np.ndarray:
 def k_eff(values: dict) -> np.ndarray:
     """Effective perpendicular anisotropy K_eff = K_u − μ0 M_s²/2 (J/m³), thin-film shape anisotropy;
     ``values``: name -> SI array (``K_u``, ``Ms``), broadcast together."""
-    return _si(values, "K_u") - MU0 * _si(values, "Ms") ** 2 / 2
+    return physics.k_eff(_si(values, "K_u"), _si(values, "Ms"))
 
 
 def _where_keff_positive(values: dict, fn) -> np.ndarray:
@@ -164,19 +165,17 @@ def _where_keff_positive(values: dict, fn) -> np.ndarray:
 
 def wall_energy(values: dict) -> np.ndarray:
     """σ_w = 4√(A_ex K_eff) − π|D| (J/m²); NaN where K_eff ≤ 0."""
-    return _where_keff_positive(values, lambda a, k, d: 4.0 * np.sqrt(a * k) - np.pi * d)
+    return physics.wall_energy(_si(values, "A_ex"), k_eff(values), _si(values, "D") if "D" in values else 0.0)
 
 
 def wall_width(values: dict) -> np.ndarray:
     """δ_w = π√(A_ex/K_eff) (m); NaN where K_eff ≤ 0."""
-    return _where_keff_positive({k: v for k, v in values.items() if k != "D"},
-                                lambda a, k, d: np.pi * np.sqrt(a / k))
+    return physics.wall_width(_si(values, "A_ex"), k_eff(values))
 
 
 def critical_dmi(values: dict) -> np.ndarray:
     """D_c = 4√(A_ex K_eff)/π (J/m²), the |D| at which σ_w = 0; NaN where K_eff ≤ 0."""
-    return _where_keff_positive({k: v for k, v in values.items() if k != "D"},
-                                lambda a, k, d: 4.0 * np.sqrt(a * k) / np.pi)
+    return physics.critical_dmi(_si(values, "A_ex"), k_eff(values))
 
 
 def dmi_ratio(values: dict) -> np.ndarray:
@@ -186,8 +185,7 @@ def dmi_ratio(values: dict) -> np.ndarray:
 
 def quality_factor(values: dict) -> np.ndarray:
     """Q = 2K_u/(μ0 M_s²) (dimensionless), defined everywhere (M_s > 0); Q > 1 ⇔ K_eff > 0."""
-    out = 2.0 * _si(values, "K_u") / (MU0 * _si(values, "Ms") ** 2)
-    return out if np.ndim(out) else float(out)
+    return physics.quality_factor(_si(values, "K_u"), _si(values, "Ms"))
 
 
 @dataclass(frozen=True)

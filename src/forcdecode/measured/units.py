@@ -6,14 +6,12 @@ True SI MicroMag files give H in A/m: mu0*H [T] = 4*pi*1e-7 * H [A/m].
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
+from ..core.physics import MU0
 from .model import ForcFormatError
-
-MU0 = 4e-7 * math.pi
 
 # Factors that turn the number in the file into mu0*H in tesla.
 FIELD_TO_T = {"T": 1.0, "mT": 1e-3, "Oe": 1e-4, "G": 1e-4, "A/m": MU0, "kA/m": MU0 * 1e3}

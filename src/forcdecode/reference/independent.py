@@ -76,7 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
-MU0 = 4e-7 * math.pi
+from ..core.physics import MU0  # a constant, not our engine: the generator stays independent of micromag
 
 PIN_K_U = 5e7
 """Anisotropy of a pinning cell (J/m³, along z): the seed paper's 50 MJ/m³."""
