@@ -149,7 +149,7 @@ def test_the_extension_is_parsed_and_the_draw_prior_continues_uniformly_past_the
     from types import SimpleNamespace
 
     from forcdecode.dataset.params import draw_log_density
-    from forcdecode.infer.fit_cli import EXTENSION_FACTOR, parse_extension, prior_logpdf
+    from forcdecode.infer.refine import EXTENSION_FACTOR, parse_extension, prior_logpdf
 
     names = ("N_pin", "A_ex", "K_u", "D", "sigma_theta_deg", "sigma_K")
     assert parse_extension(["N_pin=3", "D"], names) == {"N_pin": 3.0, "D": EXTENSION_FACTOR}

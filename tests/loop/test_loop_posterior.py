@@ -251,7 +251,7 @@ def test_the_loop_analyses_the_refined_posterior_when_asked(posterior, measured,
                  "--posterior", str(posterior), "--Ms-kA-m", "600", "--force", "--refine", "6",
                  "--refine-round-size", "2", "--predictive-reference", str(reference)]) == 2
     # nor one made with the other prior: the loop refines with fit_cli.DEFAULT_PRIOR, and says so
-    from forcdecode.infer.fit_cli import DEFAULT_PRIOR, PRIORS
+    from forcdecode.infer.refine import DEFAULT_PRIOR, PRIORS
     from forcdecode.infer.predictive_check import make_reference
 
     other = tmp_path / "other_prior.json"
@@ -346,7 +346,8 @@ def test_fit_adjusted_simulates_own_realisations_nests_budgets_and_resumes(poste
     answer regression-adjusted at every checkpoint; a saved run extended equals the longer run."""
     from forcdecode.config import load_config
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.infer.fit_cli import fit_adjusted, observation, print_summary
+    from forcdecode.infer.fit_cli import print_summary
+    from forcdecode.infer.refine import fit_adjusted, observation
 
     path, cfg_path = measured
     out = tmp_path / "fit"
@@ -457,7 +458,8 @@ def test_fit_adjusted_reads_a_saved_state_whose_images_encode_k_u(posterior, mea
     from forcdecode.config import load_config
     from forcdecode.core.streams import stream_seed
     from forcdecode.learn.posterior import PosteriorEstimator
-    from forcdecode.infer.fit_cli import fit_adjusted, network_summaries, observation, print_summary
+    from forcdecode.infer.fit_cli import print_summary
+    from forcdecode.infer.refine import fit_adjusted, network_summaries, observation
 
     path, cfg_path = measured
     cfg, est = load_config(cfg_path), PosteriorEstimator.load(posterior)

@@ -9,7 +9,7 @@ import os
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..infer.fit_cli import DEFAULT_PRIOR, METHODS, PRIORS
+    from ..infer.refine import DEFAULT_PRIOR, METHODS, PRIORS
 
     parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "realisations", "prior-learning",
                                            "fit", "ood",
@@ -477,7 +477,7 @@ def _bench_fit(args, say) -> int:
     from ..core.errors import ConfigError
     from ..core.io import read_json, write_json
     from ..core.parameters import normalize
-    from ..infer.fit_cli import beyond_prior_lines, fit_function, parse_extension
+    from ..infer.refine import beyond_prior_lines, fit_function, parse_extension
 
     budgets = sorted(set(args.budgets))
     if args.extend_prior and args.method != "pmc":

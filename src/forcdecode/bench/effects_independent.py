@@ -768,11 +768,10 @@ class EstimatorUnavailableError(ModelFileError):
 
 
 def _loop_module():
-    import importlib
+    """The `forcdecode loop` command as a user runs it (``loop.command``: its parser and its ``run``)."""
+    from ..loop import command
 
-    from ..cli import COMMANDS
-
-    return importlib.import_module(COMMANDS["loop"][0])
+    return command
 
 
 def loop_namespace(argv):
@@ -810,7 +809,7 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
             raise ConfigError(f"--without-estimator {fallback!r}: one of {', '.join(FALLBACKS)}")
         return f"fallback: {fallback}"
     args = loop_namespace(["FILE", "--out", "OUT", *loop_args])
-    from ..loop.cli import resolve_estimator
+    from ..loop.command import resolve_estimator
 
     resolve_estimator(args)  # --estimator auto as the loop resolves it (and the posterior's default path)
     try:

@@ -2,7 +2,7 @@
 truth, beside the trivial predictor that reads M_s alone (the draw prior's median given M_s), with a
 paired bootstrap of each MAE difference and the binomial band of the coverage.
 
-Rows are ``forcdecode fit`` results (``fit_cli.finish_fit``) with ``truth_normalized`` added; all
+Rows are ``forcdecode fit`` results (``refine.finish_fit``) with ``truth_normalized`` added; all
 errors in normalized units u ∈ [0, 1]."""
 
 from __future__ import annotations
@@ -111,7 +111,7 @@ def fit_summary(rows, budgets, bounds, rng: np.random.Generator, n_boot: int = 2
 
 
 CHOICE_NAMES = ("K_u", "A_ex", "D")
-"""The parameters whose mean MAE chooses the adjusted fit's reading (``infer.fit_cli.ADJUSTED_CHOICE``)."""
+"""The parameters whose mean MAE chooses the adjusted fit's reading (``infer.refine.ADJUSTED_CHOICE``)."""
 
 
 def reading_choice(rows, budget: int, rng: np.random.Generator, n_boot: int = 2000, names=CHOICE_NAMES) -> dict:

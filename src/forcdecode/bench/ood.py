@@ -202,10 +202,10 @@ def carry_over(previous: dict | None, result: dict) -> dict:
 
 
 def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
-    """Refine each family for ``settings["budget"]`` simulations (``infer.fit_cli.fit_one``; one
+    """Refine each family for ``settings["budget"]`` simulations (``infer.refine.fit_one``; one
     fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
     from ..core.io import read_json, write_json
-    from ..infer.fit_cli import fit_one
+    from ..infer.refine import fit_one
 
     fit_dir = Path(fit_dir)
     fit_dir.mkdir(parents=True, exist_ok=True)

@@ -48,7 +48,7 @@ def run(args) -> int:
     from ..core.errors import ConfigError
     from ..core.io import write_json
     from .fit import Refinement
-    from .fit_cli import DEFAULT_PRIOR, family_key, finish_fit, fit_round, observation, parse_extension, start_fit
+    from .refine import DEFAULT_PRIOR, family_key, finish_fit, fit_round, observation, parse_extension, start_fit
 
     def need(*names):
         missing = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) in (None, "")]

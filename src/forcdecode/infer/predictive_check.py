@@ -70,7 +70,7 @@ def is_extension(reference: dict) -> bool:
 
 
 def predictive_statistic(fit_result: dict, budget: int, extension: bool = False) -> float:
-    """T (or, with ``extension``, Λ) at ``budget`` from a fit result (``infer.fit_cli.finish_fit``'s dict)."""
+    """T (or, with ``extension``, Λ) at ``budget`` from a fit result (``infer.refine.finish_fit``'s dict)."""
     by_budget = _ratio_by_budget(fit_result) if extension else _best_by_budget(fit_result)
     if str(int(budget)) not in by_budget:
         raise ConfigError(f"the refinement ran {max(int(b) for b in by_budget)} simulations in rounds "

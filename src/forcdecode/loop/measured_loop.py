@@ -92,12 +92,12 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
     medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
     the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
     ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
-    ``method``: "pmc" (``fit_cli.fit_one``) or "adjusted" (``fit_cli.fit_adjusted``: no tempering, no
+    ``method``: "pmc" (``refine.fit_one``) or "adjusted" (``refine.fit_adjusted``: no tempering, no
     particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
-    beyond the prior's bound (``fit_cli.parse_extension``); the entry then carries ``beyond_prior``
+    beyond the prior's bound (``refine.parse_extension``); the entry then carries ``beyond_prior``
     (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
     from ..core.parameters import denormalize
-    from ..infer.fit_cli import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
+    from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
     from ..infer.posterior_predictive import draws_as_hamiltonians
 
     key = family_key(f"{Path(path).name}:refine")
@@ -252,7 +252,7 @@ class LoopSettings:
 
 @dataclass
 class RefineSetup:
-    """The refinement's box beyond the prior's bound ({name: factor}, ``fit_cli.parse_extension``) and the
+    """The refinement's box beyond the prior's bound ({name: factor}, ``refine.parse_extension``) and the
     reference of its posterior-predictive check (None without ``predictive_reference``)."""
 
     extend: dict | None
@@ -335,7 +335,7 @@ def check_options(s: LoopSettings) -> RefineSetup:
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
     from ..core.parameters import TARGETS
-    from ..infer.fit_cli import DEFAULT_PRIOR, fit_function, parse_extension
+    from ..infer.refine import DEFAULT_PRIOR, fit_function, parse_extension
 
     fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
@@ -765,7 +765,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
     posterior estimator): refine the amortized posterior of this family by that many simulations of
     the film at the chosen M_s (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers``
-    processes; ``refine_method`` "pmc" or "adjusted", ``infer.fit_cli.METHODS``); the refined medians
+    processes; ``refine_method`` "pmc" or "adjusted", ``infer.refine.METHODS``); the refined medians
     are the Hamiltonian re-simulated, so the residual analysis runs on the refined re-simulation;
     report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
     method): the calibrated posterior-predictive check (``infer.predictive_check``) of the
@@ -960,7 +960,7 @@ def _markdown(path, report, analysis) -> str:
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
             if refined.get("beyond_prior"):
-                from ..infer.fit_cli import beyond_prior_lines
+                from ..infer.refine import beyond_prior_lines
 
                 lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")
