@@ -10,7 +10,7 @@ from forcdecode.core.errors import ModelFileError
 from forcdecode.learn.estimator_choice import (alice_validation_mae, choose, choose_estimator,
                                                default_posterior_path, posterior_validation_mae)
 from forcdecode.learn.predictor import load_models
-from forcdecode.loop.cli import resolve_estimator
+from forcdecode.loop.command import resolve_estimator
 
 
 def test_the_lower_mean_validation_mae_answers():

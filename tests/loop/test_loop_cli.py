@@ -42,7 +42,7 @@ def test_loop_names_an_undeclared_background(tmp_path):
     config_path.write_text(yaml.safe_dump(cfg))
     params = {"Ms": 6e5, "A_ex": 1.0e-11, "K_u": 3.77e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 3.0, "sigma_K": 0.05}
     (tmp_path / "params.json").write_text(json.dumps(params))
-    from forcdecode.loop.cli import load_config
+    from forcdecode.loop.command import load_config
 
     truth = resimulate(load_config(config_path), params, n_profiles=1, key="sample")
     resimulated = resimulate(load_config(config_path), params, n_profiles=1)  # the loop's own realisation

@@ -31,7 +31,7 @@ def measured(tmp_path_factory):
     """A square-loop film in the physics domain (only the training-data check can stop it), its config and
     the image the loop makes of it."""
     from forcdecode.forc.raster import measurement_on_grid
-    from forcdecode.loop.cli import load_config
+    from forcdecode.loop.command import load_config
     from forcdecode.measured import read_forc
 
     tmp = tmp_path_factory.mktemp("film")

@@ -58,7 +58,7 @@ def measured(tmp_path_factory):
     (tmp / "cfg.yaml").write_text(yaml.safe_dump(cfg))
     # a square loop that saturates well inside ±1 T: in the physics domain, so only the OOD check can stop it
     params = {"Ms": 6e5, "A_ex": 1.0e-11, "K_u": 4e5, "D": 1e-3, "N_pin": 0, "sigma_theta_deg": 5.0, "sigma_K": 0.1}
-    from forcdecode.loop.cli import load_config
+    from forcdecode.loop.command import load_config
 
     truth = resimulate(load_config(tmp / "cfg.yaml"), params, n_profiles=1)
     mesh = mesh_from_config(cfg)

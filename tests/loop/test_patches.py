@@ -101,7 +101,7 @@ def test_a_two_patch_pinned_film_with_its_true_hamiltonian_gets_no_effect(tmp_pa
     number is estimated and every candidate's floor is printed beside it."""
     from forcdecode.cli import main
     from forcdecode.infer.resimulate import resimulate
-    from forcdecode.loop.cli import load_config
+    from forcdecode.loop.command import load_config
     from forcdecode.loop.effects import NO_EFFECT_MEMBERS
     from forcdecode.measured.writers import write_micromag_0015
     from forcdecode.micromag.build import mesh_from_config

@@ -7,13 +7,11 @@ import argparse
 import json
 import os
 
+from ..infer.refine import add_refinement_arguments
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..infer.refine import DEFAULT_PRIOR, METHODS, PRIORS
-
-    parser.add_argument("target", choices=["engine", "protocols", "effects", "learn", "films", "film-learning", "realisations", "prior-learning",
-                                           "fit", "ood",
-                                           "information", "prior-class"], help="what to benchmark")
+    parser.add_argument("target", choices=list(TARGETS), help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
     parser.add_argument("--independent", action="store_true",
@@ -104,14 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--case", help="fit: refine the families of this `bench ood` case instead of the dataset's "
                      "(OOD_DIR/CASE.npz with curves, e.g. magnumnp: another code's films of the held-out "
                      "Hamiltonians; the truth is the case's Hamiltonian)")
-    fit.add_argument("--method", choices=METHODS, default="pmc",
-                     help="fit: pmc (tempered population Monte Carlo, common random numbers) or adjusted (the "
-                          "amortized draws simulated on their own realisations, regression-adjusted)")
-    fit.add_argument("--prior", choices=PRIORS, default=DEFAULT_PRIOR,
-                     help="fit: the refinement's prior (the dataset's draw prior given M_s, or uniform)")
-    fit.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
-                     help="fit, pmc: refine in a box extended beyond the prior's bound (forcdecode fit --extend-prior); "
-                          "each family's posterior mass beyond the bound is reported")
+    add_refinement_arguments(fit, scope="fit: ")
     fit.add_argument("--extension-reference", metavar="JSON",
                      help="fit, with --extend-prior: judge each family by the extension check against this reference "
                           "(FIT_DIR/extension_reference.json, written by a --split validation run in the same box)")
@@ -159,55 +150,15 @@ def run(args) -> int:
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-    from ..core.progress import counter, echo, progress
+    from ..core.progress import echo
 
     say = echo  # result lines on stdout; progress on stderr (a bar on a terminal, lines in a log)
+    return TARGETS[args.target](args, say)
 
-    if args.target == "learn":
-        return _bench_learn(args, say)
-    if args.target == "films":
-        return _bench_films(args, say)
-    if args.target == "film-learning":
-        return _bench_film_learning(args, say)
-    if args.target == "realisations":
-        return _bench_realisations(args, say)
-    if args.target == "prior-learning":
-        return _bench_prior_learning(args, say)
-    if args.target == "fit":
-        return _bench_fit(args, say)
-    if args.target == "ood":
-        return _bench_ood(args, say)
-    if args.target == "information":
-        from .information_cli import bench_information
 
-        return bench_information(args, say)
-    if args.target == "prior-class":
-        return _bench_prior_class(args, say)
+def _bench_engine(args, say) -> int:
+    from ..core.progress import counter
     from . import engine
-
-    if args.target == "effects" and args.independent:
-        return _bench_effects_independent(args, say)
-    if args.target == "effects":
-        from .effects import effects_confusion, n_cases, summary_lines
-
-        with progress(total=n_cases(args.seeds), desc="effects", unit="cases") as bar:
-            result = effects_confusion(seeds=range(args.seeds), progress=lambda row: bar.update())
-        for line in summary_lines(result):
-            say(line)
-        if args.json:
-            print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
-        return 0
-    if args.target == "protocols":
-        with progress(total=args.samples, desc="protocols", unit="samples") as bar:
-            def row_done(row):
-                say(engine.protocol_row_line(row))
-                bar.update()
-
-            result = engine.compare_protocols(args.samples, progress=row_done)
-        say(engine.protocols_summary(result))
-        if args.json:
-            print(json.dumps(result))
-        return 0
 
     report = engine.benchmark_engine(["64"] if args.skip_256 else ["64", "256"], args.seconds,
                                      magnumnp=not args.skip_magnumnp, cache_dir=args.cache_dir,
@@ -216,6 +167,43 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(report))
     return 0
+
+
+def _bench_protocols(args, say) -> int:
+    from ..core.progress import progress
+    from . import engine
+
+    with progress(total=args.samples, desc="protocols", unit="samples") as bar:
+        def row_done(row):
+            say(engine.protocol_row_line(row))
+            bar.update()
+
+        result = engine.compare_protocols(args.samples, progress=row_done)
+    say(engine.protocols_summary(result))
+    if args.json:
+        print(json.dumps(result))
+    return 0
+
+
+def _bench_effects(args, say) -> int:
+    if args.independent:
+        return _bench_effects_independent(args, say)
+    from ..core.progress import progress
+    from .effects import effects_confusion, n_cases, summary_lines
+
+    with progress(total=n_cases(args.seeds), desc="effects", unit="cases") as bar:
+        result = effects_confusion(seeds=range(args.seeds), progress=lambda row: bar.update())
+    for line in summary_lines(result):
+        say(line)
+    if args.json:
+        print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
+    return 0
+
+
+def _bench_information(args, say) -> int:
+    from .information_cli import bench_information
+
+    return bench_information(args, say)
 
 
 def _bench_effects_independent(args, say) -> int:
@@ -723,3 +711,10 @@ def _bench_ood(args, say) -> int:
                      for case, row in result["cases"].items() if "predictive" in row})
         print(json.dumps(line))
     return 0
+
+
+TARGETS = {"engine": _bench_engine, "protocols": _bench_protocols, "effects": _bench_effects, "learn": _bench_learn,
+           "films": _bench_films, "film-learning": _bench_film_learning, "realisations": _bench_realisations,
+           "prior-learning": _bench_prior_learning, "fit": _bench_fit, "ood": _bench_ood,
+           "information": _bench_information, "prior-class": _bench_prior_class}
+"""`forcdecode bench TARGET`: each target's runner (args, say) → exit status."""

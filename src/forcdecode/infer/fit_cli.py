@@ -15,8 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from .refine import (DEFAULT_PRIOR, EXTENSION_FACTOR, METHODS, PRIORS, beyond_prior_lines, family_key, fit_function,
-                     observation, parse_extension)
+from .refine import add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation, parse_extension
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,16 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-size", type=int, default=25, help="simulations per round (default 25)")
     parser.add_argument("--workers", type=int, default=1, help="processes simulating in parallel")
     parser.add_argument("--seed", type=int, default=0, help="seed of the draws and of the proposal rounds")
-    parser.add_argument("--method", choices=METHODS, default="pmc",
-                        help="pmc: tempered population Monte Carlo on one disorder realisation (default); adjusted: "
-                             "the amortized draws simulated on their own realisations and regression-adjusted")
-    parser.add_argument("--prior", choices=PRIORS, default=DEFAULT_PRIOR,
-                        help="the refinement's prior: the dataset's draw prior given M_s (default) or uniform")
-    parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
-                        help="pmc: let these parameters go beyond the prior's upper bound, to FACTOR times its range "
-                             f"(default {EXTENSION_FACTOR:g}); fit.json's beyond_prior then gives the posterior mass "
-                             "beyond the bound (e.g. --extend-prior N_pin: is the film pinned more densely than any "
-                             "training film?)")
+    add_refinement_arguments(parser)
     parser.add_argument("--predictive-reference", help="the misspecification check's reference: without "
                         "--extend-prior predictive_reference.json of `forcdecode bench ood --predictive-budget B` "
                         "(fit.json then says whether a film inside the prior reproduces this family); with it "

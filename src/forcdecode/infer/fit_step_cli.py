@@ -16,6 +16,8 @@ import argparse
 import time
 from pathlib import Path
 
+from .refine import add_refinement_arguments
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("step", choices=("init", "round", "report"), help="init: amortized draws and the disorder floor; "
@@ -30,9 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--round-size", type=int, default=25, help="init: simulations per round (default 25)")
     parser.add_argument("--seed", type=int, default=0, help="init: seed of the draws and of the proposal rounds")
     parser.add_argument("--workers", type=int, default=1, help="init, round: processes simulating in parallel")
-    parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
-                        help="init: refine in a box reaching FACTOR (default 4) times the prior's range for these "
-                             "parameters (forcdecode fit --extend-prior); the rounds and the report follow the state")
+    add_refinement_arguments(parser, scope="init: ", method=False, prior=False)
     parser.add_argument("--state", help="init: the state written; report: the state read")
     parser.add_argument("--state-in", help="round: the state before the round")
     parser.add_argument("--state-out", help="round: the state after the round")

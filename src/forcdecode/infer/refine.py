@@ -565,3 +565,21 @@ def beyond_prior_lines(beyond: dict | None) -> list[str]:
             lines.append(f"{name}: posterior mass beyond the prior's bound {row['posterior_mass_beyond']:.3f} "
                          f"(prior mass there {row['prior_mass_beyond']:.2f}; Bayes factor {row['bayes_factor_beyond']:.3g})")
     return lines
+
+
+def add_refinement_arguments(parser, scope: str = "", method: bool = True, prior: bool = True) -> None:
+    """``--method``, ``--prior`` and ``--extend-prior`` as `fit`, `fit-step` and `bench fit` declare them (one
+    declaration; ``scope`` prefixes each help, e.g. "fit: "; ``method``/``prior`` False leave those out)."""
+    if method:
+        parser.add_argument("--method", choices=METHODS, default="pmc",
+                            help=f"{scope}pmc: tempered population Monte Carlo on one disorder realisation, common "
+                                 "random numbers (default); adjusted: the amortized draws simulated on their own "
+                                 "realisations and regression-adjusted")
+    if prior:
+        parser.add_argument("--prior", choices=PRIORS, default=DEFAULT_PRIOR,
+                            help=f"{scope}the refinement's prior: the dataset's draw prior given M_s (default) or "
+                                 "uniform")
+    parser.add_argument("--extend-prior", nargs="+", metavar="NAME[=FACTOR]",
+                        help=f"{scope}let these parameters go beyond the prior's upper bound, to FACTOR times its "
+                             f"range (default {EXTENSION_FACTOR:g}; pmc only) and report the posterior mass beyond the "
+                             "bound (e.g. --extend-prior N_pin: is the film pinned more densely than any training film?)")

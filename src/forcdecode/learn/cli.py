@@ -26,6 +26,8 @@ import json
 import sys
 import time
 
+from .estimator_choice import add_estimator_arguments
+
 
 def _log(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
@@ -304,21 +306,12 @@ def run(args) -> int:
 def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="FORC file, 64×64 image (.npy) or dataset.h5 (with --sample-id)")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, required=True, help="saturation magnetization M_s (kA/m)")
-    parser.add_argument("--models", default=None, help="directory with <parameter>.pt files (default: the models "
-                                                       "shipped with the package, learn.shipped; results/models "
-                                                       "where none are)")
     parser.add_argument("--sample-id", type=int, help="sample of dataset.h5 to read")
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training "
                         "domain or its loop contradicts the prior class the model was trained on")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
-                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower mean validation "
-                             "MAE; Alice without a posterior model); "
-                             "alice: one network per parameter (Bob's conformal intervals); posterior: the joint "
-                             "neural posterior (medians, credible intervals, correlations)")
-    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
-                                            "directory, i.e. results/posterior/model.pt)")
+    add_estimator_arguments(parser)
     parser.add_argument("--draws", type=int, default=4000,
                         help="posterior draws (--estimator posterior), or Monte-Carlo draws of Alice's intervals "
                              "behind the combinations' intervals (alice)")

@@ -11,6 +11,8 @@ are a little optimistic for both alike; test and sealed figures are never read h
 
 from __future__ import annotations
 
+import argparse
+
 from pathlib import Path
 
 import numpy as np
@@ -79,3 +81,22 @@ def choose_estimator(models_dir, posterior_path) -> dict:
 
 
 __all__ = ["RULE", "default_posterior_path", "alice_validation_mae", "posterior_validation_mae", "choose", "choose_estimator"]
+
+
+ESTIMATORS = ("auto", "alice", "posterior")
+"""What ``--estimator`` may name: auto (:func:`choose_estimator`), Alice + Bob, or the joint posterior."""
+
+
+def add_estimator_arguments(parser: argparse.ArgumentParser, auto_note: str = "", after_note: str = "") -> None:
+    """``--models``, ``--estimator`` and ``--posterior`` as `predict` and `loop` declare them (one
+    declaration; ``auto_note`` adds to auto's rule, ``after_note`` to the end of the help)."""
+    parser.add_argument("--models", default=None, help="directory with the trained <parameter>.pt files (default: "
+                                                       "the models shipped with the package, learn.shipped; "
+                                                       "results/models where none are)")
+    parser.add_argument("--estimator", choices=ESTIMATORS, default="auto",
+                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower "
+                             f"mean validation MAE; Alice without a posterior model{auto_note}); alice: one network "
+                             "per parameter with Bob's conformal intervals; posterior: the joint neural posterior "
+                             f"(medians, 68/90 %% intervals, correlations){after_note}")
+    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
+                                            "directory, i.e. results/posterior/model.pt)")

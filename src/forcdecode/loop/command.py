@@ -11,25 +11,19 @@ from __future__ import annotations
 
 import argparse
 
+from ..infer.refine import METHODS
+from ..learn.estimator_choice import add_estimator_arguments
+from .physics_effects import NULL_REALISATIONS
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..infer.refine import METHODS
-    from .physics_effects import NULL_REALISATIONS
 
     parser.add_argument("file", help="measured FORC file (any format `forcdecode read` knows)")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--models", default=None, help="trained Alice/Bob model files (<parameter>.pt; default: the "
-                                                       "models shipped with the package, learn.shipped; results/models "
-                                                       "where none are)")
-    parser.add_argument("--estimator", choices=("auto", "alice", "posterior"), default="auto",
-                        help="auto (default): whichever validation shows better (learn.estimator_choice: the lower "
-                             "mean validation MAE; Alice without a posterior model; the posterior with --refine); "
-                             "alice: Alice + Bob's conformal intervals; posterior: the joint neural posterior (medians, "
-                             "68/90 %% intervals, correlations); either after a training-data (out-of-distribution) check")
+    add_estimator_arguments(parser, auto_note="; the posterior with --refine",
+                            after_note="; either after a training-data (out-of-distribution) check")
     parser.add_argument("--dataset", help="the dataset the Alice networks were trained on, for their training-data "
                                           "check (default: dataset.h5 beside the --models directory)")
-    parser.add_argument("--posterior", help="posterior model (default: posterior/model.pt beside the --models "
-                                            "directory, i.e. results/posterior/model.pt)")
     parser.add_argument("--refine", type=int, default=0, metavar="N",
                         help="with --estimator posterior: refine the posterior of this file by N simulations of the "
                              "film (forcdecode fit) and analyse the residual of the refined medians")
