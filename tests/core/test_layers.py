@@ -20,7 +20,7 @@ LAYERS = {
     "learn": 5,
     "infer": 6,                          # per-file inference by simulation: re-simulation, refinement, predictive checks
     "loop": 7,                           # the residual → effect analysis
-    "bench": 8, "cli": 8,                # commands and benchmarks
+    "bench": 8, "cli": 8, "__main__": 8,  # commands and benchmarks (__main__: `python -m forcdecode`)
 }
 """Layer of each top-level sub-package or module of forcdecode; a module imports its own layer or lower."""
 ROOT_LAYER = 0  # forcdecode/__init__.py (the version string) imports nothing of the package

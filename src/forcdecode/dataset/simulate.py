@@ -14,11 +14,10 @@ import numpy as np
 
 from ..config import realisations
 from ..core.streams import stream_rng
-from ..forc.adaptive import SlewRate, adaptive_family
-from ..forc.protocol import descending_branch, quasistatic_family
+from ..forc.protocol import descending_branch
 from ..forc.raster import fill_below_reversal, rasterize_grid_family
-from ..micromag.build import (REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells, slew_rate_options,
-                              sweep_options)
+from ..forc.simulate import simulate_family
+from ..micromag.build import REFERENCE_CELLS, build_film, mesh_from_config, pinning_cells, sweep_options
 
 __all__ = ["REFERENCE_CELLS", "build_film", "mesh_from_config", "pinning_cells", "field_grid", "hysteresis_area",
            "screen", "simulate", "simulate_realisation", "realisation_rng"]  # the first four live in micromag.build (re-exported for old callers)
@@ -84,18 +83,7 @@ def realisation_rng(cfg: dict, sample_id: int, realisation: int):
 
 def simulate_realisation(cfg: dict, params: dict, sample_id: int, realisation: int = 0):
     """The FORC family (``ForcFamily``) of one disorder realisation of the sample (config's protocol)."""
-    rng = realisation_rng(cfg, sample_id, realisation)
-    if cfg["protocol"]["name"] == "llg":
-        film, m0, _ = build_film(cfg, params, sample_id, pinning="slaved", rng=rng)
-        settings = SlewRate(**slew_rate_options(cfg))
-        fam = adaptive_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
-                              settings=settings)
-        fam.stats.setdefault("relaxations", 0)
-        fam.stats.setdefault("unconverged", 0)
-        return fam
-    film, m0, _ = build_film(cfg, params, sample_id, rng=rng)
-    return quasistatic_family(film, m0, n_fields=cfg["field"]["n_fields"], B_max_T=cfg["field"]["B_max_T"],
-                              **sweep_options(cfg))
+    return simulate_family(cfg, params, sample_id, rng=realisation_rng(cfg, sample_id, realisation))
 
 
 def simulate(cfg: dict, params: dict, sample_id: int) -> dict:

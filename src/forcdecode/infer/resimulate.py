@@ -20,22 +20,14 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
-from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
-from ..forc.protocol import quasistatic_family
-from ..micromag.build import build_film, slew_rate_options, sweep_options
+from ..forc.simulate import protocol_name
+from ..forc.simulate import simulate_family as simulate_grid_family
+from ..micromag.build import build_film, sweep_options
 
 DISORDER_STREAM = "closed_loop_disorder"
 """Named stream of every re-simulation's disorder (keys: sample id or a label, realisation); never a
 dataset sample's own disorder stream."""
-
-
-def protocol_name(cfg: dict) -> str:
-    """The dataset's FORC protocol: "quasistatic" (default) or "llg"."""
-    name = cfg.get("protocol", {}).get("name", "quasistatic")
-    if name not in ("quasistatic", "llg"):
-        raise ConfigError(f"unknown FORC protocol {name!r} (quasistatic or llg)")
-    return name
 
 
 def _tilt(params: dict) -> float:
@@ -53,14 +45,7 @@ def simulate_family(cfg: dict, params: dict, rng: np.random.Generator) -> np.nda
     if _tilt(params) != 0.0:
         reversal, fields = grid_protocol(n_fields, B_max_T)
         return protocol_to_grid(simulate_measured(cfg, params, rng, reversal, fields), n_fields)
-    if protocol_name(cfg) == "llg":
-        film, m0, _ = build_film(cfg, params, rng=rng, pinning="slaved")
-        settings = SlewRate(**slew_rate_options(cfg))
-        family = adaptive_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, settings=settings)
-    else:
-        film, m0, _ = build_film(cfg, params, rng=rng)
-        family = quasistatic_family(film, m0, n_fields=n_fields, B_max_T=B_max_T, **sweep_options(cfg))
-    return family.curves_mz
+    return simulate_grid_family(cfg, params, rng=rng).curves_mz
 
 
 def resimulate(cfg: dict, params: dict, n_profiles: int = 1, first_profile: int = 0, progress=None,

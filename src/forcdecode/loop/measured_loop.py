@@ -549,7 +549,8 @@ def resimulate_estimate(cfg: dict, s: LoopSettings, e: Estimate) -> tuple[np.nda
 def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict) -> Residual:
     """The observation error of the re-simulation and the model-free evidence of the measured curves
     (field shift, drift; report entries), and the measured points for the saturation test."""
-    from ..infer.resimulate import observation_error, protocol_name
+    from ..forc.simulate import protocol_name
+    from ..infer.resimulate import observation_error
 
     data, domain, moment_saturation = m.data, m.domain, m.moment_saturation
     error = observation_error(m.family, resim)
@@ -588,7 +589,7 @@ def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Re
     key ``patches``. The pool is simulated on the file's own protocol and put on the grid as the file is
     (``patches.rasterized_singles``) where the file holds at most ``patches.RASTERIZED_MAX_POINTS`` points
     and the protocol is quasi-static, else on the training grid (``pool`` says which)."""
-    from ..infer.resimulate import protocol_name
+    from ..forc.simulate import protocol_name
     from .patches import POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, rasterized_singles, single_realisations
 
     points = sum(len(c) for c in m.data.curves)
@@ -663,7 +664,7 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
                      log, floor: FileFloor) -> Judgement:
     """The residual traced to an effect against the Hamiltonian refitted without it
     (``refit.analyse_with_refit``), or iterated to a fixed point (``fixed_point``); report entries."""
-    from ..infer.resimulate import protocol_name
+    from ..forc.simulate import protocol_name
 
     data, fields, refit = m.data, m.fields, s.refit
     if s.fixed_point:
@@ -704,7 +705,7 @@ def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, re
                  j: Judgement, report: dict) -> dict:
     """The analysed file's report: its entries, the residual at the measured points (the file's own
     protocol re-simulated), the figures, report.json, report.md and report.html."""
-    from ..infer.resimulate import protocol_name
+    from ..forc.simulate import protocol_name
 
     analysis, fields, family = j.analysis, m.fields, m.family
     error = r.error

@@ -104,7 +104,7 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     "physics_reference_family": family without an effect}, ready for ``analyse_residual(..., **this)``."""
     from ..infer.resimulate import resimulate
 
-    from ..infer.resimulate import protocol_name
+    from ..forc.simulate import protocol_name
 
     tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
     total = (1 + len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())

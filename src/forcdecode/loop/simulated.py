@@ -30,7 +30,8 @@ from ..core.errors import DatasetError, SimulationError
 from ..core.io import atomic_path
 from ..core.streams import stream_rng
 from ..core.parameters import NAMES as PARAMETERS, denormalize
-from ..infer.resimulate import observation_error, protocol_name, run_tasks
+from ..forc.simulate import protocol_name
+from ..infer.resimulate import observation_error, run_tasks
 from ..learn.scoring import median_with_interval
 
 ROLES = ("prediction", "floor", "null")
