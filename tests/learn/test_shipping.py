@@ -71,3 +71,41 @@ def test_models_resolve_to_the_users_the_shipped_or_the_workflows(tmp_path):
     (tmp_path / MANIFEST).write_text(json.dumps({"format": "other"}))
     with pytest.raises(ModelFileError, match="not a shipped-models manifest"):
         resolve_models(None, tmp_path)
+
+
+def test_the_users_thickness_is_checked_against_the_models_thickness_study(tmp_path):
+    import json
+
+    import pytest
+
+    from forcdecode.core.errors import ConfigError
+    from forcdecode.learn.shipped import THICKNESS_FILE, check_thickness, models_thickness_nm
+
+    models = tmp_path / "models"
+    models.mkdir()
+    assert "4 nm assumed" in check_thickness(models, None, 4.0)
+    assert "the models' own" in check_thickness(models, 4.0, 4.0)
+    with pytest.raises(ConfigError, match="no thickness study"):  # nothing measured: refused, with the reason
+        check_thickness(models, 6.0, 4.0)
+    (tmp_path / THICKNESS_FILE).write_text(json.dumps({"reference_nm": 4.0, "safe_nm": [3.0, 5.0],
+                                                       "safe_mae_increase": 0.02}))
+    assert models_thickness_nm(models) == 4.0
+    assert "inside the models' safe range" in check_thickness(models, 3.5, 4.0)
+    with pytest.raises(ConfigError, match="accepts 3-5 nm"):
+        check_thickness(models, 8.0, 4.0)
+    assert "OUTSIDE" in check_thickness(models, 8.0, 4.0, force=True)
+
+
+def test_a_config_at_another_thickness_is_one_layer_of_that_thickness():
+    import pytest
+
+    from forcdecode.config import film_thickness_nm, load_config, shipped_config, with_thickness
+    from forcdecode.core.errors import ConfigError
+
+    cfg = load_config(shipped_config("config"))
+    assert film_thickness_nm(cfg) == 4.0
+    thick = with_thickness(cfg, 8.0)
+    assert film_thickness_nm(thick) == 8.0 and thick["mesh"]["nx"] == cfg["mesh"]["nx"] and cfg["mesh"]["dz_nm"] == 4.0
+    for bad in (0.0, -1.0, float("nan"), "x"):
+        with pytest.raises(ConfigError):
+            with_thickness(cfg, bad)

@@ -1,4 +1,4 @@
-"""``forcdecode bench engine|protocols|effects|learn|films|film-learning|realisations|prior-learning|fit|ood|information|prior-class [--json]``: prints figures; with --json the last
+"""``forcdecode bench TARGET [--json]`` (``TARGETS``: engine, protocols, effects, learn, films, thickness, ...): prints figures; with --json the last
 line is one JSON object."""
 
 from __future__ import annotations
@@ -64,6 +64,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+    thickness = parser.add_argument_group("thickness (the models' answer on films of other thicknesses, issue 60)")
+    thickness.add_argument("--thickness-models", default=None,
+                           help="thickness: the models decoded with (default: the shipped set, else results/models)")
+    thickness.add_argument("--thickness-config", default=None,
+                           help="thickness: the models' config (default: the shipped config.yaml)")
+    thickness.add_argument("--thickness-cases", type=int, default=60, help="thickness: Hamiltonians (screened)")
+    thickness.add_argument("--thicknesses-nm", type=float, nargs="+", default=None,
+                           help="thickness: film thicknesses simulated (default 2 3 4 5 6 8)")
+    thickness.add_argument("--thickness-out", default="results/bench/thickness",
+                           help="thickness: rows.jsonl (resumable) and thickness.json")
     films = parser.add_argument_group("films (the same Hamiltonians on the laptop film and larger ones)")
     films.add_argument("--config", default=None, help="films: base config (default: the shipped laptop config)")
     films.add_argument("--hamiltonians", type=int, default=20, help="films: screened dataset draws compared")
@@ -197,6 +207,26 @@ def _bench_effects(args, say) -> int:
         say(line)
     if args.json:
         print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
+    return 0
+
+
+def _bench_thickness(args, say) -> int:
+    from ..config import load_config, shipped_config
+    from ..core.progress import progress
+    from ..learn.shipped import resolve_models
+    from .thickness import THICKNESSES_NM, run_study, summary_lines
+
+    cfg = load_config(args.thickness_config or shipped_config("config"))
+    models_dir, line = resolve_models(args.thickness_models)
+    say(line)
+    thicknesses = tuple(args.thicknesses_nm or THICKNESSES_NM)
+    with progress(total=args.thickness_cases * len(thicknesses), desc="thickness", unit="families") as bar:
+        summary = run_study(cfg, models_dir, args.thickness_out, count=args.thickness_cases,
+                            thicknesses_nm=thicknesses, progress=lambda row: bar.update())
+    for text in summary_lines(summary):
+        say(text)
+    if args.json:
+        print(json.dumps(summary))
     return 0
 
 
@@ -716,5 +746,5 @@ def _bench_ood(args, say) -> int:
 TARGETS = {"engine": _bench_engine, "protocols": _bench_protocols, "effects": _bench_effects, "learn": _bench_learn,
            "films": _bench_films, "film-learning": _bench_film_learning, "realisations": _bench_realisations,
            "prior-learning": _bench_prior_learning, "fit": _bench_fit, "ood": _bench_ood,
-           "information": _bench_information, "prior-class": _bench_prior_class}
+           "information": _bench_information, "prior-class": _bench_prior_class, "thickness": _bench_thickness}
 """`forcdecode bench TARGET`: each target's runner (args, say) → exit status."""

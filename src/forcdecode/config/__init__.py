@@ -132,6 +132,26 @@ def realisations(cfg: dict) -> int:
     return int(cfg.get("realisations", LATE_DEFAULTS["realisations"]))
 
 
+def film_thickness_nm(cfg: dict) -> float:
+    """The simulated film's thickness (nm): nz layers of dz_nm."""
+    return float(cfg["mesh"]["nz"] * cfg["mesh"]["dz_nm"])
+
+
+def with_thickness(cfg: dict, thickness_nm: float) -> dict:
+    """A copy of ``cfg`` whose film is ``thickness_nm`` thick: one layer of cells dz_nm = thickness_nm (a
+    perpendicular thin film is uniform through its thickness at these scales; the demagnetising kernel
+    integrates over the layer exactly, ``micromag.demag``). ConfigError for a non-positive thickness."""
+    try:
+        value = float(thickness_nm)
+    except (TypeError, ValueError):
+        raise ConfigError(f"film thickness must be a number of nm, got {thickness_nm!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise ConfigError(f"film thickness must be a positive number of nm, got {thickness_nm!r}")
+    out = copy.deepcopy(cfg)
+    out["mesh"] = {**cfg["mesh"], "nz": 1, "dz_nm": value}
+    return out
+
+
 def shipped_config(name: str = "config") -> Path:
     """Path of the shipped configuration ``name``: config (laptop), cluster (the cluster default),
     paper (the seed paper's scale) or test (tiny, CI)."""
@@ -141,4 +161,5 @@ def shipped_config(name: str = "config") -> Path:
 
 
 __all__ = ["SCHEMA_PATH", "CONFIGS_DIR", "SHIPPED_CONFIGS", "LATE_DEFAULTS", "schema", "defaults",
-           "validate_config", "load_config", "dataset_config", "realisations", "shipped_config"]
+           "validate_config", "load_config", "dataset_config", "realisations", "shipped_config", "film_thickness_nm",
+           "with_thickness"]

@@ -45,6 +45,7 @@ _REGISTRY: dict[str, tuple[int, str]] = {
                                  "dataset sample (keys: sample id, r); realisation 0 is the sample's `disorder` stream"),
     "patch_estimate": (22, "noise and subsets of single realisations for the loop's patch estimate and its null films "
                            "(key: purpose)"),
+    "thickness_bootstrap": (23, "bootstrap resamples of the thickness study's table (keys: n, thickness in 0.1 nm)"),
 }
 
 _LEGACY_PER_SAMPLE = frozenset({"parameters", "disorder"})

@@ -308,6 +308,9 @@ def add_predict_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, required=True, help="saturation magnetization M_s (kA/m)")
     parser.add_argument("--sample-id", type=int, help="sample of dataset.h5 to read")
     parser.add_argument("--B-max-T", type=float, default=1.0, help="field window of the training grid (FORC files)")
+    parser.add_argument("--thickness-nm", type=float, default=None,
+                        help="your film's thickness (nm): refused outside the range the models' thickness study "
+                             "shows safe, unless --force (default: the models' own film, 4 nm for the shipped models)")
     parser.add_argument("--force", action="store_true", help="predict even when the FORC file is out of the training "
                         "domain or its loop contradicts the prior class the model was trained on")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
@@ -328,12 +331,14 @@ def run_predict(args) -> int:
     from .prior_class import check_prior_class
 
     from .estimator_choice import default_posterior_path
-    from .shipped import resolve_models
+    from .shipped import check_thickness, models_thickness_nm, resolve_models
 
     models_dir, models_line = resolve_models(args.models)
     args.models = str(models_dir)
+    thickness_line = check_thickness(models_dir, args.thickness_nm, models_thickness_nm(models_dir), force=args.force)
     if not args.json:
         print(models_line)
+        print(thickness_line)
     args.posterior = args.posterior or default_posterior_path(args.models)
     choice = None
     if args.estimator == "auto":
@@ -360,6 +365,7 @@ def run_predict(args) -> int:
         result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     result["prior_class"], result["prior_check"] = trained_on, check
     result["models"] = models_line
+    result["thickness"] = thickness_line
     if note:
         result["out_of_domain"] = note
     if choice is not None:

@@ -26,7 +26,6 @@ their 90 % intervals; ``ship`` (`forcdecode models ship`) writes a new shipped s
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 import subprocess
 from pathlib import Path
@@ -173,6 +172,61 @@ def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None)
                 "made_by": "forcdecode models ship --results " + str(results)}
     write_json(out / MANIFEST, manifest)
     return manifest
+
+
+THICKNESS_FILE = "thickness.json"
+"""The thickness study of a models set (``forcdecode bench thickness``: the table and the safe range), beside
+the manifest of a shipped set or in the models directory."""
+
+
+def thickness_study(models_dir) -> dict | None:
+    """The thickness study made for the models in ``models_dir`` (that directory or its parent), or None."""
+    for place in (Path(models_dir), Path(models_dir).parent):
+        if (place / THICKNESS_FILE).exists():
+            return read_json(place / THICKNESS_FILE, what="thickness study")
+    return None
+
+
+def models_thickness_nm(models_dir) -> float:
+    """The film thickness (nm) the models in ``models_dir`` were trained on: their thickness study's reference,
+    else their shipped manifest's film, else the shipped laptop config's film."""
+    study = thickness_study(models_dir)
+    if study is not None:
+        return float(study["reference_nm"])
+    for place in (Path(models_dir), Path(models_dir).parent):
+        if (place / MANIFEST).exists():
+            return float(read_json(place / MANIFEST, what="shipped manifest")["film"]["thickness_nm"])
+    from ..config import film_thickness_nm, load_config, shipped_config
+
+    return film_thickness_nm(load_config(shipped_config("config")))
+
+
+def check_thickness(models_dir, thickness_nm: float | None, models_nm: float, force: bool = False) -> str:
+    """What the user's film thickness means for these models, in one line; ConfigError where the thickness
+    lies outside the range the thickness study shows safe (or no study exists for a thickness other than the
+    models' own) and ``force`` is not given. ``None``: the models' own thickness is assumed, and said."""
+    if thickness_nm is None:
+        return (f"film thickness: {models_nm:g} nm assumed (the models' film); give --thickness-nm for yours "
+                "(the re-simulation uses it)")
+    study = thickness_study(models_dir)
+    if abs(thickness_nm - models_nm) < 1e-9:
+        return f"film thickness: {thickness_nm:g} nm, the models' own"
+    if study is None:
+        verdict = (f"no thickness study exists for the models in {models_dir} (forcdecode bench thickness), so "
+                   f"a {thickness_nm:g} nm film decoded by {models_nm:g} nm models has no measured error")
+        safe = None
+    else:
+        lo, hi = study["safe_nm"]
+        safe = lo <= thickness_nm <= hi
+        verdict = (f"the thickness study of these models accepts {lo:g}-{hi:g} nm (at most "
+                   f"{study['safe_mae_increase']} prior widths of MAE lost by any parameter read from the image)")
+    if safe:
+        return f"film thickness: {thickness_nm:g} nm, inside the models' safe range ({verdict})"
+    if not force:
+        raise ConfigError(f"film thickness {thickness_nm:g} nm: the models were trained on a {models_nm:g} nm film and "
+                          f"{verdict}. Train models on your thickness (config mesh.dz_nm, make run) or pass --force "
+                          "to decode anyway (the re-simulation then uses your thickness)")
+    return f"film thickness: {thickness_nm:g} nm, OUTSIDE what the models were shown safe for (--force): {verdict}"
 
 
 def compare(results="results", directory=SHIPPED) -> dict:

@@ -11,8 +11,14 @@ from __future__ import annotations
 
 import argparse
 
+from pathlib import Path
+
+from ..config import film_thickness_nm, with_thickness
+from ..core.io import write_json
 from ..infer.refine import METHODS
+from ..learn.shipped import check_thickness
 from ..learn.estimator_choice import add_estimator_arguments
+from .measured_loop import _json_ready
 from .physics_effects import NULL_REALISATIONS
 
 
@@ -43,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "film pinned more densely than any training film?)")
     parser.add_argument("--params", help="JSON file with a Hamiltonian to re-simulate (SI) instead of predicting one")
     parser.add_argument("--Ms-kA-m", dest="ms_kA_m", type=float, help="known M_s (kA/m): no sweep")
+    parser.add_argument("--thickness-nm", type=float, default=None,
+                        help="your film's thickness (nm): checked against the range the models' thickness study "
+                             "shows safe (refused outside it without --force) and used by every re-simulation "
+                             "(default: the models' own film, 4 nm for the shipped laptop models)")
     parser.add_argument("--Ms-sweep-kA-m", dest="ms_sweep", type=float, nargs=3, default=[470.0, 1400.0, 6],
                         metavar=("LOW", "HIGH", "N"), help="M_s values swept when M_s is not known (default 470 1400 6)")
     parser.add_argument("--config", help="simulation config (grid, field window, minimizer; default: the shipped "
@@ -122,6 +132,12 @@ def run(args) -> int:
     choice = resolve_estimator(args)
     if not args.json and not params:
         print(args.models_line)
+    thickness_line = check_thickness(args.models, args.thickness_nm, film_thickness_nm(cfg),
+                                     force=args.force or bool(params))
+    if args.thickness_nm is not None:
+        cfg = with_thickness(cfg, args.thickness_nm)
+    if not args.json:
+        print(thickness_line)
     if args.ms_kA_m is not None:
         ms_values = [args.ms_kA_m * 1e3]
     else:
@@ -142,21 +158,16 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
-    if choice is not None:  # the report on disk says which estimator answered, and why
-        from pathlib import Path
-
-        from ..core.io import write_json
-        from .measured_loop import _json_ready
-
+    # the report on disk says the film's thickness and, where auto chose, which estimator answered and why
+    report["film_thickness_nm"], report["thickness"] = film_thickness_nm(cfg), thickness_line
+    if choice is not None:
         report["estimator_choice"] = choice
         report["models"] = args.models_line
-        write_json(Path(args.out) / "report.json", _json_ready(report))
-        if not args.json:
-            print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
+    write_json(Path(args.out) / "report.json", _json_ready(report))
+    if choice is not None and not args.json:
+        print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
     if args.json:
         import json
-
-        from .measured_loop import _json_ready
 
         print(json.dumps(_json_ready(report), indent=2))
         return 0
