@@ -46,6 +46,7 @@ import numpy as np
 
 from ..core.parameters import COMBINATION_BY_NAME, TARGETS
 from ..core.streams import stream_rng
+from .prediction import PRIOR_ONLY, Prediction
 from .scoring import fit_ms_only, knn_median, skill_over_best_trivial
 
 FORMAT = "forcdecode-identification/1"
@@ -53,7 +54,6 @@ SPLIT = "validation"
 RULE = ("read from the image when the skill over the best trivial predictor (the better of the prior median and "
         "the M_s-only k-NN median, both fitted on the training split) has its 90 % bootstrap interval above 0 "
         "on the validation split")
-PRIOR_ONLY = "not read from the image: prior only"
 PREDATES = "unknown (model predates the flag)"
 ALICE_COMBINATIONS_METHOD = (
     "Monte Carlo through Alice's per-parameter intervals, each parameter drawn independently: this ignores the "
@@ -304,7 +304,7 @@ def per_file_identification(result: dict, bounds: dict, n_draws: int = 4000, see
     units), for a combination the width of ``interval_90`` over its prior range at this M_s
     (``_prior_ranges``). Adds ``interval_90_prior_share``, ``read_for_this_file`` and, where the interval
     is too wide, ``per_file_basis``; ``identified_for_this_file``: the names read for this file."""
-    names = [n for n in TARGETS if isinstance(result.get(n), dict) and "value" in result[n]]
+    names = [n for n in TARGETS if n in Prediction.from_dict(result).parameters]
     for name in names:
         interval = result[name].get("interval_90_normalized")
         _per_file(result[name], None if interval is None else abs(float(interval[1]) - float(interval[0])))
@@ -367,8 +367,9 @@ def posterior_flags(metadata: dict, result: dict, bounds: dict) -> dict:
     block = metadata.get("identification")
     block = block if isinstance(block, dict) and block.get("format") == FORMAT else {}
     result["identification_rule"] = RULE
-    for name, entry in result.items():
-        if isinstance(entry, dict) and "value" in entry and name in bounds and name != "Ms":
+    for name, estimate in Prediction.from_dict(result).parameters.items():
+        if name in bounds:
+            entry = estimate.to_dict()
             entry.update(flag((block.get("parameters") or {}).get(name)))
             if entry["read_from_image"] is False:
                 entry["prior_range"] = [float(v) for v in bounds[name]]

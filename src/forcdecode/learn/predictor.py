@@ -121,15 +121,9 @@ def predict_parameters(models: dict, image_uint8, Ms_A_per_m: float) -> dict:
 
 def hamiltonian(prediction: dict, defaults: dict | None = None) -> dict:
     """Predicted parameters as the simulator's parameter dict (N_pin rounded to a count)."""
-    params = dict(defaults or {})
-    for name, entry in prediction.items():
-        if name == "Ms":
-            params[name] = entry
-        elif isinstance(entry, dict) and "value" in entry and name != "combinations":
-            params[name] = entry["value"]
-    if "N_pin" in params:
-        params["N_pin"] = int(round(params["N_pin"]))
-    return params
+    from .prediction import Prediction
+
+    return Prediction.from_dict(prediction).hamiltonian(defaults)
 
 
 def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, force: bool = False):
@@ -171,16 +165,6 @@ def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, forc
     return image, note
 
 
-def _read_mark(entry: dict) -> str:
-    """The "read from the image?" cell of a parameter or combination."""
-    if "read_from_image" not in entry:
-        return ""
-    read = entry["read_from_image"]
-    if read and entry.get("read_for_this_file") is False:
-        return "no: not for this file"
-    return "yes" if read else ("no: prior only" if read is False else "unknown")
-
-
 def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "given") -> list[str]:
     """The prediction as a table: value, 68 % and 90 % intervals, Bob's error, unit and whether it is read
     from the image per parameter; a parameter whose validation skill does not show it read from the image
@@ -188,59 +172,20 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
     number; then the derived combinations (value, intervals, defined fraction, the same flag) and how
     their intervals were made, and the basis of each flag. After the source, the prior class the model
     was trained on, when the result names it (``learn.prior_class``)."""
-    from ..core.parameters import UNITS
-    from .answer import PREDATES, PRIOR_ONLY
+    from .answer import PREDATES
+    from .prediction import Prediction, answer_table, basis_lines
     from .prior_class import prior_class_line
 
     lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m {ms_note})"]
     if result.get("prior_class"):
         lines.append(prior_class_line(result["prior_class"], result.get("prior_check")))
-    lines += [f"{'parameter':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'Bob |err| (norm.)':>18}  "
-              f"{'unit':<8}read from the image?"]
-    bases = []
-    for name, entry in result.items():
-        if not isinstance(entry, dict) or "value" not in entry:
-            continue
-        unit = UNITS.get(name, "")
-        if entry.get("read_from_image") is False:
-            lo, hi = entry.get("prior_range", [np.nan, np.nan])
-            lines.append(f"{name:<16}{PRIOR_ONLY + f' (prior range {lo:.4g} to {hi:.4g})':<88}  {unit:<8}no")
-        else:
-            i68, i90 = entry.get("interval_68", [np.nan] * 2), entry.get("interval_90", [np.nan] * 2)
-            lines.append(f"{name:<16}{entry['value']:>12.4g}  [{i68[0]:>11.4g}, {i68[1]:>11.4g}]  "
-                         f"[{i90[0]:>11.4g}, {i90[1]:>11.4g}]  {entry.get('bob_error_normalized', np.nan):>18.3f}  "
-                         f"{unit:<8}{_read_mark(entry)}")
-        if "basis" in entry:
-            bases.append(f"  {name}: {entry['basis']}" + (f"; {entry['per_file_basis']}" if entry.get("per_file_basis")
-                                                          else ""))
-    combinations = result.get("combinations") or {}
-    if combinations:
-        method = result.get("combinations_method") or ("transforms of the joint posterior's draws (correlations "
-                                                       "between parameters kept)")
-        lines += ["", f"derived combinations ({method}):",
-                  f"{'combination':<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {'defined':>8}  "
-                  f"{'unit':<8}read from the image?"]
-        for name, row in combinations.items():
-            if row.get("read_from_image") is False:
-                lines.append(f"{name:<16}{PRIOR_ONLY:<68}  {row.get('defined_fraction', np.nan):>8.2f}  "
-                             f"{row.get('unit', ''):<8}no")
-            else:
-                value = row.get("value")
-                i68, i90 = row.get("interval_68", [np.nan] * 2), row.get("interval_90", [np.nan] * 2)
-                shown = f"{value:>12.4g}" if value is not None else f"{'undefined':>12}"
-                lines.append(f"{name:<16}{shown}  [{i68[0]:>11.4g}, {i68[1]:>11.4g}]  [{i90[0]:>11.4g}, {i90[1]:>11.4g}]  "
-                             f"{row.get('defined_fraction', np.nan):>8.2f}  {row.get('unit', ''):<8}{_read_mark(row)}")
-            if "basis" in row:
-                bases.append(f"  {name}: {row['basis']}" + (f"; {row['per_file_basis']}" if row.get("per_file_basis")
-                                                             else ""))
-    if bases:
-        rule = result.get("identification_rule")
-        lines += ["", f"read from the image? ({rule})" if rule else "read from the image?", *bases]
-        if any(PREDATES in b for b in bases):
-            lines.append("  (retrain the models to get the flag: the model files predate it)")
-    if "identified_for_this_file" in result:
-        named = ", ".join(result["identified_for_this_file"]) or "nothing"
-        lines.append(f"this file identifies: {named} ({result.get('per_file_rule', '')})")
+    prediction = Prediction.from_dict(result)
+    table = answer_table(prediction)
+    lines += table[1:] if table and table[0] == "" else table
+    bases = basis_lines(prediction)
+    lines += bases
+    if any(PREDATES in line for line in bases):
+        lines.append("  (retrain the models to get the flag: the model files predate it)")
     if result.get("out_of_domain"):
         lines.append(f"warning: out of the training domain: {result['out_of_domain']}")
     check = result.get("prior_check")

@@ -23,7 +23,7 @@ from ..core.errors import ConfigError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
 from ..core.streams import stream_rng
-from ..learn.answer import PRIOR_ONLY
+from ..learn.prediction import Prediction, answer_table, basis_lines
 from .physics_effects import MOMENT_TOLERANCE, NULL_REALISATIONS
 from .report_page import diagrams_figure, write_report_page
 
@@ -48,10 +48,9 @@ def _json_ready(obj):
 
 def _hamiltonian_of(prediction: dict) -> dict:
     """The simulator's parameter dict (SI) of a prediction (``predict_parameters`` format)."""
-    from ..learn.predictor import hamiltonian
+    from ..learn.prediction import Prediction
 
-    return hamiltonian({name: e for name, e in prediction.items()
-                        if name == "Ms" or (isinstance(e, dict) and "value" in e)})
+    return Prediction.from_dict(prediction).hamiltonian()
 
 
 def family_predictor(models, Ms_A_per_m: float):
@@ -878,65 +877,13 @@ def _prior_lines(report) -> list[str]:
     return lines + [""]
 
 
-def _read_cell(entry: dict) -> str:
-    """The "read from the image?" cell: yes, no, or unknown with the reason."""
-    read = entry.get("read_from_image")
-    if "read_from_image" not in entry:
-        return "—"
-    if read and entry.get("read_for_this_file") is False:
-        return f"no: {entry.get('per_file_basis', 'not read for this file')}"
-    return "yes" if read else ("no" if read is False else entry.get("basis", "unknown"))
-
-
-def _combination_lines(prediction: dict) -> list[str]:
-    """The derived combinations of a prediction in Markdown, with their flags and how the flags and the
-    intervals were made (empty without combinations)."""
-    combinations = prediction.get("combinations") or {}
-    lines = []
-    if combinations:
-        method = prediction.get("combinations_method") or ("transforms of the joint posterior's draws "
-                                                           "(correlations between parameters kept)")
-        lines += ["", f"Derived combinations ({method}):", "",
-                  "| combination | value | 68 % interval | 90 % interval | defined | unit | read from the image? |",
-                  "|---|---|---|---|---|---|---|"]
-        for name, row in combinations.items():
-            if row.get("read_from_image") is False:
-                lines.append(f"| {name} | {PRIOR_ONLY} | — | — | {row.get('defined_fraction', float('nan')):.2f} | "
-                             f"{row.get('unit', '')} | no |")
-                continue
-            value = row.get("value")
-            i68, i90 = row.get("interval_68"), row.get("interval_90")
-            span = lambda i: "—" if i is None else f"{i[0]:.3g}–{i[1]:.3g}"  # noqa: E731
-            lines.append(f"| {name} | {'undefined' if value is None else f'{value:.4g}'} | {span(i68)} | {span(i90)} | "
-                         f"{row.get('defined_fraction', float('nan')):.2f} | {row.get('unit', '')} | {_read_cell(row)} |")
-    bases = [f"- {name}: {e['basis']}" for name, e in [*prediction.items(), *combinations.items()]
-             if isinstance(e, dict) and "basis" in e]
-    if bases:
-        lines += ["", f"Read from the image? {prediction.get('identification_rule', '')}:", "", *bases]
-    if "identified_for_this_file" in prediction:
-        lines += ["", f"This file identifies: {', '.join(prediction['identified_for_this_file']) or 'nothing'} "
-                  f"({prediction.get('per_file_rule', '')}; `learn.answer.per_file_identification`)."]
-    return lines
-
-
 def _markdown(path, report, analysis) -> str:
     lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report)]
     prediction = report.get("prediction")
     if prediction:
+        typed = Prediction.from_dict(prediction)
         lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
-                  "| parameter | value | 68 % interval | 90 % interval | Bob's error (normalized) | read from the image? |",
-                  "|---|---|---|---|---|---|"]
-        for name, e in prediction.items():
-            if isinstance(e, dict) and "value" in e:
-                bob = e.get("bob_error_normalized")
-                if e.get("read_from_image") is False:
-                    lo, hi = e.get("prior_range", [float("nan")] * 2)
-                    lines.append(f"| {name} | {PRIOR_ONLY} (prior range {lo:.3g}–{hi:.3g}) | — | — | — | no |")
-                    continue
-                lines.append(f"| {name} | {e['value']:.4g} | {e['interval_68'][0]:.3g}–{e['interval_68'][1]:.3g} | "
-                             f"{e['interval_90'][0]:.3g}–{e['interval_90'][1]:.3g} | "
-                             f"{'—' if bob is None else f'{bob:.3f}'} | {_read_cell(e)} |")
-        lines += _combination_lines(prediction)
+                  *answer_table(typed, markdown=True), *basis_lines(typed, markdown=True)]
         if prediction.get("estimator") == "posterior":
             corr = prediction["posterior_correlation"]
             lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
