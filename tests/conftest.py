@@ -1,6 +1,7 @@
 """Session-wide test settings.
 
-- numba runs single-threaded unless the caller says otherwise (the tests' numbers do not depend on it).
+- numba and OpenBLAS run single-threaded unless the caller says otherwise (the tests' numbers do not depend
+  on it).
 - The longest modules are collected first, so that with `make test`'s two processes (pytest-xdist,
   ``--dist loadfile --no-loadscope-reorder``: a module runs whole on one process, in collection order)
   they do not start last and leave one core idle at the end.
@@ -15,6 +16,9 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+# OpenBLAS threads too (before numpy is imported): two test processes on two cores, each with a BLAS thread
+# pool of two, spin against each other on the loop's many small matrix products
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # measured 2026-11-30 (`pytest --durations`, beside a two-process bench): in the default run the tiny main
 # job ~11 min and the four magnum.np comparisons ~6.5 min; among the slow tests the effects bench's two

@@ -1003,7 +1003,8 @@ def user_row(case: dict, report: dict, argv=(), estimator: str = "", sample_s: f
             "heldout_rms_before": before, "heldout_rms_after": report.get("heldout_rms_after"),
             "Ms_given_A_per_m": (report.get("parameters") or {}).get("Ms"),
             "parameters": report.get("parameters"), "truth": case["hamiltonian"],
-            "null_realisations": loop_namespace(argv).null_realisations if argv else None,
+            "null_realisations": ((report.get("patches") or {}).get("null_films")
+                                  or (loop_namespace(argv).null_realisations if argv else None)),
             "candidates": candidates, "answers": answers,
             "scores": {rule: score_answer(case["kind"], case["class"], a) for rule, a in answers.items()},
             "heldout_reduction": reductions, "sample_s": sample_s, "loop_s": loop_s,

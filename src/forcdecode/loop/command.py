@@ -66,9 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refit", metavar="NAMES", help="refit these Hamiltonian parameters around the prediction "
                                                           "before the effect selection, comma-separated (e.g. K_u,A_ex)")
     parser.add_argument("--refit-budget", type=int, default=20, help="re-simulations of the refit (default 20)")
-    parser.add_argument("--null-realisations", type=int, default=NULL_REALISATIONS,
-                        help="with --refit: other disorder realisations of the refitted Hamiltonian; an effect must "
-                             "gain more than it gains on them (the realisation floor; 0: off; default %(default)s)")
+    parser.add_argument("--null-realisations", type=int, default=None,
+                        help="effect-free films of the decoded (with --refit: the refitted) Hamiltonian at the file's "
+                             "patch number; an effect must gain more than it gains on them (the realisation floor; "
+                             f"default: the config's loop.null_films, {NULL_REALISATIONS} in the shipped configs)")
     parser.add_argument("--moment-tolerance", type=float, default=None, metavar="FRACTION",
                         help="relative uncertainty of the moment normalization (M_s·V, calibration) inside which a "
                              "fitted scale is not named an effect (default 0.02; 0: name every scale that earns it)")

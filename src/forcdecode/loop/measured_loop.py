@@ -584,27 +584,29 @@ def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
 def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Residual, report: dict,
                  log) -> FileFloor:
     """How many patches the file averages (``loop.patches.estimate_patches``: its step heights against
-    P-averages of ``patches.POOL_SIZE`` single realisations of ``params``, the file's noise added); report
+    P-averages of the config's ``loop.patch_pool`` single realisations of ``params``, the file's noise added); report
     key ``patches``. The pool is simulated on the file's own protocol and put on the grid as the file is
     (``patches.rasterized_singles``) where the file holds at most ``patches.RASTERIZED_MAX_POINTS`` points
     and the protocol is quasi-static, else on the training grid (``pool`` says which)."""
     from ..forc.simulate import protocol_name
     from .patches import POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, rasterized_singles, single_realisations
 
+    pool_size = int(cfg.get("loop", {}).get("patch_pool", POOL_SIZE))
+
     points = sum(len(c) for c in m.data.curves)
     progress = counter("single realisations", "families")
     if points <= RASTERIZED_MAX_POINTS and protocol_name(cfg) == "quasistatic" and m.moment_saturation > 0:
-        pool = rasterized_singles(cfg, params, m.data, m.moment_saturation, m.domain.moment_offset_Am2, POOL_SIZE,
+        pool = rasterized_singles(cfg, params, m.data, m.moment_saturation, m.domain.moment_offset_Am2, pool_size,
                                   max_step_T=s.measured_max_step_T or MEASURED_MAX_STEP_T, progress=progress)
         where = "the file's own protocol, put on the grid as the file is"
         if pool.fallbacks:
             where += f" ({pool.fallbacks} of {len(pool)} on the grid: they do not saturate in the file's window)"
     else:
-        pool = single_realisations(cfg, params, POOL_SIZE, progress=progress)
+        pool = single_realisations(cfg, params, pool_size, progress=progress)
         where = (f"the training grid (the file's {points} points exceed {RASTERIZED_MAX_POINTS}, or its protocol is "
                  "not re-simulated: its rasterization is not in the floor)")
     estimate = estimate_patches(m.family, pool, noise_sigma=r.noise, seed=cfg["seed"])
-    report["patches"] = {**estimate.report(), "pool": where}
+    report["patches"] = {**estimate.report(), "pool": where, "null_films": s.null_realisations}
     log(f"patches averaged by the file: {estimate.label()} (step height {estimate.step_height:.3f}; consistent with "
         f"{', '.join(map(str, estimate.consistent)) or 'none of 1-8'}); the realisation floor is drawn at "
         f"{estimate.floor_patches}")
@@ -733,7 +735,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
                        measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
                        measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
                        posterior_path="results/posterior/model.pt", fixed_point: bool = False,
-                       null_realisations: int = NULL_REALISATIONS, refine_budget: int = 0, refine_round_size: int = 25,
+                       null_realisations: int | None = None, refine_budget: int = 0, refine_round_size: int = 25,
                        refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
                        refine_extend=None, moment_tolerance: float = MOMENT_TOLERANCE,
                        training_dataset=None, log=_progress) -> dict:
@@ -760,9 +762,9 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     predict again at the chosen M_s from the family with the effect removed and repeat to a fixed
     point (``loop.fixed_point.predict_correct_iterate``; report key ``fixed_point``). Raises
     InputFileError for an unreadable file, ModelFileError for missing models, ConfigError for
-    ``fixed_point`` without ``refit`` or with ``params``. ``null_realisations`` (with ``refit``): other
-    disorder realisations of the refitted Hamiltonian whose gains a candidate must beat (the
-    realisation floor, ``loop.refit.analyse_with_refit``; 0: off). ``refine_budget`` (needs the
+    ``fixed_point`` without ``refit`` or with ``params``. ``null_realisations``: effect-free films of the
+    decoded (with ``refit``: the refitted) Hamiltonian whose gains a candidate must beat (the realisation
+    floor; None: the config's ``loop.null_films``; 0 with ``refit``: off). ``refine_budget`` (needs the
     posterior estimator): refine the amortized posterior of this family by that many simulations of
     the film at the chosen M_s (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers``
     processes; ``refine_method`` "pmc" or "adjusted", ``infer.refine.METHODS``); the refined medians
@@ -781,6 +783,8 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     for Alice the image-only check against the train split of ``training_dataset`` (default
     ``models_dir``/../dataset.h5); a family flagged stops unless ``force``; a check that could not run
     says why, and one whose reference is too small to flag anything says so (``can_flag``, ``warning``)."""
+    if null_realisations is None:  # the config's floor size (loop.null_films)
+        null_realisations = int(cfg.get("loop", {}).get("null_films", NULL_REALISATIONS))
     s = LoopSettings(params=params, models_dir=models_dir, ms_values_A_per_m=ms_values_A_per_m, profiles=profiles,
                      sweep_profiles=sweep_profiles, every_k=every_k, physics=physics, force=force, refit=refit,
                      refit_budget=refit_budget, measured_protocol=measured_protocol,

@@ -474,7 +474,8 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
         raise ValueError("null_patches and null_refit exclude each other")
     patch_films = None
     if null_realisations > 0 and null_patches is not None:
-        pool = single_realisations(cfg, refit["params"], min(POOL_SIZE, max(null_patches * null_realisations,
+        pool_size = int(cfg.get("loop", {}).get("patch_pool", POOL_SIZE))
+        pool = single_realisations(cfg, refit["params"], min(pool_size, max(null_patches * null_realisations,
                                                                             PATCH_CHOICES[-1])),
                                    key="refit_null_pool")
         patch_films = null_films(pool, null_patches, count=null_realisations, seed=options["seed"])
