@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from ._runtime import tune_allocator
 
 # command name -> (module, one-line help)
 COMMANDS = {
@@ -40,8 +41,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ._runtime import tune_allocator
-
     tune_allocator()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()

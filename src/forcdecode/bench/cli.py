@@ -7,7 +7,21 @@ import argparse
 import json
 import os
 
-from ..infer.refine import add_refinement_arguments
+from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_function, parse_extension
+from . import engine, film_learning, films, prior_learning, realisations
+from ..config import defaults, load_config, shipped_config
+from ..core.errors import ConfigError
+from ..core.io import read_json, write_json
+from ..core.parameters import NAMES, normalize
+from ..core.progress import counter, echo, progress
+from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic
+from ..learn.data import load_dataset
+from ..learn.shipped import resolve_models
+from ..learn.splits import assign_splits
+from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
+                                  user_summary_lines)
+from .information_cli import bench_information
+from .ood import CASES, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -160,16 +174,12 @@ def run(args) -> int:
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-    from ..core.progress import echo
 
     say = echo  # result lines on stdout; progress on stderr (a bar on a terminal, lines in a log)
     return TARGETS[args.target](args, say)
 
 
 def _bench_engine(args, say) -> int:
-    from ..core.progress import counter
-    from . import engine
-
     report = engine.benchmark_engine(["64"] if args.skip_256 else ["64", "256"], args.seconds,
                                      magnumnp=not args.skip_magnumnp, cache_dir=args.cache_dir,
                                      compile=not args.eager_magnumnp, say=say,
@@ -180,9 +190,6 @@ def _bench_engine(args, say) -> int:
 
 
 def _bench_protocols(args, say) -> int:
-    from ..core.progress import progress
-    from . import engine
-
     with progress(total=args.samples, desc="protocols", unit="samples") as bar:
         def row_done(row):
             say(engine.protocol_row_line(row))
@@ -198,7 +205,6 @@ def _bench_protocols(args, say) -> int:
 def _bench_effects(args, say) -> int:
     if args.independent:
         return _bench_effects_independent(args, say)
-    from ..core.progress import progress
     from .effects import effects_confusion, n_cases, summary_lines
 
     with progress(total=n_cases(args.seeds), desc="effects", unit="cases") as bar:
@@ -211,9 +217,6 @@ def _bench_effects(args, say) -> int:
 
 
 def _bench_thickness(args, say) -> int:
-    from ..config import load_config, shipped_config
-    from ..core.progress import progress
-    from ..learn.shipped import resolve_models
     from .thickness import THICKNESSES_NM, run_study, summary_lines
 
     cfg = load_config(args.thickness_config or shipped_config("config"))
@@ -231,16 +234,12 @@ def _bench_thickness(args, say) -> int:
 
 
 def _bench_information(args, say) -> int:
-    from .information_cli import bench_information
-
     return bench_information(args, say)
 
 
 def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
-    from ..core.errors import ConfigError
-    from ..core.progress import progress
     from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines, validation_plan
 
     curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
@@ -286,11 +285,6 @@ def _bench_effects_user(args, say) -> int:
     import shlex
     from pathlib import Path
 
-    from ..core.errors import ConfigError
-    from ..core.progress import progress
-    from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
-                                      user_summary_lines)
-
     legacy = [flag for flag, on in (("--cross-fit", args.cross_fit), ("--evidence-needs-bootstrap",
                                     args.evidence_needs_bootstrap), ("--patches", args.patches != 1),
                                     ("--model-profiles", args.model_profiles != 1),
@@ -326,7 +320,6 @@ def _bench_effects_user(args, say) -> int:
 
 def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
     """Write ``out``/summary.json, print the table, end with the JSON line (without the ``omit`` list)."""
-    from ..core.io import write_json
 
     write_json(out / "summary.json", result)
     for line in lines:
@@ -357,9 +350,6 @@ REALISATION_RUNS = ("results/realisations/R1", "results/realisations/R4")
 
 
 def _bench_realisations(args, say) -> int:
-    from ..core.io import write_json
-    from . import realisations
-
     runs = _two_runs(args, REALISATION_RUNS)
     result = realisations.compare(*runs)
     if args.cross_reading:
@@ -378,8 +368,6 @@ PRIOR_CLASS_RUNS = ("results/realisations/R1", "results/prior/perpendicular")
 
 
 def _two_runs(args, default: tuple) -> list:
-    from ..core.errors import ConfigError
-
     runs = list(args.runs)
     if any("=" in r for r in runs):  # film-learning's NAME=DIR default: not given for this target
         runs = list(default)
@@ -389,9 +377,6 @@ def _two_runs(args, default: tuple) -> list:
 
 
 def _bench_prior_learning(args, say) -> int:
-    from ..core.io import write_json
-    from . import prior_learning
-
     result = prior_learning.compare_classes(*_two_runs(args, PRIOR_CLASS_RUNS))
     write_json(f"{args.prior_learning_out}/summary.json", result)
     for line in prior_learning.summary_lines(result):
@@ -403,10 +388,6 @@ def _bench_prior_learning(args, say) -> int:
 
 
 def _bench_film_learning(args, say) -> int:
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
-    from . import film_learning
-
     runs = {}
     for item in args.runs:
         name, sep, path = item.partition("=")
@@ -424,12 +405,6 @@ def _bench_film_learning(args, say) -> int:
 
 
 def _bench_films(args, say) -> int:
-    from ..config import load_config, shipped_config
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
-    from ..core.progress import counter
-    from . import films
-
     if args.summarize_only:
         summary = films.summarize(args.out_dir)
         write_json(f"{args.out_dir}/summary.json", summary)
@@ -467,9 +442,6 @@ def _bench_films(args, say) -> int:
 
 def _workflow_splits(stage: dict, data) -> dict:
     """Index arrays per split of the dataset, as the workflow's learning stage (``stage``) drew them."""
-    from ..config import defaults
-    from ..learn.splits import assign_splits
-
     learning = {**defaults("learning"), **stage.get("learning", {})}
     return assign_splits(data.sample_id, stage["seed"], learning["split"], learning["protocol"])
 
@@ -477,8 +449,6 @@ def _workflow_splits(stage: dict, data) -> dict:
 def _held_out_families(args):
     """(the workflow's learning.json, the dataset, the posterior, indices of the ``--split`` families)
     for the benches that run on held-out families of a trained posterior."""
-    from ..core.io import read_json
-    from ..learn.data import load_dataset
     from ..learn.posterior import PosteriorEstimator
 
     stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
@@ -490,12 +460,6 @@ def _held_out_families(args):
 def _bench_fit(args, say) -> int:
     """Refined vs amortized posterior on held-out test families with known truth (nested budgets)."""
     import numpy as np
-
-    from ..config import load_config, shipped_config
-    from ..core.errors import ConfigError
-    from ..core.io import read_json, write_json
-    from ..core.parameters import normalize
-    from ..infer.refine import beyond_prior_lines, fit_function, parse_extension
 
     budgets = sorted(set(args.budgets))
     if args.extend_prior and args.method != "pmc":
@@ -595,10 +559,6 @@ def _extension_check(args, out, rows, budget, extend, reference, say) -> None:
     reference, each family is judged and the flag rate goes into the summary (key ``extension_check``)."""
     import numpy as np
 
-    from ..core.io import write_json
-    from ..infer.predictive_check import make_reference, predictive_check, predictive_statistic
-    from ..infer.predictive_check import check_figure
-
     values = [predictive_statistic(r, budget, extension=True) for r in rows]
     out["log_likelihood_ratio"] = {str(s): v for s, v in zip(out["sample_ids"], values)}
     if args.split == "validation" and not args.case:
@@ -630,10 +590,6 @@ def _case_observations(args, cfg, data, held_out, chosen) -> list:
     (N_pin 0 for magnumnp and no_pinning, three times the prior's bound beyond it)."""
     import numpy as np
 
-    from ..core.errors import ConfigError
-    from ..core.parameters import NAMES
-    from .ood import CASES, case_film
-
     if args.case not in CASES:
         raise ConfigError(f"unknown case {args.case!r} (one of {', '.join(CASES)})")
     path = os.path.join(args.ood_dir, f"{args.case}.npz")
@@ -662,11 +618,6 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
     import h5py
     import numpy as np
 
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
-    from ..infer.predictive_check import make_reference, predictive_statistic
-    from .ood import predictive_statistics
-
     if args.predictive_budget < args.round_size or args.predictive_budget % args.round_size:
         raise ConfigError(f"--predictive-budget {args.predictive_budget} must be a positive multiple of --round-size "
                           f"{args.round_size}")
@@ -692,7 +643,6 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
 
 def _bench_prior_class(args, say) -> int:
     """Rates of the prior-class rule (``learn.prior_class``) on the families of --dataset (read only)."""
-    from ..core.io import write_json
     from .prior_class import prior_class_bench, summary_lines
 
     result = prior_class_bench(args.dataset)
@@ -707,11 +657,6 @@ def _bench_prior_class(args, say) -> int:
 
 def _bench_ood(args, say) -> int:
     """Flag rate of the posterior's OOD check on held-out Hamiltonians made in and out of the prior."""
-    from ..core.errors import ConfigError
-    from ..core.io import read_json, write_json
-    from ..core.parameters import NAMES
-    from .ood import CASES, bench_ood, carry_over, ood_lines
-
     if args.families < 1 or args.workers < 1:
         raise ConfigError(f"--families and --workers must be >= 1 (got {args.families}, {args.workers})")
     import h5py

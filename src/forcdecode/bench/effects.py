@@ -15,6 +15,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ..core.streams import stream_rng
+from ..forc.raster import measured_image
+from ..infer.resimulate import resimulate
+from ..loop.instrument import simulated_instrument_curves
+from ..loop.physics_effects import analyse_residual, physics_candidate_families
+from ..measured import read_forc
+from ..measured.writers import write_micromag_0015
+from ..micromag.build import mesh_from_config
 
 CONFIG = {"seed": 7, "n_grains": 32, "mesh": {"nx": 16, "ny": 16, "nz": 1, "dx_nm": 2.0, "dy_nm": 2.0, "dz_nm": 4.0},
           "field": {"B_max_T": 1.0, "n_fields": 32}, "minimizer": {"torque_tol_T": 0.003, "max_iterations": 5000},
@@ -74,15 +82,6 @@ def n_cases(n_seeds: int, sizes=None) -> int:
 def effects_confusion(seeds=range(3), sizes=None, noise: float = 0.002, progress=None) -> dict:
     """Run every (effect, size, seed) case (the control ``none`` with 4 × as many seeds); returns {"confusion": {true: {chosen: count}},
     "accuracy", "n_cases", "by_size": [...], "cases": [...], "setup_s", "analysis_s"}."""
-    from ..core.streams import stream_rng
-    from ..micromag.build import mesh_from_config
-    from ..forc.raster import measured_image
-    from ..loop.instrument import simulated_instrument_curves
-    from ..loop.physics_effects import analyse_residual, physics_candidate_families
-    from ..infer.resimulate import resimulate
-    from ..measured import read_forc
-    from ..measured.writers import write_micromag_0015
-
     sizes = sizes or SIZES
     start = time.perf_counter()
     cfg = CONFIG

@@ -30,9 +30,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import physics
-from ..core.errors import ModelFileError
+from ..core import physics as phys
+from ..core.errors import ConfigError, ForcdecodeError, ModelFileError
 from ..loop.effects import NO_EFFECT_MEMBERS
+from ..core.io import atomic_path, read_json, write_json
+from ..core.streams import stream_rng
+from ..dataset.params import draw_parameters
+from ..forc.raster import measured_image
+from ..loop import command
+from ..loop.command import resolve_estimator
+from ..loop.physics_effects import NULL_REALISATIONS, analyse_residual
+from ..loop.refit import analyse_with_refit, joint_generalises
+from ..loop.signatures import drift_evidence_of, field_shift_of, measured_point_arrays
+from ..measured import read_forc
+from ..reference.independent import (IndependentFilm, InstrumentModel, SampleFamily, average_families,
+                                     magnumnp_family, measurement_protocol, mix_phases, pins_for_density,
+                                     write_measurement)
 
 CONFIG = {"seed": 11, "n_grains": 255, "mesh": {"nx": 64, "ny": 64, "nz": 1, "dx_nm": 2.0, "dy_nm": 2.0, "dz_nm": 4.0},
           "field": {"B_max_T": 1.0, "n_fields": 24}, "minimizer": {"torque_tol_T": 0.001, "max_iterations": 20000},
@@ -157,9 +170,6 @@ def _sample_key(params, physics, seed, protocol, film, patches) -> str:
 def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """``_sample``, kept in ``samples_dir`` (one .npz per distinct sample, written atomically) so that the
     cases that differ by the instrument only share one magnum.np run; None: always computed."""
-    from ..core.io import atomic_path
-    from ..reference.independent import SampleFamily
-
     if samples_dir is None:
         return _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
     path = Path(samples_dir) / f"{_sample_key(params, physics, seed, protocol, film, patches)}.npz"
@@ -181,7 +191,6 @@ def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film,
 def _sample(params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """The magnum.np sample; with ``patches`` > 1 the mean of that many independent patches (disorder
     seeds seed, seed + 100, ...): a macroscopic film averages many patches."""
-    from ..reference.independent import average_families, magnumnp_family, mix_phases
 
     if patches > 1:
         return average_families([_sample(params, physics, seed + 100 * k, cache_dir, protocol, film)
@@ -228,13 +237,6 @@ def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float
     options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g. ``cross_fit``,
     ``evidence_suffices``), kept in the row; ``sample_film``: keys of ``SAMPLE`` replaced for this case (a
     smaller magnum.np film for a test of the wiring). Returns the JSON-ready row."""
-    from ..forc.raster import measured_image
-    from ..loop.physics_effects import NULL_REALISATIONS
-    from ..loop.refit import analyse_with_refit
-    from ..loop.signatures import drift_evidence_of, field_shift_of, measured_point_arrays
-    from ..measured import read_forc
-    from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
-
     name, h, seed = row["case"], row["hamiltonian"], row["seed"]
     physics, settings = (row["physics"], row["instrument"]) if "physics" in row else CASES[name]
     analysis = selection_options(analysis)
@@ -316,9 +318,6 @@ def selection_options(analysis: dict | None = None) -> dict:
     records what it ran with even after a default changes."""
     import inspect
 
-    from ..loop.physics_effects import analyse_residual
-    from ..loop.refit import analyse_with_refit
-
     defaults = {"cross_fit": inspect.signature(analyse_with_refit).parameters["cross_fit"].default,
                 "evidence_suffices": inspect.signature(analyse_residual).parameters["evidence_suffices"].default}
     unknown = set(analysis or {}) - set(defaults)
@@ -373,8 +372,6 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
 
 
 def summarize(cases: list[dict], wall_s: float = float("nan")) -> dict:
-    from ..loop.refit import joint_generalises
-
     confusion = {}
     for r in cases:
         confusion.setdefault(r["case"], {}).setdefault(r["verdict"], 0)
@@ -450,10 +447,6 @@ def signature_validation(cache_dir=None, noise: float = 0.002, out_dir=None, pro
     its false claims on films without a shift and what it shows of the shifted ones. Choices about
     the test are made here, not on the bench's cases. Returns {"films": [...], "false_shift_claims",
     "effect_free", "shown", "shifted", "wall_s"}."""
-    from ..loop.signatures import field_shift_of
-    from ..measured import read_forc
-    from ..reference.independent import IndependentFilm, InstrumentModel, measurement_protocol, write_measurement
-
     start = time.perf_counter()
     films = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -577,10 +570,10 @@ def _sig(x: float, digits: int = 4) -> float:
 
 
 def _screened(h: dict) -> bool:
-    Q = physics.quality_factor(h["K_u"], h["Ms"])
-    b_k = physics.effective_anisotropy_field(h["K_u"], h["Ms"])
+    Q = phys.quality_factor(h["K_u"], h["Ms"])
+    b_k = phys.effective_anisotropy_field(h["K_u"], h["Ms"])
     lo, hi = SCREEN["B_K_eff_T"]
-    d_c = 4 * np.sqrt(h["A_ex"] * max(physics.k_eff(h["K_u"], h["Ms"]), 0.0)) / np.pi
+    d_c = 4 * np.sqrt(h["A_ex"] * max(phys.k_eff(h["K_u"], h["Ms"]), 0.0)) / np.pi
     return (Q >= SCREEN["Q_min"] and lo <= b_k <= hi and np.sqrt(h["A_ex"] / h["K_u"]) * 1e9 >= SCREEN["wall_nm_min"]
             and h["D"] <= SCREEN["D_over_D_c_max"] * d_c)
 
@@ -590,7 +583,6 @@ def draw_hamiltonians(first_id: int, count: int, seed: int = CASES_SEED, keep_pi
     """``count`` in-prior Hamiltonians passing ``SCREEN``: (dataset sample id, SI dict rounded to 4
     significant digits, N_pin = 0 unless ``keep_pinning``: then the drawn N_pin), ids from ``first_id`` on,
     drawn under ``seed``; ``wall_nm_min`` overrides the screen's wall width."""
-    from ..dataset.params import draw_parameters
 
     out, k = [], first_id
     while len(out) < count:
@@ -663,7 +655,6 @@ def outside_cases(rng, per_class: int) -> list[tuple]:
 
 def generate_cases() -> dict:
     """The dev and eval cases (deterministic: everything from ``CASES_SEED``); see ``write_cases_file``."""
-    from ..core.streams import stream_rng
 
     sets, seeds_used = {}, set()
     for split, first_id in (("dev", 0), ("eval", 100000)):
@@ -726,7 +717,6 @@ def write_cases_file(path=CASES_FILE, cases: dict | None = None, header: str = C
     """Write ``cases`` (default ``generate_cases()``) as YAML under ``header`` (atomically)."""
     import yaml
 
-    from ..core.io import atomic_path
 
     with atomic_path(path) as tmp:
         tmp.write_text(header + yaml.safe_dump(generate_cases() if cases is None else cases, sort_keys=False,
@@ -739,7 +729,6 @@ def load_cases(split: str = "eval", path=CASES_FILE) -> list[dict]:
     missing file."""
     import yaml
 
-    from ..core.errors import ConfigError
 
     if split not in ("dev", "eval"):
         raise ConfigError(f"case set {split!r}: dev or eval")
@@ -769,7 +758,6 @@ class EstimatorUnavailableError(ModelFileError):
 
 def _loop_module():
     """The `forcdecode loop` command as a user runs it (``loop.command``: its parser and its ``run``)."""
-    from ..loop import command
 
     return command
 
@@ -788,7 +776,6 @@ def check_loop_args(loop_args) -> None:
     """ConfigError where ``loop_args`` set what the bench sets or do not parse."""
     import argparse
 
-    from ..core.errors import ConfigError
 
     taken = [a for a in loop_args if a.split("=")[0] in BENCH_SETS]
     if taken:
@@ -802,14 +789,12 @@ def check_loop_args(loop_args) -> None:
 def check_estimator(loop_args, fallback: str | None = None) -> str:
     """The estimator the loop will use ("alice", "posterior" or "fallback: ..."); EstimatorUnavailableError
     (a ModelFileError) when the trained estimator the loop needs is missing and no ``fallback`` is asked for."""
-    from ..core.errors import ConfigError, ModelFileError
 
     if fallback is not None:
         if fallback not in FALLBACKS:
             raise ConfigError(f"--without-estimator {fallback!r}: one of {', '.join(FALLBACKS)}")
         return f"fallback: {fallback}"
     args = loop_namespace(["FILE", "--out", "OUT", *loop_args])
-    from ..loop.command import resolve_estimator
 
     resolve_estimator(args)  # --estimator auto as the loop resolves it (and the posterior's default path)
     try:
@@ -831,19 +816,17 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
 
 def population_median_hamiltonian(Ms: float, n: int = 400) -> dict:
     """``FALLBACKS``' population-median film at ``Ms`` (no case's truth enters)."""
-    mu0 = physics.MU0
+    mu0 = phys.MU0
     draws = [h for _, h in draw_hamiltonians(900000, n)]
-    Q = np.median([physics.quality_factor(h["K_u"], h["Ms"]) for h in draws])
-    l_ex = np.median([physics.exchange_length(h["A_ex"], h["Ms"]) for h in draws])
+    Q = np.median([phys.quality_factor(h["K_u"], h["Ms"]) for h in draws])
+    l_ex = np.median([phys.exchange_length(h["A_ex"], h["Ms"]) for h in draws])
     return {"Ms": float(Ms), "K_u": _sig(Q * mu0 * Ms**2 / 2), "A_ex": _sig(l_ex**2 * mu0 * Ms**2 / 2),
             **{k: _sig(np.median([h[k] for h in draws])) for k in ("D", "sigma_theta_deg", "sigma_K")}, "N_pin": 0}
 
 
 def case_film(case: dict):
     """The magnum.np film of a case (``reference.independent.IndependentFilm``)."""
-    from ..reference.independent import IndependentFilm
 
-    from ..reference.independent import pins_for_density
 
     s = case["sample"]
     film = IndependentFilm(nx=s["nx"], ny=s["ny"], cell_nm=s["cell_nm"], n_grains=s["n_grains"],
@@ -856,7 +839,6 @@ def case_film(case: dict):
 
 def case_file(case: dict, work_dir, cache_dir=None, samples_dir=None) -> tuple[Path, float]:
     """(the instrument file of ``case``, seconds spent on its magnum.np sample)."""
-    from ..reference.independent import InstrumentModel, measurement_protocol, write_measurement
 
     film = case_film(case)
     truth = dict(case["hamiltonian"])
@@ -878,9 +860,7 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
     `forcdecode loop FILE --out DIR LOOP_ARGS --Ms-kA-m M` through the loop's own parser and ``run``
     (M = the truth × the case's M_s error factor; with ``fallback`` ``--params`` of that film instead).
     Nothing else of the truth reaches the loop. Returns the JSON-ready row (``user_row``)."""
-    from ..core.io import read_json, write_json
 
-    from ..core.errors import ForcdecodeError
 
     work = Path(work_dir)
     try:

@@ -15,6 +15,13 @@ import numpy as np
 from ..core.streams import stream_rng
 from ..forc.protocol import quasistatic_family
 from ..micromag import Mesh, disordered_film
+from ..config import defaults, load_config, shipped_config
+from ..dataset.params import draw_parameters
+from ..forc.adaptive import adaptive_family
+from ..forc.raster import rasterize_grid_family
+from ..micromag.build import sweep_options
+from ..micromag.effective_field import compute_effective_field
+from ..reference.magnumnp_film import MagnumFilm
 
 # A representative sample of the seed paper's parameter space
 SAMPLE = dict(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=100)
@@ -39,7 +46,6 @@ def _tilted_state(mesh, seed=1):
 
 def time_ours(grid: str, min_seconds: float = 1.0) -> dict:
     """Seconds per full effective-field evaluation and per accepted+rejected RK45 LLG step."""
-    from ..micromag.effective_field import compute_effective_field
 
     film, _, _ = _film(grid)
     m = _tilted_state(film.mesh)
@@ -63,7 +69,6 @@ def time_ours(grid: str, min_seconds: float = 1.0) -> dict:
 
 def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10, compile: bool = True) -> dict:
     """The same film in magnum.np (CPU): seconds per field evaluation and per LLG step."""
-    from ..reference.magnumnp_film import MagnumFilm
 
     film, _, _ = _film(grid)
     mesh = film.mesh
@@ -96,9 +101,6 @@ that with the Fourier preconditioner (an option)."""
 
 def _shipped_options() -> dict:
     """The protocol options of the default configuration, less the torque criterion and iteration cap."""
-    from ..config import defaults
-    from ..micromag.build import sweep_options
-
     options = sweep_options(defaults())
     options.pop("torque_tol_T")
     options.pop("max_iterations")
@@ -107,7 +109,6 @@ def _shipped_options() -> dict:
 
 def family_agreement(family, reference) -> dict:
     """Image-level (8-bit grey levels) and ⟨m_z⟩ agreement of a family with a reference family."""
-    from ..forc.raster import rasterize_grid_family
 
     valid = np.isfinite(family.curves_mz) & np.isfinite(reference.curves_mz)
     d = np.abs(family.curves_mz - reference.curves_mz)[valid]
@@ -121,7 +122,6 @@ def family_agreement(family, reference) -> dict:
 
 def _shipped_grains() -> int:
     """The grain count of the shipped laptop film (``config/config.yaml``)."""
-    from ..config import load_config, shipped_config
 
     return int(load_config(shipped_config("config"))["n_grains"])
 
@@ -164,10 +164,6 @@ def time_laptop_family(n_fields: int = 64, torque_tol_T: float = 1e-3, variants=
 def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, seed: int = 1, progress=None) -> dict:
     """Quasi-static and adaptive-LLG families of the same samples (drawn as in the dataset, on a small
     grid so the LLG protocol stays affordable): wall time of each and their image difference."""
-    from ..dataset.params import draw_parameters
-    from ..forc.adaptive import adaptive_family
-    from ..forc.raster import rasterize_grid_family
-
     mesh = Mesh(grid, grid, 1, *CELL)
     rows = []
     sample_id = 0

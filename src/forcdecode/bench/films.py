@@ -38,6 +38,15 @@ from pathlib import Path
 import numpy as np
 
 from ..core import physics
+from ..core.io import atomic_path
+from ..core.progress import counter
+from ..core.streams import stream_rng
+from ..dataset.params import draw_parameters
+from ..dataset.simulate import screen
+from ..forc.diagram import forc_distribution
+from ..forc.protocol import quasistatic_family
+from ..forc.raster import rasterize_grid_family
+from ..micromag.build import build_film, sweep_options
 
 FILMS: dict[str, dict] = {
     "laptop": dict(nx=64, ny=64, nz=1, n_grains=255),
@@ -59,9 +68,6 @@ def film_config(base_cfg: dict, film: str, films: dict | None = None) -> dict:
 
 def pick_hamiltonians(cfg: dict, n: int, first_id: int = 0, progress=None) -> list[dict]:
     """The first ``n`` dataset draws (ids from ``first_id``) that pass the laptop screening."""
-    from ..dataset.params import draw_parameters
-    from ..dataset.simulate import screen
-
     picked, sample_id = [], first_id
     while len(picked) < n:
         params = draw_parameters(cfg["seed"], sample_id)
@@ -80,12 +86,6 @@ def job_path(out_dir, film: str, sample_id: int, realisation: int) -> Path:
 def run_job(cfg: dict, film: str, params: dict, realisation: int, out_dir) -> None:
     """Simulate one family in this process and write it (curves, cost) atomically."""
     import h5py
-
-    from ..core.io import atomic_path
-    from ..core.progress import counter
-    from ..core.streams import stream_rng
-    from ..forc.protocol import quasistatic_family
-    from ..micromag.build import build_film, sweep_options
 
     fcfg = film_config(cfg, film)
     sample_id = int(params["sample_id"])
@@ -178,7 +178,6 @@ def load(out_dir) -> dict:
 
 def _peak(fields, curves) -> tuple[float, float]:
     """(H_c, H_u) in T of the largest value of the FORC distribution (Pike kernel, SF 3)."""
-    from ..forc.diagram import forc_distribution
 
     d = forc_distribution(fields, fields, curves, smoothing_factor=3, kernel="pike")
     rho = np.where(np.isfinite(d.rho), d.rho, -np.inf)
@@ -190,7 +189,6 @@ def _peak(fields, curves) -> tuple[float, float]:
 
 def compare(a: dict, b: dict) -> dict:
     """Distance between two families on the same field grid."""
-    from ..forc.raster import rasterize_grid_family
 
     valid = np.isfinite(a["curves"]) & np.isfinite(b["curves"])
     diff = np.abs(a["curves"] - b["curves"])[valid]
@@ -293,7 +291,6 @@ def figure(summary: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..core.io import atomic_path
 
     rows = sorted(summary["rows"], key=lambda r: r.get("floor_laptop", {}).get("mean_abs_dm", np.inf))
     keys = list(summary["medians"])

@@ -26,6 +26,11 @@ import numpy as np
 from scipy.stats import norm
 
 from ..core.streams import stream_rng
+from ..config import load_config, shipped_config
+from ..forc.protocol import quasistatic_family
+from ..micromag.build import sweep_options
+from ..micromag.film import Film
+from ..micromag.mesh import Mesh
 
 NAMES = ("h0", "spread", "inert")
 
@@ -109,12 +114,6 @@ def protocol_simulator(n_particles: int, noise_sd: float, n_fields: int = 16, B_
     minimizer leaves the unstable pole) and K_k = h_k M_s / (2 h_SW(ψ)), so that it switches at h_k
     (astroid: h_SW = (cos^{2/3}ψ + sin^{2/3}ψ)^{−3/2} of the anisotropy field 2K/M_s). The particles
     (z_k) and the noise are those of :func:`simulator`; the azimuths come after them in the stream."""
-    from ..config import load_config, shipped_config
-    from ..forc.protocol import quasistatic_family
-    from ..micromag.build import sweep_options
-    from ..micromag.film import Film
-    from ..micromag.mesh import Mesh
-
     psi = np.radians(tilt_deg)
     h_sw = (np.cos(psi) ** (2 / 3) + np.sin(psi) ** (2 / 3)) ** -1.5
     i, j = np.triu_indices(n_fields)

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from . import information_films as info
+from ..config import load_config, shipped_config
+from ..core.errors import ConfigError
+from ..core.io import write_json
 
 FILMS_TARGET_DEFAULT = ["laptop:20x2", "laptop_paper_grains:20x2", "box128:20x1", "box128:8x2", "paper:5x1"]
 """``--films``'s default belongs to ``bench films``; left at it, ``bench information`` runs the laptop film."""
@@ -16,7 +20,6 @@ def _stop_time(text, now=None):
         return None
     import datetime as dt
 
-    from ..core.errors import ConfigError
 
     try:
         hh, mm = (int(v) for v in text.split(":"))
@@ -30,11 +33,6 @@ def _stop_time(text, now=None):
 
 
 def bench_information(args, say) -> int:
-    from ..config import load_config, shipped_config
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
-    from . import information_films as info
-
     out = Path(args.info_dir)
     plan = []
     for item in (["laptop"] if args.films == FILMS_TARGET_DEFAULT else args.films):

@@ -50,6 +50,13 @@ from .films import film_config
 from .information import (QUANT_STEP, _finite_list, best_direction, best_matched_direction, compressed_fisher, crb,
                           fisher_from_families, matched_direction_crb, matched_filter_crb_pooled, principal_angle_deg,
                           stencil, upper_triangle)
+from ..core.io import atomic_path, write_json
+from ..core.streams import stream_rng
+from ..dataset.params import draw_parameters
+from ..dataset.simulate import screen
+from ..forc.protocol import quasistatic_family
+from ..forc.raster import rasterize_grid_family
+from ..micromag.build import build_film, slew_rate_options, sweep_options
 
 NAMES = ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")
 """The parameters differentiated (normalized units; M_s is given)."""
@@ -150,9 +157,6 @@ def gradient(fn, p: dict, names, h: float = 1e-5) -> np.ndarray:
 
 def screened_pool(cfg: dict, pool: int, say=print) -> list[dict]:
     """The draws 0..pool−1 that pass the screening of ``cfg`` (the laptop film), with their regime."""
-    from ..dataset.params import draw_parameters
-    from ..dataset.simulate import screen
-
     out = []
     for sid in range(pool):
         p = draw_parameters(cfg["seed"], sid)
@@ -221,7 +225,6 @@ def film_rng(cfg: dict, film: str, sid: int, r: int):
     """The disorder generator of realisation ``r`` at fiducial ``sid``: the ``bench_film`` stream of
     (film, sid, r), where film is the spec's ``disorder_of`` if it names one (the same grains and sites
     as that film's realisation r)."""
-    from ..core.streams import stream_rng
 
     return stream_rng(cfg["seed"], "bench_film", "information", FILMS[film].get("disorder_of", film), int(sid), int(r))
 
@@ -229,10 +232,6 @@ def film_rng(cfg: dict, film: str, sid: int, r: int):
 def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dict:
     """One family of realisation r: float curves (64×64, NaN below the diagonal), the uint8 image,
     CPU seconds of this process."""
-    from ..forc.protocol import quasistatic_family
-    from ..forc.raster import rasterize_grid_family
-    from ..micromag.build import build_film, slew_rate_options, sweep_options
-
     spec = FILMS[film]
     fcfg = film_config(cfg, film, FILMS)
     if spec["protocol"] not in ("quasistatic", "llg"):
@@ -286,7 +285,6 @@ def fiducial_families(film: str, fid: dict, R: int, deltas, out_dir) -> list[tup
 def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> None:
     """Every family of one fiducial that is neither on disk nor claimed by another process (this
     process; several may work on one fiducial, each family is simulated once)."""
-    from ..core.io import atomic_path
 
     sid = int(fid["sample_id"])
     for path, up, params, r in fiducial_families(film, fid, R, deltas, out_dir):
@@ -318,7 +316,6 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from ..core.io import write_json
 
     out_dir = Path(out_dir)
     cfg_path = out_dir / "config.json"
@@ -514,7 +511,6 @@ def fiducial_line(a: dict) -> str:
 def reanalyse(out_dir, say=print) -> int:
     """Re-make every fiducial's JSON from its families on disk (the analysis changed, the simulations
     did not); keeps the process row. Returns the number re-made."""
-    from ..core.io import write_json
 
     out_dir = Path(out_dir)
     done = 0
@@ -907,7 +903,6 @@ def figure(summary: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..core.io import atomic_path
 
     fig = draw_figure(summary)
     with atomic_path(path) as tmp:

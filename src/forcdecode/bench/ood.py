@@ -29,6 +29,12 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.parameters import DEFAULT_BOUNDS
+from ..core.io import read_json, write_json
+from ..dataset.simulate import simulate
+from ..forc.raster import rasterize_grid_family
+from ..infer.predictive_check import check_figure, predictive_check
+from ..infer.refine import fit_one
+from ..reference.independent import IndependentFilm, magnumnp_family
 
 CASES = ("control", "no_pinning", "pinning_beyond_prior", "grains_8nm", "magnumnp")
 DISORDER_KEY_OFFSET = 1_000_000
@@ -65,7 +71,6 @@ def case_film(cfg: dict, params: dict, case: str) -> tuple[dict, dict]:
 
 def our_family(job) -> tuple[np.ndarray, np.ndarray]:
     """(uint8 image, grid family m_z (n, n)) of one family on our engine: job = (cfg, params, disorder key)."""
-    from ..dataset.simulate import simulate
 
     cfg, params, key = job
     out = simulate(cfg, params, key)
@@ -76,9 +81,6 @@ def our_family(job) -> tuple[np.ndarray, np.ndarray]:
 
 def magnumnp_image(job) -> tuple[np.ndarray, np.ndarray]:
     """(uint8 image, grid family) of one magnum.np family on the training field grid: job = (cfg, params, seed)."""
-    from ..forc.raster import rasterize_grid_family
-    from ..reference.independent import IndependentFilm, magnumnp_family
-
     cfg, params, seed = job
     mesh = cfg["mesh"]
     box_nm = mesh["nx"] * mesh["dx_nm"]
@@ -204,9 +206,6 @@ def carry_over(previous: dict | None, result: dict) -> dict:
 def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
     """Refine each family for ``settings["budget"]`` simulations (``infer.refine.fit_one``; one
     fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
-    from ..core.io import read_json, write_json
-    from ..infer.refine import fit_one
-
     fit_dir = Path(fit_dir)
     fit_dir.mkdir(parents=True, exist_ok=True)
     results = []
@@ -228,9 +227,6 @@ def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: di
 def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
     """The predictive check on one case's families against ``settings["reference"]`` (validation), with
     its figure (``fit_dir``/predictive_check.png)."""
-    from ..infer.predictive_check import predictive_check
-    from ..infer.predictive_check import check_figure
-
     results = predictive_statistics(est, cfg, images, curves, Ms, keys, settings, fit_dir, say)
     checks = [predictive_check(r, settings["reference"]) for r in results]
     flagged = [c["misspecified"] for c in checks]

@@ -17,6 +17,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
+from ..core.errors import InputFileError
+from ..core.io import read_config
+from ..core.parameters import dmi_ratio, k_eff, prior_class, quality_factor
+from ..learn.prior_class import (OBSERVABLE, PERPENDICULAR_MAX_EXIT_FIELD_T, PERPENDICULAR_MIN_REMANENCE,
+                                 loop_remanence, saturation_exit_field)
 
 SWEEP = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Thresholds of m_r the bench reports beside the shipped one (H_n threshold kept)."""
@@ -38,7 +43,6 @@ def _clopper_pearson(k: int, n: int, level: float = 0.9) -> list:
 
 def family_observables(images, B_max_T: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(m_r, H_n in T) of each FORC image (``learn.prior_class.loop_remanence``, ``saturation_exit_field``)."""
-    from ..learn.prior_class import loop_remanence, saturation_exit_field
 
     return (np.array([loop_remanence(image) for image in images]),
             np.array([saturation_exit_field(image, B_max_T) for image in images]))
@@ -51,9 +55,6 @@ def _run_directory(results) -> tuple:
 
     import h5py
     import pandas as pd
-
-    from ..core.errors import InputFileError
-    from ..core.io import read_config
 
     results = Path(results)
     params = sorted(results.glob("params/*.parquet"))
@@ -78,9 +79,6 @@ def read_families(dataset) -> dict:
 
     import h5py
 
-    from ..core.errors import InputFileError
-    from ..core.parameters import dmi_ratio
-
     if Path(dataset).is_dir():
         from ..dataset.merge import config_hash, physics_config
 
@@ -100,7 +98,6 @@ def read_families(dataset) -> dict:
             cfg = json.loads(h5.attrs["config_json"])
             digest = str(h5.attrs["config_hash"])
         values = {k: parameters[:, columns.index(k)] for k in ("K_u", "Ms", "A_ex", "D")}
-    from ..core.parameters import k_eff, prior_class, quality_factor
 
     B_max = float((cfg.get("field") or {}).get("B_max_T", 1.0))
     m_r, h_n = family_observables(images, B_max)
@@ -131,7 +128,6 @@ def prior_class_bench(dataset, sweep=SWEEP, exit_sweep=EXIT_SWEEP) -> dict:
     """The rates of the shipped rule (every family, even and odd sample ids), of m_r alone and of the
     sweeps on the families of ``dataset``; the refused K_eff > 0 families; quantiles of m_r and H_n in each
     regime; the K_eff < 0 families the rule lets through (their K_eff)."""
-    from ..learn.prior_class import OBSERVABLE, PERPENDICULAR_MAX_EXIT_FIELD_T, PERPENDICULAR_MIN_REMANENCE
 
     fam = read_families(dataset)
     m_r, h_n, keff, ids = fam["m_r"], fam["H_n_T"], fam["K_eff"], fam["sample_id"]

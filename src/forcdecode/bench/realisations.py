@@ -33,6 +33,7 @@ import pandas as pd
 
 from ..core.errors import InputFileError
 from ..core.streams import stream_rng
+from ..learn.data import load_dataset
 
 N_BOOT = 2000
 
@@ -168,7 +169,6 @@ def cross_reading(run_a, run_b, seed: int = 0) -> dict:
     situation of a user whose decoder was trained on single realisations. Reported only (not part of
     the decision). Per parameter: the four MAEs and, for A's network, the paired difference (mean
     images − own images) with a 90 % bootstrap interval over the shared ids."""
-    from ..learn.data import load_dataset
     from ..learn.predictor import ParameterModel
 
     runs = {"A": Path(run_a), "B": Path(run_b)}

@@ -17,6 +17,7 @@ import functools
 from pathlib import Path
 
 from ..core.errors import ConfigError
+from ..core.parameters import DEFAULT_BOUNDS, k_u_floor
 
 _HERE = Path(__file__).resolve().parent
 SCHEMA_PATH = _HERE / "schemas" / "config.schema.yaml"
@@ -83,7 +84,6 @@ def validate_config(cfg: dict, source: str = "the configuration") -> dict:
 
 def _check_prior(cfg: dict, source: str) -> None:
     """The prior class must have mass at every M_s of the bounds (``core.parameters.k_u_floor``)."""
-    from ..core.parameters import DEFAULT_BOUNDS, k_u_floor
 
     bounds = {**DEFAULT_BOUNDS, **(cfg.get("bounds") or {})}
     try:

@@ -13,6 +13,10 @@
 from __future__ import annotations
 
 import argparse
+from . import stages
+from ..core.errors import ConfigError
+from ..core.io import read_config
+from ..core.progress import say
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,16 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _log(text: str) -> None:
-    from ..core.progress import say
-
     say(text)  # timestamped on stderr; on a terminal, above the progress bar
 
 
 def run(args) -> int:
-    from ..core.errors import ConfigError
-    from ..core.io import read_config
-    from . import stages
-
     if args.step == "figure1":
         from .figures import figure1
 

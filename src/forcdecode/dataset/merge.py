@@ -15,6 +15,7 @@ from .. import __version__
 from ..config import dataset_config, realisations
 from ..core import io
 from ..core.parameters import NAMES as PARAMETERS
+from ..core.errors import DatasetError
 
 
 def config_hash(cfg: dict) -> str:
@@ -29,7 +30,6 @@ def merge(cfg, params_path, screen_paths, family_paths, h5_path, parquet_path) -
     (float16, NaN below the diagonal) holds their spread, 0 for R = 1 (and for family files written
     before the spread was recorded, all R = 1), and the attribute ``realisations`` says R. A family
     file simulated with another R than ``cfg`` says raises DatasetError."""
-    from ..core.errors import DatasetError
 
     paths = [params_path] if isinstance(params_path, (str, bytes)) or not hasattr(params_path, "__iter__") else list(params_path)
     params = pd.concat([pd.read_parquet(p) for p in paths], ignore_index=True)
@@ -126,7 +126,6 @@ def merge_runs(dataset_paths, h5_path, parquet_path=None, log=print) -> dict:
     the seed: the split is a function of (seed, sample id), and a sample keeps its split in the merged
     dataset); a sample id present in several runs must carry the same parameters (it is then taken
     once, from the first run). Raises DatasetError naming the runs and the difference."""
-    from ..core.errors import DatasetError
 
     paths = [str(p) for p in dataset_paths]
     if len(paths) < 1:

@@ -14,6 +14,7 @@ from ..core.io import atomic_path, write_json, write_parquet
 from ..core.parameters import prior_class
 from ..core.progress import progress
 from .params import draw_parameters
+from .simulate import screen, simulate
 
 
 def _quiet(text: str) -> None:
@@ -66,7 +67,6 @@ def family_parts(cfg: dict, screen_path) -> list[list[int]]:
 
 def screen_stage(cfg: dict, params_path, chunk: int, out, log=_quiet) -> pd.DataFrame:
     """Screen the samples of one chunk (``simulate.screen``) and write one row per sample."""
-    from .simulate import screen
 
     params = _parameters(params_path)
     ids = chunk_ids(cfg, chunk)
@@ -106,7 +106,6 @@ def simulate_stage(cfg: dict, params_path, screen_path, chunk: int, out, log=_qu
     InputFileError if that chunk has no such part."""
     import h5py
 
-    from .simulate import simulate
 
     params = _parameters(params_path)
     parts = family_parts(cfg, screen_path)

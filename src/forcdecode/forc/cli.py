@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from .render import measured_grid  # noqa: F401  (re-export for old callers)
+from .render import measured_diagram, measured_grid, save_diagram_png, simulated_diagram
+from ..core.errors import ConfigError
+from .diagram import Variforc
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,10 +23,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from ..core.errors import ConfigError
-    from .diagram import Variforc
-    from .render import measured_diagram, save_diagram_png, simulated_diagram
-
     try:
         variforc = Variforc(*args.variforc) if args.variforc else None
     except ValueError as error:

@@ -14,6 +14,7 @@ spacing is the row resolution).
 from __future__ import annotations
 
 import numpy as np
+from .saturation import analyse_saturation, domain_of_measurement
 
 
 def quantize(mz) -> np.ndarray:
@@ -64,7 +65,6 @@ def measured_image(reversal_fields_T, curves, moment_saturation_Am2: float, B_ma
     The note (None: in domain) is the physical rule of ``forc.saturation.analyse_saturation``: the
     major loop must saturate inside the measured window, and the grid must be measured or completed
     where the state is known."""
-    from .saturation import analyse_saturation
 
     reversal_fields_T = np.asarray(reversal_fields_T, dtype=float)
     normalized = [(np.asarray(f, dtype=float), np.asarray(m, dtype=float) / moment_saturation_Am2) for f, m in curves]
@@ -80,7 +80,6 @@ def measurement_on_grid(data, B_max_T: float = 1.0, n: int = 64, with_domain: bo
     saturated branches, completed where the state is known. Returns (image, grid family, domain note,
     saturation moment A·m²), and the ``MeasuredDomain`` last with ``with_domain``. Cells whose state
     is unknown (only in a family out of domain) hold the last measured value of their curve."""
-    from .saturation import domain_of_measurement
 
     domain = domain_of_measurement(data, B_max_T, n)
     family = domain.family

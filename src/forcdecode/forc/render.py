@@ -10,6 +10,7 @@ import numpy as np
 from ..core.errors import InputFileError
 from ..core.io import atomic_path
 from .diagram import ForcDiagram, Variforc, forc_distribution, plot_diagram, variforc_distribution
+from ..measured import read_forc
 
 
 def diagram_of_grid(reversal_fields_T, fields_T, curves_m, smoothing_factor: int = 3, kernel: str = "pike",
@@ -61,7 +62,6 @@ def simulated_diagram(dataset_path, sample_id: int, smoothing_factor: int = 3, k
 def measured_diagram(path, smoothing_factor: int = 3, drift_correction: bool = True, kernel: str = "pike",
                      variforc: Variforc | None = None) -> tuple[ForcDiagram, str]:
     """The diagram of a measured file and its title; InputFileError (ForcFormatError) if unreadable."""
-    from ..measured import read_forc
 
     measurement = read_forc(path, drift_correction=drift_correction)
     hr, h, m = measured_grid(measurement)

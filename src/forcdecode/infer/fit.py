@@ -65,7 +65,10 @@ import time
 import numpy as np
 from scipy.stats import multivariate_normal
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, InputFileError
+from ..core.io import atomic_path
+from ..core.parameters import denormalize
+from .resimulate import run_tasks
 
 SQUEEZE = 1e-4
 DEFENSIVE = 0.2
@@ -338,7 +341,6 @@ class Refinement:
         """Atomic .npz of the whole state (arrays, the rounds' proposals, the generator's state)."""
         import json
 
-        from ..core.io import atomic_path
 
         d = self.pool.shape[1]
         means = np.array([np.full(d, np.nan) if m is None else m for _, m, _ in self.rounds]).reshape(-1, d)
@@ -359,7 +361,6 @@ class Refinement:
     def load(cls, path) -> "Refinement":
         import json
 
-        from ..core.errors import InputFileError
 
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -894,9 +895,6 @@ def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, b
 def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: int = 1):
     """A batch simulator u (k, d) → grid families (k, n, n) on the config's film, every candidate on the
     same disorder realisation (stream ``closed_loop_disorder``, keys (``key``, 0)): common random numbers."""
-    from ..core.parameters import denormalize
-    from .resimulate import run_tasks
-
     def simulate(u):
         tasks = []
         for row in np.atleast_2d(u):

@@ -16,6 +16,9 @@ import time
 from pathlib import Path
 
 from .refine import add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation, parse_extension
+from ..config import load_config, shipped_config
+from ..core.errors import ConfigError
+from ..core.io import write_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,9 +68,6 @@ def print_summary(result: dict, budget: int) -> None:
         print(line)
 
 def run(args) -> int:
-    from ..config import load_config, shipped_config
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
     from ..learn.posterior import PosteriorEstimator
 
     if args.budget < args.round_size or args.round_size < 2 or args.workers < 1:

@@ -16,7 +16,12 @@ import argparse
 import time
 from pathlib import Path
 
-from .refine import add_refinement_arguments
+from .refine import (DEFAULT_PRIOR, add_refinement_arguments, family_key, finish_fit, fit_round, observation,
+                     parse_extension, start_fit)
+from ..config import load_config, shipped_config
+from ..core.errors import ConfigError
+from ..core.io import write_json
+from .fit import Refinement
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,12 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from ..config import load_config, shipped_config
-    from ..core.errors import ConfigError
-    from ..core.io import write_json
-    from .fit import Refinement
-    from .refine import DEFAULT_PRIOR, family_key, finish_fit, fit_round, observation, parse_extension, start_fit
-
     def need(*names):
         missing = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n) in (None, "")]
         if missing:

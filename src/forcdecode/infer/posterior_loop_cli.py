@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from ..core.errors import ConfigError
+from .posterior_predictive import run_stage
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,9 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from ..core.errors import ConfigError
-    from .posterior_predictive import run_stage
-
     if args.draws < 1 or args.max_samples < 1 or args.workers < 1:
         raise ConfigError("--draws, --max-samples and --workers must be >= 1")
     summary = run_stage(args.config, args.learning, args.dataset, args.posterior, out=args.out, table=args.table,

@@ -24,6 +24,10 @@ from ..core.parameters import denormalize
 from ..core.streams import stream_rng, stream_seed
 from ..learn.scoring import median_with_interval
 from .resimulate import observation_error, run_tasks
+from ..config import defaults
+from ..core.io import atomic_path, read_config, write_json, write_parquet
+from ..learn.data import load_dataset
+from ..learn.splits import assign_splits
 
 
 def draws_as_hamiltonians(draws_u, names, Ms: float, bounds: dict) -> list[dict]:
@@ -127,11 +131,7 @@ def run_stage(config_path, learning_path, dataset_path, model_path, *, out, tabl
     test split; write the per-sample Parquet ``table``, the summary JSON ``out`` and a figure."""
     import h5py
 
-    from ..config import defaults
-    from ..core.io import read_config, write_json, write_parquet
-    from ..learn.data import load_dataset
     from ..learn.posterior import PosteriorEstimator
-    from ..learn.splits import assign_splits
 
     started = time.perf_counter()
     cfg = read_config(config_path)
@@ -171,7 +171,6 @@ def _figure(path, table: pd.DataFrame, summary: dict) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..core.io import atomic_path
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for i, row in enumerate(table.itertuples()):

@@ -40,6 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import ConfigError, InputFileError
+from ..core.io import atomic_path, read_json
 
 ALPHA = 0.05
 STATISTIC = "min over the first b candidates of observation RMS / realisation floor"
@@ -133,7 +134,6 @@ def read_reference(path, *, round_size: int, prior: str, budget_run: int, extend
                    what: str = "predictive-check reference") -> dict:
     """The reference JSON at ``path``, refused (ConfigError, InputFileError) unless it can judge a refinement
     with these settings (``check_reference``): every entry point calls this before any simulation."""
-    from ..core.io import read_json
 
     reference = read_json(path, what=what)
     check_reference(reference, round_size=round_size, prior=prior, budget_run=budget_run, extend=extend)
@@ -235,7 +235,6 @@ def check_figure(path, reference: dict, judged: dict, *, title: str) -> None:
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
-    from ..core.io import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")

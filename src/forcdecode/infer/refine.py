@@ -16,6 +16,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+from ..core.errors import ConfigError, InputFileError
+from ..core.io import atomic_path
+from ..core.parameters import LOG_SCALE, normalize
+from ..core.streams import stream_rng, stream_seed
+from ..dataset.params import UNIFORM_DRAWS, draw_log_density
+from ..forc.raster import measurement_on_grid, rasterize_grid_family
+from ..learn.calibration import recalibrate_draws
+from ..measured import read_forc
+from .fit import (Refinement, _logit, anchored_summary, beyond_prior, difference_variance, image_likelihood,
+                  image_summaries, likelihood_posterior, observation_rms, outside_simulations, regression_adjust,
+                  shifted_summary, simulate_on_film, summarize_particles, summary_resolution)
+from .posterior_predictive import draws_as_hamiltonians
+from .resimulate import run_tasks
 
 PRIORS = ("draw", "uniform")
 """The refinement's priors: the dataset's draw prior given M_s, or the uniform box."""
@@ -34,10 +47,6 @@ def parse_extension(items, names) -> dict:
     refinement extends beyond the prior's bound, each by the factor of its range (``infer.fit.beyond_prior``).
     Only parameters drawn uniformly on a linear scale can be extended (the extension continues that
     uniform density past the upper bound). ConfigError for anything else."""
-    from ..core.errors import ConfigError
-    from ..core.parameters import LOG_SCALE
-    from ..dataset.params import UNIFORM_DRAWS
-
     out = {}
     for item in items or ():
         name, _, factor = str(item).partition("=")
@@ -62,7 +71,6 @@ def extension_scale(names, extend) -> np.ndarray:
 
 def observation(path, sample_id, cfg, ms_kA_m):
     """(image uint8, grid family, M_s in A/m, truth dict or None) of the input."""
-    from ..core.errors import InputFileError
 
     n, B_max = cfg["field"]["n_fields"], cfg["field"]["B_max_T"]
     p = Path(path)
@@ -82,9 +90,6 @@ def observation(path, sample_id, cfg, ms_kA_m):
             family = h5["curves_mz"][k].astype(float)
         truth = {name: float(v[k]) for name, v in data.values.items()}
         return data.images[k], family, truth["Ms"], truth
-    from ..forc.raster import measurement_on_grid
-    from ..measured import read_forc
-
     if ms_kA_m is None:
         raise InputFileError("a measured file needs --Ms-kA-m")
     image, family, _note, _moment = measurement_on_grid(read_forc(p), B_max, n)
@@ -105,17 +110,9 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     job. ``prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
     or "uniform" on the normalized box (the former target, kept for comparison). ``extend``: {name:
     factor} of ``parse_extension`` (the box beyond the prior's bound; ``infer.fit.beyond_prior``)."""
-    from ..core.errors import ConfigError
 
     if prior not in PRIORS:
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
-    from ..core.parameters import normalize
-    from ..core.streams import stream_rng, stream_seed
-    from ..learn.calibration import recalibrate_draws
-    from .fit import Refinement, difference_variance, summarize_particles
-    from .posterior_predictive import draws_as_hamiltonians
-    from .resimulate import run_tasks
-
     names = tuple(est.names)
     ms_norm = float(normalize("Ms", Ms, est.bounds))
     # the proposal q₀ is the flow itself: its draws and its density (log_prob) must be the same law
@@ -148,7 +145,6 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
 
 def fit_round(state, cfg, est, workers: int = 1) -> None:
     """One round of the refinement: propose, simulate this film (common random numbers), update."""
-    from .fit import simulate_on_film
 
     ctx = state.context
     simulate = simulate_on_film(cfg, state.names, ctx["Ms"], est.bounds, ctx["key"], workers)
@@ -162,7 +158,6 @@ def fit_round(state, cfg, est, workers: int = 1) -> None:
 def prior_logpdf(state, bounds, prior_class: str = "paper"):
     """log p(u) of the refinement's prior (the state's ``context["prior"]``; older states: uniform);
     "draw": the draw prior of the posterior's prior class ``prior_class``."""
-    from ..dataset.params import draw_log_density
 
     ctx = state.context
     scale = extension_scale(state.names, ctx.get("extend"))
@@ -175,7 +170,6 @@ def prior_logpdf(state, bounds, prior_class: str = "paper"):
 
 def finish_fit(state) -> dict:
     """fit.json's content (plain values) from a finished refinement state."""
-    from .fit import beyond_prior, observation_rms
 
     ctx = state.context
     result = state.result()
@@ -223,9 +217,6 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
     The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
     ``state_path``: the state (every particle) is saved there after each round; a run that stops
     resumes from it."""
-    from ..core.errors import ConfigError
-    from .fit import Refinement
-
     if state_path is not None and Path(state_path).exists():
         state = Refinement.load(state_path)
         if state.round_size != round_size:
@@ -311,7 +302,6 @@ def network_summaries(est, images, ms_norm: float, seed: int) -> np.ndarray:
     """The amortized posterior's mean of logit(u) for each image (k, n, n) uint8: the summary statistic of
     semi-automatic ABC (Fearnhead & Prangle 2012, JRSS B 74:419: the regression estimate of the posterior
     mean is the summary), from ``SUMMARY_DRAWS`` flow draws (recalibration off: the same law as q₀)."""
-    from .fit import _logit
 
     images = np.asarray(images, dtype=np.uint8)
     out = np.empty((len(images), len(est.names)))
@@ -336,9 +326,6 @@ def _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key):
     q₀ (the flow, recalibration off) and ``LIKELIHOOD_POOL`` uniform draws of the box (stream
     ``fit_likelihood``), with the mixture's log density ½ q₀ + ½ (a parameter the images do not carry
     then keeps its prior, not q₀'s narrower law) and the prior's p(u | M_s) at each."""
-    from ..core.streams import stream_rng
-    from ..dataset.params import draw_log_density
-
     box = stream_rng(seed, "posterior", "fit_likelihood", key).uniform(SQUEEZE_BOX, 1 - SQUEEZE_BOX,
                                                                          (LIKELIHOOD_POOL, draws.shape[1]))
     pool = np.vstack([draws, box])
@@ -354,7 +341,6 @@ def _likelihood_reading(u, images, image, pool, names):
     """The reading ``images_likelihood``: the prior times the synthetic likelihood of the observed image in
     the simulated images' principal components (``infer.fit.image_likelihood``; no network summary),
     by importance sampling over ``pool`` (``_likelihood_pool``); None where the simulations are too few."""
-    from .fit import image_likelihood, likelihood_posterior
 
     try:
         like = image_likelihood(u, images, image)
@@ -395,18 +381,6 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
     far, saved after every ``round_size`` simulations; a longer budget extends a saved run. ``extend``
     (the pmc method's box beyond the prior) is refused: the draws never leave the prior's box."""
-    from ..core.errors import ConfigError
-    from ..core.io import atomic_path
-    from ..core.parameters import normalize
-    from ..core.streams import stream_seed
-    from ..dataset.params import draw_log_density
-    from ..forc.raster import rasterize_grid_family
-    from ..learn.calibration import recalibrate_draws
-    from .fit import (anchored_summary, image_summaries, outside_simulations, regression_adjust, shifted_summary,
-                      summarize_particles, summary_resolution)
-    from .posterior_predictive import draws_as_hamiltonians
-    from .resimulate import run_tasks
-
     if prior not in PRIORS:
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
     if extend:
@@ -536,7 +510,6 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
 def fit_function(method: str):
     """The entry point of a refinement ``method`` of ``METHODS`` (``fit_one`` or ``fit_adjusted``; the same
     arguments); ConfigError for another name."""
-    from ..core.errors import ConfigError
 
     if method not in METHODS:
         raise ConfigError(f"refinement method {method!r} is not one of {METHODS}")

@@ -21,9 +21,9 @@ import numpy as np
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
-from ..forc.simulate import protocol_name
-from ..forc.simulate import simulate_family as simulate_grid_family
+from ..forc.simulate import protocol_name, simulate_family as simulate_grid_family
 from ..micromag.build import build_film, sweep_options
+from .._runtime import tune_allocator
 
 DISORDER_STREAM = "closed_loop_disorder"
 """Named stream of every re-simulation's disorder (keys: sample id or a label, realisation); never a
@@ -154,7 +154,6 @@ def _simulate_task(cfg: dict, params: dict, sample_id: int, realisation: int):
 
 def _init_worker() -> None:
     """One numba thread per worker process and the CLI's allocator tuning."""
-    from .._runtime import tune_allocator
 
     import numba
 

@@ -30,6 +30,7 @@ from ..core.parameters import TARGETS
 from ..core.streams import stream_seed
 from .pipeline import scores
 from .train import fit_alice
+from .data import load_dataset
 
 HEADS = ("small", "paper")
 
@@ -94,7 +95,6 @@ def run_head_ablation(dataset, *, learning_config=None, parameters=("K_u", "D"),
     "threads", "settings", "rows", "ratios"}."""
     import torch
 
-    from .data import load_dataset
     from .pipeline import make_splits
 
     unknown = sorted(set(parameters) - set(TARGETS))

@@ -44,10 +44,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.parameters import COMBINATION_BY_NAME, TARGETS
+from ..core.parameters import COMBINATION_BY_NAME, TARGETS, normalize, normalize_combination
 from ..core.streams import stream_rng
 from .prediction import PRIOR_ONLY, Prediction
 from .scoring import fit_ms_only, knn_median, skill_over_best_trivial
+from ..core.errors import ConfigError
+from .combinations import available, combinations_of, references
 
 FORMAT = "forcdecode-identification/1"
 SPLIT = "validation"
@@ -154,9 +156,6 @@ def _joined(blocks: dict, split: str, keys) -> tuple[np.ndarray, dict] | None:
 def alice_combination_identification(models: dict, combinations) -> dict:
     """combination -> record (``identification_record``) of Alice's plug-in on the validation families,
     from the records saved in the model files it needs; None where one of them predates the flag."""
-    from ..core.parameters import normalize_combination
-    from .combinations import combinations_of, references
-
     out = {}
     for c in combinations:
         needed = [n for n in COMBINATION_BY_NAME[c].needs if n != "Ms"]
@@ -208,9 +207,6 @@ def alice_answer(models: dict, result: dict, n_draws: int = 4000, seed: int = 0)
     ``prior_range`` (SI) of one not read from the image), and ``combinations``: per computable combination
     the plug-in ``value``, the Monte-Carlo ``interval_68``/``interval_90`` (see the module),
     ``defined_fraction``, ``unit``, ``formula`` and its own flag; ``combinations_method`` says how."""
-    from ..core.errors import ConfigError
-    from .combinations import available, combinations_of
-
     if n_draws < 1:
         raise ConfigError(f"the combinations' Monte-Carlo draws must be positive, got {n_draws}")
     out = dict(result)
@@ -226,7 +222,6 @@ def alice_answer(models: dict, result: dict, n_draws: int = 4000, seed: int = 0)
     combos = available(names)
     if not combos:
         return out
-    from ..core.parameters import normalize
 
     bounds = models[names[0]].bounds
     ms_norm = float(normalize("Ms", result["Ms"], bounds))
@@ -271,9 +266,6 @@ def _prior_ranges(result: dict, bounds: dict, names, combos, n_draws: int, seed:
     """The prior range (1 %–99 % quantiles, SI) of each combination at this file's M_s: the combination of
     parameters drawn uniformly in their normalized coordinates (each parameter's prior range; the prior
     class's joint constraint, K_eff > 0, is not applied, so the range is the wider one)."""
-    from ..core.parameters import normalize
-    from .combinations import combinations_of
-
     rng = stream_rng(int(seed), "propagation", "prior_ranges")
     u = rng.random((n_draws, len(names)))
     values = combinations_of(u[None], list(names), [float(normalize("Ms", result["Ms"], bounds))], bounds, combos)[0]
@@ -330,9 +322,6 @@ def posterior_identification(draws, u, names, ms_norm, bounds, train, val, seed:
     computable combination the record (``identification_record``) of the median of its draws on the
     validation families. ``draws`` (n_val, n_draws, len(names)) are the validation families' draws, ``u``
     (n, len(names)) every family's truths, ``ms_norm`` every family's normalized M_s."""
-    from ..core.parameters import normalize_combination
-    from .combinations import available, combinations_of, references
-
     draws, u, ms_norm = np.asarray(draws, float), np.asarray(u, float), np.asarray(ms_norm, float)
     train, val = np.asarray(train), np.asarray(val)
     parameters = {}

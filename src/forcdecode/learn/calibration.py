@@ -37,6 +37,7 @@ import numpy as np
 from scipy import special, stats
 
 from ..core.errors import ConfigError, DatasetError
+from ..core import io
 
 DEFAULT_LEVELS = (0.5, 0.68, 0.9)
 RECALIBRATION_MIN_SAMPLES = 20
@@ -272,7 +273,6 @@ def calibration_figure(metrics: dict, out_path, bins: int = 10) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..core import io
 
     ranks = metrics["ranks"]
     names = list(ranks)

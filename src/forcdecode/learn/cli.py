@@ -26,7 +26,11 @@ import json
 import sys
 import time
 
-from .estimator_choice import add_estimator_arguments
+from .estimator_choice import add_estimator_arguments, default_posterior_path
+from ..core.errors import ConfigError
+from ..core.io import read_config, read_json, write_json
+from .prior_class import check_prior_class
+from .shipped import check_thickness, models_thickness_nm, resolve_models
 
 
 def _log(text: str) -> None:
@@ -125,9 +129,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     import torch
-
-    from ..core.errors import ConfigError
-    from ..core.io import read_config, read_json, write_json
 
     if args.step == "train":
         from ..core.parameters import TARGETS
@@ -328,10 +329,6 @@ def run_predict(args) -> int:
     trained on raises PriorClassError (exit 2) unless ``--force``; the class is printed (JSON:
     ``prior_class``, ``prior_check``)."""
     from .predictor import image_from_input, load_models, models_prior_class, predict_parameters, prediction_lines
-    from .prior_class import check_prior_class
-
-    from .estimator_choice import default_posterior_path
-    from .shipped import check_thickness, models_thickness_nm, resolve_models
 
     models_dir, models_line = resolve_models(args.models)
     args.models = str(models_dir)

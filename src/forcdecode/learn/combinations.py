@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.parameters import (COMBINATION_BY_NAME, COMBINATION_NAMES, combination_reference, denormalize,
-                               normalize_combination)
+from ..core.parameters import (COMBINATION_BY_NAME, COMBINATION_NAMES, combination_reference, denormalize, k_eff,
+                               normalize_combination, wall_energy)
 from .calibration import calibration_metrics
 from .scoring import (accuracy_with_intervals, fit_ms_only, knn_median, median_with_interval, skill,
                       skill_interval)
+from ..core import io
 
 RIDGE_PAIR = ("A_ex", "D")
 RIDGE_FIGURE_FAMILIES = 4
@@ -232,9 +233,6 @@ def ridge_figure(samples, truth_u, names, ms_norm, bounds, out_path, n_families:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ..core import io
-    from ..core.parameters import k_eff, wall_energy
 
     r = ridge_correlations(samples, names)
     order = np.argsort(np.where(np.isfinite(r), r, 0.0), kind="stable")

@@ -16,6 +16,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from ..core.errors import ModelFileError
 
 RULE = ("the estimator with the lower mean validation MAE over the parameters both estimate (normalized "
         "units; the same validation families); Alice where either lacks validation records or on a tie")
@@ -62,7 +63,6 @@ def default_posterior_path(models_dir) -> str:
 def choose_estimator(models_dir, posterior_path) -> dict:
     """The default estimator for the model files in ``models_dir`` and the posterior at
     ``posterior_path`` (``choose``); a missing posterior file means Alice."""
-    from ..core.errors import ModelFileError
     from .predictor import load_models
 
     has_posterior = posterior_path is not None and Path(posterior_path).exists()

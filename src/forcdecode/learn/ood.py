@@ -44,6 +44,8 @@ import numpy as np
 import torch
 
 from ..core.errors import ModelFileError
+from ..config import defaults
+from .splits import assign_splits
 
 K_NEIGHBOURS = 5
 ALPHA = 0.05
@@ -234,7 +236,6 @@ def image_ood_check(ref: dict, x, alpha: float | None = None):
 def _splits_of(dataset_path: Path, h5, models_dir: Path) -> tuple[dict, str]:
     """(seed and learning section, where they came from) of the run that trained the models: the
     workflow's ``learning.json`` beside the models' directory, else the dataset's own configuration."""
-    from ..config import defaults
 
     learning_json = models_dir.parent / "learning.json"
     if learning_json.exists():
@@ -273,7 +274,6 @@ def training_image_reference(models_dir, dataset=None, config_hashes=None, log=N
     the models' config hashes), too few families."""
     import h5py
 
-    from .splits import assign_splits
 
     models_dir = Path(models_dir)
     path = Path(dataset) if dataset is not None else models_dir.parent / "dataset.h5"

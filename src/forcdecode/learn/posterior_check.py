@@ -24,9 +24,10 @@ from ..config import defaults
 from ..core import io
 from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
-from .calibration import calibration_figure, marginal_coverage, recalibrated_calibration
+from .calibration import calibration_figure, marginal_coverage, probability_integral_transform, recalibrated_calibration
 from .scoring import binomial_band
 from .splits import SPLITS, assign_splits
+from .combinations import available, posterior_combination_metrics
 
 PIT_BINS = 10
 
@@ -110,7 +111,6 @@ def fresh_combinations(est, data, samples, u, training_data, learning: dict, *, 
     M_s-only and images-shuffled baselines with bootstrap intervals). Normalization and trivial baselines
     come from ``training_data``'s train and validation splits (hash of (seed, sample id), ``learning``'s
     split); the images-shuffled draws permute the fresh images among the fresh families."""
-    from .combinations import available, posterior_combination_metrics
 
     names = tuple(est.names)
     if not available(names):
@@ -142,7 +142,6 @@ def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_dat
     ``fitted_on``, and ``previous`` (the record it replaces); ``beta`` holds the maps whose p lies below
     ``gate_alpha`` (default: the model's setting, else the schema's), ``beta_fitted`` all of them.
     Refused like ``fresh_calibration``."""
-    from .calibration import probability_integral_transform
     from .posterior import gated_recalibration_record
 
     if int(draws) < 2:

@@ -1,4 +1,3 @@
 """``forcdecode predict``: a FORC file or image and M_s in; each parameter with its uncertainty out."""
 
-from .cli import add_predict_arguments as add_arguments  # noqa: F401
-from .cli import run_predict as run  # noqa: F401
+from .cli import add_predict_arguments as add_arguments, run_predict as run

@@ -14,6 +14,11 @@ from ..core.parameters import denormalize, normalize, prior_class
 from .encoding import readout
 from .models import build_network, image_tensor
 from .uncertainty import ConformalIntervals, quantile_to_error
+from ..forc.raster import measurement_on_grid, quantize
+from ..measured import read_forc
+from .answer import PREDATES
+from .prediction import Prediction, answer_table, basis_lines
+from .prior_class import prior_class_line
 
 
 @dataclass
@@ -121,7 +126,6 @@ def predict_parameters(models: dict, image_uint8, Ms_A_per_m: float) -> dict:
 
 def hamiltonian(prediction: dict, defaults: dict | None = None) -> dict:
     """Predicted parameters as the simulator's parameter dict (N_pin rounded to a count)."""
-    from .prediction import Prediction
 
     return Prediction.from_dict(prediction).hamiltonian(defaults)
 
@@ -131,7 +135,6 @@ def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, forc
     of a dataset.h5, or a measured FORC file put on the training grid (±``B_max_T``, ``size`` fields).
     InputFileError for a missing or unusable input; OutOfDomainError for a FORC file outside the
     training domain unless ``force``."""
-    from ..forc.raster import quantize
 
     p = Path(path)
     if not p.exists():
@@ -156,9 +159,6 @@ def image_from_input(path, size: int, sample_id=None, B_max_T: float = 1.0, forc
             if sample_id not in ids:
                 raise InputFileError(f"sample {sample_id} is not in {path}")
             return h5["images"][ids.index(sample_id)], None
-    from ..forc.raster import measurement_on_grid
-    from ..measured import read_forc
-
     image, _, note, _ = measurement_on_grid(read_forc(p), B_max_T, size)
     if note is not None and not force:
         raise OutOfDomainError(f"{path} is out of the training domain: {note} (use --force to predict anyway)")
@@ -172,10 +172,6 @@ def prediction_lines(result: dict, source: str, Ms_kA_m: float, ms_note: str = "
     number; then the derived combinations (value, intervals, defined fraction, the same flag) and how
     their intervals were made, and the basis of each flag. After the source, the prior class the model
     was trained on, when the result names it (``learn.prior_class``)."""
-    from .answer import PREDATES
-    from .prediction import Prediction, answer_table, basis_lines
-    from .prior_class import prior_class_line
-
     lines = [f"{source}  (M_s = {Ms_kA_m:g} kA/m {ms_note})"]
     if result.get("prior_class"):
         lines.append(prior_class_line(result["prior_class"], result.get("prior_check")))

@@ -12,6 +12,10 @@ import numpy as np
 import pandas as pd
 
 from ..core import io
+from ..core.parameters import k_eff, prior_class
+from ..core.streams import stream_rng
+from .combinations import alice_combination_metrics
+from .data import load_dataset
 
 FIGURE3_PANELS = ("A_ex", "N_pin", "K_u", "D")
 LABELS = {"N_pin": r"$N_\mathrm{pin}$", "A_ex": r"$A_\mathrm{ex}$", "K_u": r"$K_u$", "D": r"$D$",
@@ -240,10 +244,6 @@ def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 
     (M_s and the bounds); ``models``: the directory of the ``<parameter>.pt`` files, for the images-shuffled
     baseline (each network on the test images permuted among the test families, M_s kept, as many
     permutations as Alice's per-parameter baseline); None: that baseline is left out."""
-    from ..core.streams import stream_rng
-    from .combinations import alice_combination_metrics
-    from .data import load_dataset
-
     data = load_dataset(dataset)
     position = {int(s): k for k, s in enumerate(data.sample_id)}
     names = list(predictions)
@@ -285,7 +285,6 @@ def dataset_truth(dataset) -> tuple[dict, str]:
     (``core.parameters.prior_class`` of the stored config; absent: paper). No images are read."""
     import h5py
 
-    from ..core.parameters import k_eff, prior_class
 
     with h5py.File(dataset, "r") as h5:
         columns = list(h5["parameters"].attrs["columns"])

@@ -26,6 +26,7 @@ from ..core.errors import DatasetError
 from ..core.streams import stream_rng
 from .data import LearningData
 from .scoring import _mae, accuracy_with_intervals, fit_ms_only, knn_median, skill, skill_interval
+from .combinations import alice_combination_metrics
 
 SEALED_NOTE = ("sealed: a separate id range simulated by the main job and scored once, at its end, by the frozen "
                "models; never used for a choice, a gate or a threshold (the test split was looked at during "
@@ -103,7 +104,6 @@ def alice_sealed_metrics(models: dict, training: LearningData, sealed: LearningD
     derived combinations of their predictions (plug-in, as for the test split; normalization and
     baselines from the training dataset's train and validation splits). ``models``: name ->
     ``ParameterModel``; ``settings``: the learning section (its split and protocol)."""
-    from .combinations import alice_combination_metrics
     from .pipeline import N_SHUFFLES, make_splits
 
     check_disjoint(training, sealed)

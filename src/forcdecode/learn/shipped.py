@@ -34,6 +34,8 @@ import numpy as np
 
 from ..core.errors import ConfigError, ModelFileError
 from ..core.io import atomic_path, read_json, write_json
+from ..config import film_thickness_nm, load_config, shipped_config
+from ..dataset.merge import config_hash, physics_config
 
 SHIPPED = Path(__file__).resolve().parents[1] / "shipped" / "laptop"
 MANIFEST = "manifest.json"
@@ -133,8 +135,6 @@ def _sealed_figures(metrics: dict) -> dict:
 def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None) -> dict:
     """Write the shipped set from a finished main job in ``results`` (models, the training-data check's
     reference, the posterior, the manifest). Returns the manifest."""
-    from ..config import load_config
-    from ..dataset.merge import config_hash, physics_config
     from .ood import IMAGE_REFERENCE_FILE, training_image_reference
     from .predictor import load_models, models_prior_class
 
@@ -196,7 +196,6 @@ def models_thickness_nm(models_dir) -> float:
     for place in (Path(models_dir), Path(models_dir).parent):
         if (place / MANIFEST).exists():
             return float(read_json(place / MANIFEST, what="shipped manifest")["film"]["thickness_nm"])
-    from ..config import film_thickness_nm, load_config, shipped_config
 
     return film_thickness_nm(load_config(shipped_config("config")))
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from .simulated import run_stage
 
 
 def _positive_int(text: str) -> int:
@@ -39,8 +40,6 @@ def _log(message: str) -> None:
 
 
 def run(args) -> int:
-    from .simulated import run_stage
-
     summary = run_stage(args.config, args.learning, args.dataset, args.predictions, out=args.out, table=args.table,
                         figures=args.figures, workers=args.workers, log=_log)
     print(f"closed loop on {summary['n_samples']} test samples x {summary['realisations']} realisations: "

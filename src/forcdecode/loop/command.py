@@ -13,12 +13,12 @@ import argparse
 
 from pathlib import Path
 
-from ..config import film_thickness_nm, with_thickness
-from ..core.io import write_json
+from ..config import film_thickness_nm, load_config as load, shipped_config, with_thickness
+from ..core.io import read_json, write_json
 from ..infer.refine import METHODS
-from ..learn.shipped import check_thickness
-from ..learn.estimator_choice import add_estimator_arguments
-from .measured_loop import _json_ready
+from ..learn.shipped import check_thickness, resolve_models
+from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
+from .measured_loop import _json_ready, close_loop_on_file
 from .physics_effects import NULL_REALISATIONS
 
 
@@ -92,7 +92,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_config(path=None) -> dict:
     """The validated config at ``path`` (default: the shipped config.yaml); ConfigError if invalid."""
-    from ..config import load_config as load, shipped_config
 
     return load(shipped_config("config") if path is None else path)
 
@@ -102,9 +101,6 @@ def resolve_estimator(args) -> dict | None:
     for it, else whichever validation shows better; returns the choice's record (None when the user chose),
     and fills in the default models (``learn.shipped.resolve_models``: the shipped set unless --models;
     ``args.models_line`` says which) and posterior path (beside the models directory)."""
-    from ..learn.estimator_choice import choose_estimator, default_posterior_path
-    from ..learn.shipped import resolve_models
-
     if not getattr(args, "models_line", None):
         models_dir, args.models_line = resolve_models(args.models)
         args.models = str(models_dir)
@@ -124,9 +120,6 @@ def resolve_estimator(args) -> dict | None:
 
 def run(args) -> int:
     import numpy as np
-
-    from ..core.io import read_json
-    from .measured_loop import close_loop_on_file
 
     cfg = load_config(args.config)
     params = read_json(args.params, what="Hamiltonian file") if args.params else None

@@ -26,6 +26,9 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from .physics_effects import NULL_REALISATIONS
+from ..forc.raster import fill_below_reversal, quantize
+from .effects import EFFECTS, correct_measurement, measurement_clock
+from .refit import analyse_with_refit
 
 
 def image_of_family(family) -> np.ndarray:
@@ -33,7 +36,6 @@ def image_of_family(family) -> np.ndarray:
     ``forc.raster``: H < H_r filled with m(H_r, H_r), then quantized. A point left NaN on or above the
     diagonal (a correction that shifted fields out of the window) holds the nearest finite value of
     its curve, as ``resample_curves`` holds a curve's ends."""
-    from ..forc.raster import fill_below_reversal, quantize
 
     family = np.array(family, dtype=float, copy=True)
     n = family.shape[0]
@@ -85,9 +87,6 @@ def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u
     iteration), "reused"), ``converged``, ``n_iterations``, ``tolerance`` and ``corrected_family``
     (the measurement with the last chosen measured-side effect removed; the measurement itself when
     none is chosen). ConfigError for bad options."""
-    from .effects import EFFECTS, correct_measurement, measurement_clock
-    from .refit import analyse_with_refit
-
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
         raise ConfigError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     if isinstance(tolerance, bool) or not (isinstance(tolerance, (int, float, np.floating)) and 0 < tolerance < 1):

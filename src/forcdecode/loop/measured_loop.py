@@ -19,13 +19,27 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, ModelFileError, PriorClassError
 from ..core.io import atomic_path, write_json, write_text
 from ..core.progress import counter, progress, say
 from ..core.streams import stream_rng
 from ..learn.prediction import Prediction, answer_table, basis_lines
-from .physics_effects import MOMENT_TOLERANCE, NULL_REALISATIONS
+from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
+                              physics_candidate_families)
 from .report_page import diagrams_figure, write_report_page
+from ..core.parameters import TARGETS, denormalize, normalize
+from ..forc.raster import measurement_on_grid
+from ..forc.simulate import protocol_name
+from ..infer.posterior_predictive import draws_as_hamiltonians
+from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function, parse_extension
+from ..infer.resimulate import observation_error, resimulate_measured, resimulate_with_spread
+from ..learn.prior_class import check_prior_class, prior_class_line
+from ..measured import read_forc
+from .fixed_point import image_of_family
+from .patches import (POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, null_films, rasterized_singles,
+                      single_realisations)
+from .refit import measured_saturation, realisation_floor
+from .structure import null_structure_floor
 
 
 def _progress(text):
@@ -48,7 +62,6 @@ def _json_ready(obj):
 
 def _hamiltonian_of(prediction: dict) -> dict:
     """The simulator's parameter dict (SI) of a prediction (``predict_parameters`` format)."""
-    from ..learn.prediction import Prediction
 
     return Prediction.from_dict(prediction).hamiltonian()
 
@@ -57,7 +70,6 @@ def family_predictor(models, Ms_A_per_m: float):
     """family → Hamiltonian (SI): the prediction path of ``predict_and_sweep`` at one M_s applied to
     the networks' image of a grid family (``loop.fixed_point.image_of_family``)."""
     from ..learn.predictor import predict_parameters
-    from .fixed_point import image_of_family
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     return lambda family: _hamiltonian_of(predict(image_of_family(family), Ms_A_per_m))
@@ -69,7 +81,6 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
     from ..learn.predictor import predict_parameters
-    from ..infer.resimulate import observation_error, resimulate_with_spread
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
@@ -95,10 +106,6 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
     particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
     beyond the prior's bound (``refine.parse_extension``); the entry then carries ``beyond_prior``
     (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
-    from ..core.parameters import denormalize
-    from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function
-    from ..infer.posterior_predictive import draws_as_hamiltonians
-
     key = family_key(f"{Path(path).name}:refine")
     result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
                                   seed=int(cfg.get("seed", 0)), key=key, log=log, prior=DEFAULT_PRIOR,
@@ -188,7 +195,6 @@ def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max
     its saturated branches) and m_sat, m_0 of the simulated ⟨m⟩·ĥ by the same rule at the same points
     (explicit normalization of both, no fitted scale), measured moments after the drift
     correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²)."""
-    from ..infer.resimulate import resimulate_measured
 
     curves, points = thin_protocol(data, max_points)
     reversal = [data.curves[i].reversal_field_T for i in curves]
@@ -333,9 +339,6 @@ def check_options(s: LoopSettings) -> RefineSetup:
     if refine_budget and (refine_round_size < 2 or refine_budget < refine_round_size or refine_workers < 1):
         raise ConfigError(f"--refine {refine_budget} needs at least one round of >= 2 simulations "
                           f"(round size {refine_round_size}) and >= 1 worker")
-    from ..core.parameters import TARGETS
-    from ..infer.refine import DEFAULT_PRIOR, fit_function, parse_extension
-
     fit_function(refine_method)  # an unknown method: ConfigError before any simulation
     if predictive_reference is not None and refine_method != "pmc":
         raise ConfigError("the posterior-predictive check (--predictive-reference) reads the pmc particles' observation "
@@ -366,9 +369,6 @@ def check_options(s: LoopSettings) -> RefineSetup:
 def read_domain(path, cfg: dict) -> tuple[Measurement, dict]:
     """The file read and put on the training grid, its domain decided by physics; the report's first
     entries."""
-    from ..forc.raster import measurement_on_grid
-    from ..measured import read_forc
-
     data = read_forc(path)
     B_max, n = cfg["field"]["B_max_T"], cfg["field"]["n_fields"]
     image, family, domain_note, moment_saturation, domain = measurement_on_grid(data, B_max, n, with_domain=True)
@@ -397,7 +397,6 @@ OOD_SWEPT_NOTE = "M_s unknown: the most favourable p over the sweep"
 def posterior_ood(est, image, ms_values) -> dict:
     """The posterior's training-data check (``learn.ood.ood_check``): at the given M_s alone (one value),
     or, M_s unknown (several), at each M_s of the sweep keeping the most favourable p, and saying so."""
-    from ..core.parameters import normalize
     from ..learn.ood import ood_check
 
     checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
@@ -421,7 +420,6 @@ def alice_ood(models_dir, models, image, dataset=None, log=_progress) -> dict:
     """Alice's training-data check: the image-only conformal check (``learn.ood.image_ood_check``) against
     the train split of the networks' own dataset (``training_image_reference``); M_s plays no part. Not
     available, with the reason, when that dataset cannot be found or is another configuration's."""
-    from ..core.errors import ModelFileError
     from ..learn.ood import image_ood_check, training_image_reference
 
     check = "image only (no posterior)"
@@ -449,9 +447,6 @@ def prior_check(report: dict, trained_on: str, m: Measurement, s: LoopSettings, 
     """The prior-class check (``learn.prior_class``) of the model's class against the measured loop; report
     keys ``prior_class`` and ``prior_check``. A loop that contradicts the class stops the file: the report
     is written (status "contradicts the prior class") and PriorClassError raised, unless ``force``."""
-    from ..core.errors import PriorClassError
-    from ..learn.prior_class import check_prior_class, prior_class_line
-
     report["prior_class"] = trained_on
     try:
         report["prior_check"] = check_prior_class(trained_on, m.image, force=s.force, source=str(path),
@@ -540,7 +535,6 @@ def resimulate_estimate(cfg: dict, s: LoopSettings, e: Estimate) -> tuple[np.nda
     its profiles; the sweep's own when it already has them."""
     if e.resim is not None:
         return e.resim, e.spread
-    from ..infer.resimulate import resimulate_with_spread
 
     return resimulate_with_spread(cfg, e.params, n_profiles=s.profiles, progress=counter("re-simulation", "profiles"))
 
@@ -548,9 +542,6 @@ def resimulate_estimate(cfg: dict, s: LoopSettings, e: Estimate) -> tuple[np.nda
 def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict) -> Residual:
     """The observation error of the re-simulation and the model-free evidence of the measured curves
     (field shift, drift; report entries), and the measured points for the saturation test."""
-    from ..forc.simulate import protocol_name
-    from ..infer.resimulate import observation_error
-
     data, domain, moment_saturation = m.data, m.domain, m.moment_saturation
     error = observation_error(m.family, resim)
     noise = domain.noise_Am2 / moment_saturation if moment_saturation > 0 else None
@@ -575,7 +566,6 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
 
 def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
     """The physics-side candidate families around ``params`` (none without ``physics``)."""
-    from .physics_effects import physics_candidate_families
 
     return (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
             if s.physics else {})
@@ -588,9 +578,6 @@ def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Re
     key ``patches``. The pool is simulated on the file's own protocol and put on the grid as the file is
     (``patches.rasterized_singles``) where the file holds at most ``patches.RASTERIZED_MAX_POINTS`` points
     and the protocol is quasi-static, else on the training grid (``pool`` says which)."""
-    from ..forc.simulate import protocol_name
-    from .patches import POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, rasterized_singles, single_realisations
-
     pool_size = int(cfg.get("loop", {}).get("patch_pool", POOL_SIZE))
 
     points = sum(len(c) for c in m.data.curves)
@@ -619,9 +606,6 @@ def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r:
     included): its largest held-out gain on ``s.null_realisations`` effect-free films of the decoded
     Hamiltonian averaging the file's patch number (``patches.null_films``, each also mirrored, with the
     file's noise), analysed against the same re-simulation with the same candidates."""
-    from .patches import null_films
-    from .physics_effects import merge_null_gains, null_gains
-
     films = null_films(floor.pool, floor.patches.floor_patches, count=max(s.null_realisations, 1), seed=cfg["seed"])
     progress = counter("realisation floor", "effect-free films")
     null = {}
@@ -639,12 +623,6 @@ def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, res
                    r: Residual, candidates: dict, floor: FileFloor) -> Judgement:
     """The residual traced to an effect against the re-simulation (``analyse_residual``), every candidate
     judged against its realisation floor at the file's patch number."""
-    from .physics_effects import analyse_residual
-    from .refit import measured_saturation
-
-    from .refit import realisation_floor
-    from .structure import null_structure_floor
-
     saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
     # the disorder floor of the structure test: the re-simulation's profile spread pooled with the null
     # films' (P-patch films against the re-simulation: their tails, where every profile happened to agree)
@@ -665,7 +643,6 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
                      log, floor: FileFloor) -> Judgement:
     """The residual traced to an effect against the Hamiltonian refitted without it
     (``refit.analyse_with_refit``), or iterated to a fixed point (``fixed_point``); report entries."""
-    from ..forc.simulate import protocol_name
 
     data, fields, refit = m.data, m.fields, s.refit
     if s.fixed_point:
@@ -706,7 +683,6 @@ def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, re
                  j: Judgement, report: dict) -> dict:
     """The analysed file's report: its entries, the residual at the measured points (the file's own
     protocol re-simulated), the figures, report.json, report.md and report.html."""
-    from ..forc.simulate import protocol_name
 
     analysis, fields, family = j.analysis, m.fields, m.family
     error = r.error
@@ -872,7 +848,6 @@ def _prior_lines(report) -> list[str]:
     name = report.get("prior_class")
     if not name:
         return []
-    from ..learn.prior_class import prior_class_line
 
     lines = ["## Prior class", "", prior_class_line(name, report.get("prior_check")) + "."]
     check = report.get("prior_check") or {}

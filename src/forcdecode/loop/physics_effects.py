@@ -43,10 +43,14 @@ import numpy as np
 from ..core.streams import stream_rng
 from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
-from .effects import (EFFECTS, _beats, _grid_resolution, choose_candidate, fit_effect, heldout_folds, heldout_mse,
-                      measurement_clock, bootstrap_resamples)
-from .effects import (HAMILTONIAN_CHANGE, REALISATION_NOISE, beats_null_gain, SWITCHING_FIELD_DISTRIBUTION, equivalent_candidates,
+from .effects import (EFFECTS, HAMILTONIAN_CHANGE, REALISATION_NOISE, SWITCHING_FIELD_DISTRIBUTION, _beats,
+                      _grid_resolution, beats_null_gain, bootstrap_resamples, choose_candidate,
+                      equivalent_candidates, fit_effect, heldout_folds, heldout_mse, measurement_clock,
                       separating_measurements)
+from ..forc.simulate import protocol_name
+from ..forc.thermal import coercivity_scaled_family
+from ..infer.resimulate import resimulate
+from .structure import describe, residual_structure
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}
 """Parameter name (with unit) of each gridded physics candidate; others are called ``value``."""
@@ -102,9 +106,7 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
     "soft_phase_families": {K_u_soft: family}, "hamiltonian_families": {c: family},
     "physics_reference_family": family without an effect}, ready for ``analyse_residual(..., **this)``."""
-    from ..infer.resimulate import resimulate
 
-    from ..forc.simulate import protocol_name
 
     tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
     total = (1 + len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())
@@ -218,7 +220,6 @@ def fit_thermal(measured, base_family, fields, train, bounds=(0.0, 0.6)):
     sum of squares, model family)."""
     from scipy.optimize import minimize_scalar
 
-    from ..forc.thermal import coercivity_scaled_family
 
     measured = np.asarray(measured, float)
     rows = np.zeros(measured.shape, dtype=bool)
@@ -642,7 +643,6 @@ def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, 
           null_structure: dict | None = None) -> Verdict:
     """The structure test of the chosen model's residual (``loop.structure``) and the saturation test:
     the chosen effect, "none", or "unexplained structured residual" (and where it lives)."""
-    from .structure import describe, residual_structure
 
     measured, base_family, fields = p.measured, p.base_family, p.fields
     records, models = fits.records, fits.models

@@ -33,10 +33,13 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
-from .effects import (HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors, _per_curve_mse, beats_floor,
-                      equivalent_candidates, separating_measurements)
+from .effects import (EFFECTS, HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors, _per_curve_mse, beats_floor,
+                      equivalent_candidates, fit_effect, heldout_folds, measurement_clock, separating_measurements)
 from .patches import PATCH_CHOICES, POOL_SIZE, null_films, single_realisations
-from .signatures import calibrated_shift
+from .signatures import calibrated_shift, field_shift, major_branches, major_loop_protocol, saturated_measured_points
+from ..infer.resimulate import major_loop_branches, resimulate, resimulate_measured, resimulate_with_spread
+from .physics_effects import (SAME_OBSERVABLE, analyse_residual, gated_candidates, merge_null_gains, null_gains,
+                              physics_candidate_families)
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
 GOLDEN = (np.sqrt(5) - 1) / 2
@@ -62,9 +65,6 @@ def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("
     "history" [(multipliers, objective)], "family" (the refitted re-simulation), "spread" (the variance
     of m between its ``n_profiles`` disorder profiles, ddof 1; zeros for one profile), "model" (with the
     effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
-    from .effects import fit_effect, measurement_clock
-    from ..infer.resimulate import resimulate_with_spread
-
     measured = np.asarray(measured, float)
     names = tuple(names)
     for name in names:
@@ -200,9 +200,6 @@ def simulated_shift_offsets(cfg: dict, params: dict, reversal_fields_T, curve_fi
     lowest curve's fields: ``signatures.major_loop_protocol``; a sweep on ``max_step_T`` nodes).
     ``noise_sigma`` enters the test's error model only (the films are noise-free; 1e-3 if not given).
     None where a film gives too few levels."""
-    from ..infer.resimulate import resimulate_measured
-    from .signatures import field_shift, major_branches, major_loop_protocol
-
     reversal, curves = major_loop_protocol(reversal_fields_T, curve_fields_T)
     sigma = float(noise_sigma) if noise_sigma else 1e-3
     offsets = []
@@ -230,9 +227,6 @@ def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "ma
     past the closure of ``params``' major loop averaged over ``n_profiles`` realisations, re-simulated on
     a 10 mT lattice over the points' window (``resimulate.major_loop_branches``, disorder stream ``key``):
     ``signatures.SaturatedPoints``."""
-    from ..infer.resimulate import major_loop_branches
-    from .signatures import saturated_measured_points
-
     window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
     return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key,
                                                                            n_profiles=n_profiles))
@@ -284,7 +278,6 @@ def _offered_on_prediction(cfg: dict, params: dict, measured, fields, prediction
     ``crossfit_refit_mse``), with the physics-side families re-simulated around the prediction on the
     refit's disorder (key "refit": common random numbers) and without K_u's neighbourhood (the refit
     is the Hamiltonian's change). Cost: one re-simulation per physics grid value, plus one."""
-    from .physics_effects import gated_candidates, physics_candidate_families
 
     accepted = set(inspect.signature(gated_candidates).parameters)
     dropped = {"physics_families", "soft_phase_families", "physics_reference_family", "hamiltonian_families"}
@@ -325,9 +318,6 @@ def refit_ambiguity(cfg: dict, params: dict, measured, fields, prediction_family
     "prediction", "heldout_rms" {name: RMS over the held-out curves}, "offered_on_prediction" [names],
     "beat_the_refit" [those that beat the refit's change beyond the floors: reported, the choice is not
     changed]}."""
-    from .effects import heldout_folds
-    from .physics_effects import SAME_OBSERVABLE
-
     settings = _selection_settings(options)
     null_margin = options.get("null_margin", 0.05)
     rng = stream_rng(options["seed"], "bootstrap", "refit_ambiguity")
@@ -448,10 +438,6 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     (``resimulate.major_loop_branches``, stream key "refit_major_loop") and the saturation test of
     ``analyse_residual`` runs on the measured points past its closure
     (``signatures.saturated_measured_points``) instead of on the grid. Cost: one major loop."""
-    from .effects import EFFECTS, heldout_folds
-    from .physics_effects import analyse_residual, merge_null_gains, null_gains, physics_candidate_families
-    from ..infer.resimulate import resimulate
-
     measured = np.asarray(measured, float)
     fields = np.asarray(fields, float)
     train, held = heldout_folds(measured, every_k, cross_fit=False)[0]

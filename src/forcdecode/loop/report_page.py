@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.io import atomic_path, write_text
+from ..forc.diagram import ForcDiagram, forc_distribution, plot_diagram
 
 
 def diagrams_figure(path, fields_T, measured, resimulated, smoothing_factor: int = 3) -> dict:
@@ -27,7 +28,6 @@ def diagrams_figure(path, fields_T, measured, resimulated, smoothing_factor: int
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..forc.diagram import forc_distribution, plot_diagram
 
     diagrams = {name: forc_distribution(fields_T, fields_T, fam, smoothing_factor=smoothing_factor, kernel="pike")
                 for name, fam in (("measured", measured), ("re-simulated", resimulated))}
@@ -44,7 +44,6 @@ def diagrams_figure(path, fields_T, measured, resimulated, smoothing_factor: int
         i, j = np.unravel_index(np.argmax(rho), rho.shape)
         peaks[name] = {"coercive_T": float(d.coercive_T[i, j]), "interaction_T": float(d.interaction_T[i, j]),
                        "rho_max": float(rho[i, j]) if np.isfinite(rho[i, j]) else float("nan")}
-    from ..forc.diagram import ForcDiagram
 
     diff = ForcDiagram(diagrams["measured"].reversal_fields_T, diagrams["measured"].fields_T,
                        diagrams["measured"].rho - diagrams["re-simulated"].rho, smoothing_factor, "pike")

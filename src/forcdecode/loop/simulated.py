@@ -27,12 +27,14 @@ import numpy as np
 import pandas as pd
 
 from ..core.errors import DatasetError, SimulationError
-from ..core.io import atomic_path
+from ..core.io import atomic_path, read_config, write_json, write_parquet
 from ..core.streams import stream_rng
 from ..core.parameters import NAMES as PARAMETERS, denormalize
 from ..forc.simulate import protocol_name
 from ..infer.resimulate import observation_error, run_tasks
 from ..learn.scoring import median_with_interval
+from ..config import defaults
+from ..learn.data import load_dataset
 
 ROLES = ("prediction", "floor", "null")
 """The three re-simulated Hamiltonians of a sample: predicted, true (floor), training median (null)."""
@@ -304,10 +306,6 @@ def run_stage(config_path, learning_path, dataset_path, prediction_paths, *, out
     from pathlib import Path
 
     import h5py
-
-    from ..config import defaults
-    from ..core.io import read_config, write_json, write_parquet
-    from ..learn.data import load_dataset
 
     started = time.perf_counter()
     cfg = read_config(config_path)

@@ -13,6 +13,7 @@ import numpy as np
 from ..core.streams import stream_rng
 from .disorder import disordered_film
 from .mesh import Mesh
+from ..config import defaults
 
 REFERENCE_CELLS = 256 * 256 * 2
 """Cells of the seed paper's grid, on which N_pin counts pinning sites."""
@@ -80,7 +81,6 @@ def sweep_options(cfg: dict) -> dict:
     """Keyword arguments of the quasi-static protocol (``forc.protocol``) from the config's
     ``minimizer`` section (torque criterion, iteration cap, the continuation shortcuts) and the
     ``protocol`` section's remainder copy (``same_state_tol``, ``merge_curves``, ``merge_memory_MB``)."""
-    from ..config import defaults
 
     mini = cfg["minimizer"]
     protocol = {**defaults("protocol"), **cfg.get("protocol", {})}
@@ -94,7 +94,6 @@ def slew_rate_options(cfg: dict) -> dict:
     """Keyword arguments of the ``llg`` protocol's ``forc.adaptive.SlewRate`` from the config's
     ``protocol`` section (schema defaults where absent): Gilbert damping ``alpha``, the rate's
     ``safety`` factor and its clip ``rate_min_T_per_s``/``rate_max_T_per_s`` (T/s)."""
-    from ..config import defaults
 
     protocol = {**defaults("protocol"), **cfg.get("protocol", {})}
     return {key: float(protocol[key]) for key in ("alpha", "safety", "rate_min_T_per_s", "rate_max_T_per_s")}

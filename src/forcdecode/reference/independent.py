@@ -77,6 +77,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.physics import MU0  # a constant, not our engine: the generator stays independent of micromag
+from ..measured.writers import write_lakeshore_csv, write_micromag_0015
+from .magnumnp_film import MagnumFilm
 
 PIN_K_U = 5e7
 """Anisotropy of a pinning cell (J/m³, along z): the seed paper's 50 MJ/m³."""
@@ -196,7 +198,6 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
     fields; ``curve_fields_T[k]``: the fields of curve k from its reversal field upward (the field the
     sample feels, before any instrument offset). ``seed``: the disorder realisation. ``K_u``
     overrides params["K_u"] (a soft phase). Raises RuntimeError when a relaxation does not converge."""
-    from .magnumnp_film import MagnumFilm
 
     rng = np.random.default_rng([int(seed), 9001])  # our streams are not used: another code, another draw
     factor, axis = independent_disorder(film, float(params["sigma_K"]), float(params["sigma_theta_deg"]), rng)
@@ -469,7 +470,6 @@ def write_measurement(path, family: SampleFamily, moment_Am2: float, instrument:
                       fmt: str = "micromag0015") -> Path:
     """Record ``family`` with ``instrument`` (noise from ``seed``) and write it as a MicroMag 0015
     ("micromag0015") or a Lake Shore 8600 CSV ("lakeshore_csv") file; returns the path."""
-    from ..measured.writers import write_lakeshore_csv, write_micromag_0015
 
     rng = np.random.default_rng([int(seed), 4242])
     reversal, curves, calibration, h_cal = record(family, moment_Am2, instrument, rng)

@@ -10,6 +10,8 @@ import numpy as np
 from ...core.streams import stream_rng, stream_seed
 from ..splits import SPLITS
 from .estimator import PosteriorEstimator
+from ..calibration import (fit_recalibration, gate_recalibration, probability_integral_transform,
+                           recalibration_likelihood_ratio, sbc_ks_pvalues, sbc_ranks)
 
 
 def split_diagnostics(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int) -> dict:
@@ -21,7 +23,6 @@ def split_diagnostics(est: PosteriorEstimator, data, u, splits: dict, draws: int
     marginal unlike the held-out one is what a posterior that learns little from the image returns."""
     from scipy import stats
 
-    from ..calibration import sbc_ks_pvalues, sbc_ranks
 
     out = {"pit": {}, "coordinates_marginal": {}}
     v_of = {}
@@ -53,7 +54,6 @@ def gated_recalibration_record(pit, names, gate_alpha: float, **record) -> dict:
     """The recalibration record of held-out PITs: every parameter's fitted Beta map (``beta_fitted``), its
     likelihood-ratio p-value against the identity, and under ``beta`` only the maps that test supports at
     ``gate_alpha`` (``learn.calibration.gate_recalibration``): ``beta`` is what the model applies."""
-    from ..calibration import fit_recalibration, gate_recalibration, recalibration_likelihood_ratio
 
     fitted = fit_recalibration(pit, names)
     p_values = recalibration_likelihood_ratio(pit, fitted, names)
@@ -92,7 +92,6 @@ def fit_held_out_recalibration(est: PosteriorEstimator, data, u, families, draws
     """Quantile recalibration of ``est`` (``learn.calibration``) fitted on the PITs of ``families``
     (indices into ``data``; ``recalibration_families``), families the flow's weights never saw; a map is
     applied only where its likelihood-ratio test gives p < ``gate_alpha`` (``gated_recalibration_record``)."""
-    from ..calibration import probability_integral_transform
 
     families = np.asarray(families)
     raw = est.sample(data.images[families], data.ms_norm[families], draws,

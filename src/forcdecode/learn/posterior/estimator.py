@@ -11,11 +11,15 @@ import numpy as np
 import torch
 
 from ...core.errors import ConfigError, OutOfDomainError
-from ...core.parameters import DEFAULT_PRIOR_CLASS, denormalize
+from ...core.parameters import DEFAULT_PRIOR_CLASS, denormalize, normalize
 from ...core.streams import stream_seed
 from ..models import image_tensor
 from .file_format import read_estimator, save_estimator
 from .flow import SQUEEZE, PosteriorNet, _float32, from_coordinates, from_latent, to_coordinates, to_latent
+from ...dataset.params import draw_log_density
+from ..answer import posterior_flags
+from ..calibration import recalibrate_draws, widen
+from ..combinations import summarize_draws
 
 RECALIBRATION_REFERENCE_DRAWS = 1000
 """Draws behind each observation's marginal CDFs when a recalibrated sample of fewer is asked."""
@@ -91,7 +95,6 @@ class PosteriorEstimator:
         beta = self.recalibration if recalibrated else None
         if not beta:
             return draws
-        from ..calibration import recalibrate_draws
 
         reference = None
         if n_draws < RECALIBRATION_REFERENCE_DRAWS:
@@ -179,7 +182,6 @@ class PosteriorEstimator:
         u = np.atleast_2d(u)
         if self.coordinates == "box":
             return np.zeros(len(u))
-        from ...dataset.params import draw_log_density
 
         return draw_log_density(u, self.names, self._Ms(ms_norm), self.bounds or None, prior=self.prior_class)
 
@@ -225,7 +227,6 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     (``learn.combinations.summarize_draws``: median and intervals, SI); per parameter and combination
     ``read_from_image`` and its ``basis`` (``learn.answer.posterior_flags``: None for a model saved
     before the flag)."""
-    from ...core.parameters import normalize
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
     from ..ood import ood_check
@@ -234,7 +235,6 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     summary = summarize(draws, est.names, est.bounds)
     result = {"Ms": float(Ms_A_per_m), "estimator": "posterior", "draws": int(n_draws),
               "ood": ood_check(est, np.asarray(image_uint8), [ms_norm])}
-    from ..calibration import widen
 
     widening = (est.metadata.get("conformal") or {}).get("widening", {})
     for name, row in summary["parameters"].items():
@@ -250,11 +250,9 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
             result[name][f"interval_{tag}_conformal"] = [float(denormalize(name, lo, est.bounds)),
                                                          float(denormalize(name, hi, est.bounds))]
     result["posterior_correlation"] = summary["correlation"]
-    from ..combinations import summarize_draws
 
     # the derived combinations (σ_w, δ_w, D/D_c, Q; core.parameters) as transforms of the same draws
     result["combinations"] = summarize_draws(draws, est.names, ms_norm, est.bounds)
-    from ..answer import posterior_flags
 
     # read from the image, or prior only: the validation figures saved with the model (learn.answer)
     return posterior_flags(est.metadata, result, est.bounds)

@@ -15,6 +15,7 @@ from torch import nn
 from ...config import defaults, schema
 from ...core.errors import ConfigError
 from ..models import MS_NODES, conv_features
+from ...dataset.params import draw_prior_cdf, draw_prior_ppf
 
 SQUEEZE = 1e-3
 """u is squeezed to [ε, 1 − ε] before the logit."""
@@ -81,7 +82,6 @@ def to_coordinates(u, Ms, names, bounds, coordinates: str, prior: str = "paper")
     u = np.asarray(u, dtype=float)
     if coordinates == "box":
         return u
-    from ...dataset.params import draw_prior_cdf
 
     Ms = np.broadcast_to(np.asarray(Ms, dtype=float), u.shape[:-1])
     return np.stack([draw_prior_cdf(n, u[..., j], Ms, bounds or None, prior=prior) for j, n in enumerate(names)],
@@ -93,7 +93,6 @@ def from_coordinates(v, Ms, names, bounds, coordinates: str, prior: str = "paper
     v = np.asarray(v, dtype=float)
     if coordinates == "box":
         return v
-    from ...dataset.params import draw_prior_ppf
 
     Ms = np.broadcast_to(np.asarray(Ms, dtype=float), v.shape[:-1])
     return np.stack([draw_prior_ppf(n, v[..., j], Ms, bounds or None, prior=prior) for j, n in enumerate(names)],

@@ -25,6 +25,10 @@ from .calibration import (fit_held_out_recalibration, recalibration_families, re
 from .estimator import PosteriorEstimator
 from .file_format import FORMAT
 from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_embedding, posterior_settings, to_latent
+from ..answer import posterior_identification
+from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics, conformal_coverage,
+                           conformal_widening, recalibrated_calibration)
+from ..combinations import available, posterior_combination_metrics, ridge_figure, ridge_summary
 
 
 @_float32
@@ -219,7 +223,6 @@ def _combinations_and_ridge(est, data, u, splits, samples, seed: int, levels, n_
     scored test draws ``samples``, baselines prior / M_s-only / images shuffled) and the A_ex–D ridge
     (per-family correlation, its median, the figure at ``ridge_path``); ({}, None) where the posterior
     learns none of the combinations' parameters."""
-    from ..combinations import available, posterior_combination_metrics, ridge_figure, ridge_summary
 
     names = tuple(est.names)
     train, val, test = splits["train"], splits["validation"], splits["test"]
@@ -245,9 +248,6 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     out for its recalibration (``posterior.recalibration_holdout``), recalibrate it on that part and the
     calibration split, calibrate it on the test split; write the model, metrics.json and the calibration
     figure (all atomically)."""
-    from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics,
-                              conformal_coverage, conformal_widening, recalibrated_calibration)
-
     settings = posterior_settings(settings)
     learning = {**defaults("learning"), **(learning or {})}
     names = tuple(settings["parameters"])
@@ -330,7 +330,6 @@ def train_posterior(data, settings: dict | None, learning: dict | None, seed: in
     diagnostics = (split_diagnostics(est, data, u, {**splits, "train": flow_train}, draws, seed)
                    if learning["protocol"] == "holdout" else None)
     # read from the image, or prior only: the validation families' draws (as predict draws them), never test
-    from ..answer import posterior_identification
 
     val_draws = est.sample(data.images[val], data.ms_norm[val], draws, seed=stream_seed(seed, "posterior", "validation_draws"))
     identification = posterior_identification(val_draws, u, names, data.ms_norm, data.bounds, train, val, seed,
