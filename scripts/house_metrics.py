@@ -98,7 +98,7 @@ def measure() -> dict:
                 imports_total += 1
                 if inside_function(node):
                     imports_inside += 1
-                own_is_cli = "cli" in module.rsplit(".", 1)[-1]
+                own_is_cli = "cli" in module.rsplit(".", 1)[-1] or module.endswith("__main__")
                 for target in targets:
                     if "cli" in target.rsplit(".", 1)[-1] and not own_is_cli:
                         cli_imports.append(f"{path.relative_to(SOURCE.parent)}:{node.lineno} -> {target}")
