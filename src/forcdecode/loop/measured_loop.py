@@ -14,7 +14,7 @@ points in A·m². Writes OUT/report.json, OUT/report.md and figures (fields μ0H
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -225,33 +225,58 @@ def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """The options of ``close_loop_on_file`` (see there), as its stages read them."""
+    """What ``close_loop_on_file`` runs (each field's default is the command line's).
 
-    params: dict | None
-    models_dir: object
-    ms_values_A_per_m: object
-    profiles: int
-    sweep_profiles: int
-    every_k: int
-    physics: bool
-    force: bool
-    refit: object
-    refit_budget: int
-    measured_protocol: bool
-    measured_profiles: int
-    max_measured_points: int
-    measured_max_step_T: float | None
-    estimator: str
-    posterior_path: object
-    fixed_point: bool
-    null_realisations: int
-    refine_budget: int
-    refine_round_size: int
-    refine_workers: int
-    refine_method: str
-    predictive_reference: object
-    refine_extend: object
-    moment_tolerance: float
+    ``params``: a Hamiltonian (SI) to re-simulate instead of predicting one with the models of ``models_dir``;
+    ``ms_values_A_per_m``: M_s values tried (one: known M_s; several: swept, each re-simulated with
+    ``sweep_profiles`` profiles; None: the default sweep). ``profiles``: profiles of the final re-simulation
+    (their spread is the structure test's disorder floor). ``every_k``: every k-th curve held out.
+    ``physics``: try the physics-side candidates (K_2, bias, second phase, tilt). ``force``: analyse a file
+    out of the domain or unlike the training data. ``refit``: names of Hamiltonian parameters refitted around
+    the prediction before the effect selection (``loop.refit.analyse_with_refit``, ``refit_budget``
+    re-simulations). ``measured_protocol``: also re-simulate the file's own protocol (``measured_profiles``
+    profiles, at most ``max_measured_points`` points, field sub-steps of at most ``measured_max_step_T``) and
+    report the residual at the measured points in A·m². ``estimator``: "alice" (Alice + Bob's conformal
+    intervals) or "posterior" (the joint neural posterior at ``posterior_path``: medians re-simulated, 68/90 %
+    intervals and correlations, after its out-of-distribution check). ``fixed_point`` (needs ``refit`` and a
+    prediction): after a measured-side effect is chosen, predict again from the family with the effect removed
+    and repeat to a fixed point (``loop.fixed_point.predict_correct_iterate``). ``null_realisations``:
+    effect-free films of the decoded (with ``refit``: the refitted) Hamiltonian whose gains a candidate must
+    beat (the realisation floor; None: the config's ``loop.null_films``; 0 with ``refit``: off).
+    ``refine_budget`` (the posterior estimator): refine the amortized posterior of this family by that many
+    simulations (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers`` processes,
+    ``refine_method`` "pmc" or "adjusted"); the refined medians are re-simulated. ``predictive_reference`` (a
+    JSON path, with the pmc refinement): the calibrated posterior-predictive check of the refinement.
+    ``refine_extend`` (["N_pin", "D=3", …]): refine in a box beyond the prior's bound and report the mass past
+    it. ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
+    not named an effect; ConfigError outside [0, 1). ``training_dataset``: the dataset of Alice's image-only
+    training-data check (default ``models_dir``/../dataset.h5)."""
+
+    params: dict | None = None
+    models_dir: object = "results/models"
+    ms_values_A_per_m: object = None
+    profiles: int = 20
+    sweep_profiles: int = 2
+    every_k: int = 4
+    physics: bool = True
+    force: bool = False
+    refit: object = None
+    refit_budget: int = 20
+    measured_protocol: bool = True
+    measured_profiles: int = 2
+    max_measured_points: int = 5000
+    measured_max_step_T: float | None = MEASURED_MAX_STEP_T
+    estimator: str = "alice"
+    posterior_path: object = "results/posterior/model.pt"
+    fixed_point: bool = False
+    null_realisations: int | None = None
+    refine_budget: int = 0
+    refine_round_size: int = 25
+    refine_workers: int = 1
+    refine_method: str = "pmc"
+    predictive_reference: object = None
+    refine_extend: object = None
+    moment_tolerance: float = MOMENT_TOLERANCE
     training_dataset: object = None
 
 
@@ -705,76 +730,26 @@ def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, re
     return report
 
 
-def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, models_dir="results/models",
-                       ms_values_A_per_m=None, profiles: int = 20, sweep_profiles: int = 2, every_k: int = 4,
-                       physics: bool = True, force: bool = False, refit=None, refit_budget: int = 20,
-                       measured_protocol: bool = True, measured_profiles: int = 2, max_measured_points: int = 5000,
-                       measured_max_step_T: float | None = MEASURED_MAX_STEP_T, estimator: str = "alice",
-                       posterior_path="results/posterior/model.pt", fixed_point: bool = False,
-                       null_realisations: int | None = None, refine_budget: int = 0, refine_round_size: int = 25,
-                       refine_workers: int = 1, refine_method: str = "pmc", predictive_reference=None,
-                       refine_extend=None, moment_tolerance: float = MOMENT_TOLERANCE,
-                       training_dataset=None, log=_progress) -> dict:
+def close_loop_on_file(path, out, cfg: dict, settings: "LoopSettings | None" = None, *, log=_progress,
+                       **options) -> dict:
     """Run the closed loop on the measured file ``path`` with the validated config ``cfg``; writes
     ``out``/report.json, report.md and figures and returns the report.
 
-    Domain (``forc.saturation``): the family is usable when its major loop saturates inside the
-    measured window; the training image is completed where the state is known. A file out of the
-    domain is reported with the specific reason and not analysed unless ``force``.
-    ``params``: a Hamiltonian (SI) to re-simulate instead of predicting one with the models of
-    ``models_dir``; ``ms_values_A_per_m``: M_s values tried (one: known M_s; several: swept, each
-    re-simulated with ``sweep_profiles`` profiles). ``profiles``: profiles of the final
-    re-simulation (their spread is the disorder floor of the structure test). ``refit``: names of
-    Hamiltonian parameters refitted around the prediction before the effect selection
-    (``loop.refit.analyse_with_refit``, ``refit_budget`` re-simulations of ``sweep_profiles``
-    profiles each). ``measured_protocol``: also re-simulate the file's own protocol
-    (``measured_profiles`` profiles, at most ``max_measured_points`` points, field sub-steps of at
-    most ``measured_max_step_T``) and report the residual
-    at the measured points in A·m². ``estimator``: "alice" (Alice + Bob's conformal intervals) or
-    "posterior" (the joint neural posterior at ``posterior_path``: medians re-simulated, 68/90 %
-    intervals and correlations reported, and first the out-of-distribution check of ``learn.ood``: a
-    family that does not look like the training data stops here unless ``force``). ``fixed_point``
-    (needs ``refit`` and a prediction, not ``params``): after a measured-side effect is chosen,
-    predict again at the chosen M_s from the family with the effect removed and repeat to a fixed
-    point (``loop.fixed_point.predict_correct_iterate``; report key ``fixed_point``). Raises
-    InputFileError for an unreadable file, ModelFileError for missing models, ConfigError for
-    ``fixed_point`` without ``refit`` or with ``params``. ``null_realisations``: effect-free films of the
-    decoded (with ``refit``: the refitted) Hamiltonian whose gains a candidate must beat (the realisation
-    floor; None: the config's ``loop.null_films``; 0 with ``refit``: off). ``refine_budget`` (needs the
-    posterior estimator): refine the amortized posterior of this family by that many simulations of
-    the film at the chosen M_s (``infer.fit``, rounds of ``refine_round_size``, ``refine_workers``
-    processes; ``refine_method`` "pmc" or "adjusted", ``infer.refine.METHODS``); the refined medians
-    are the Hamiltonian re-simulated, so the residual analysis runs on the refined re-simulation;
-    report key ``refined``. ``predictive_reference`` (a JSON path, with ``refine_budget`` and the pmc
-    method): the calibrated posterior-predictive check (``infer.predictive_check``) of the
-    refinement; a family no in-prior film reproduces is flagged in the report (key
-    ``refined.predictive_check``). ``refine_extend`` (["N_pin", "D=3", …], with ``refine_budget`` and
-    the pmc method): refine in a box extended beyond the prior's bound and report the posterior mass past
-    it (report key ``refined.beyond_prior``); ``predictive_reference`` is then an extension reference
-    (made in the same box), and a family that a film beyond the bound fits better is flagged.
-    ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
-    not named an effect
-    (``physics_effects.MOMENT_TOLERANCE``); ConfigError outside [0, 1). Whatever the estimator, a
-    training-data check runs before any decoding (report key ``ood``; ``estimate``): the posterior's, or
-    for Alice the image-only check against the train split of ``training_dataset`` (default
-    ``models_dir``/../dataset.h5); a family flagged stops unless ``force``; a check that could not run
-    says why, and one whose reference is too small to flag anything says so (``can_flag``, ``warning``)."""
-    if null_realisations is None:  # the config's floor size (loop.null_films)
-        null_realisations = int(cfg.get("loop", {}).get("null_films", NULL_REALISATIONS))
-    s = LoopSettings(params=params, models_dir=models_dir, ms_values_A_per_m=ms_values_A_per_m, profiles=profiles,
-                     sweep_profiles=sweep_profiles, every_k=every_k, physics=physics, force=force, refit=refit,
-                     refit_budget=refit_budget, measured_protocol=measured_protocol,
-                     measured_profiles=measured_profiles, max_measured_points=max_measured_points,
-                     measured_max_step_T=measured_max_step_T, estimator=estimator, posterior_path=posterior_path,
-                     fixed_point=fixed_point, null_realisations=null_realisations, refine_budget=refine_budget,
-                     refine_round_size=refine_round_size, refine_workers=refine_workers, refine_method=refine_method,
-                     predictive_reference=predictive_reference, refine_extend=refine_extend,
-                     moment_tolerance=moment_tolerance, training_dataset=training_dataset)
+    ``settings`` (a ``LoopSettings``; its defaults where None) says what to run, and keyword ``options`` set
+    single fields of it (``close_loop_on_file(path, out, cfg, refit=["K_u"])``; a TypeError names an unknown
+    one). ``log``: progress lines. Domain (``forc.saturation``): the family is usable when its major loop
+    saturates inside the measured window; the training image is completed where the state is known. A file
+    out of the domain is reported with the specific reason and not analysed unless ``force``. Whatever the
+    estimator, a training-data check runs before any decoding (report key ``ood``). Raises InputFileError for
+    an unreadable file, ModelFileError for missing models, ConfigError for inconsistent settings."""
+    s = replace(settings or LoopSettings(), **options)
+    if s.null_realisations is None:  # the config's floor size (loop.null_films)
+        s = replace(s, null_realisations=int(cfg.get("loop", {}).get("null_films", NULL_REALISATIONS)))
     setup = check_options(s)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     measurement, report = read_domain(path, cfg)  # domain
-    if measurement.domain_note is not None and not force:
+    if measurement.domain_note is not None and not s.force:
         return stop(out, path, report, "out of domain", "\nNo prediction is made (`--force` analyses it anyway).\n")
     hamiltonian = estimate(cfg, s, measurement, setup, report, out, path, log)  # estimate
     if hamiltonian is None:  # not decoded: unlike the posterior's training data
@@ -782,7 +757,7 @@ def close_loop_on_file(path, out, cfg: dict, *, params: dict | None = None, mode
     resim, spread = resimulate_estimate(cfg, s, hamiltonian)  # re-simulate
     residual = residual_evidence(cfg, measurement, resim, report)  # residual
     floor = file_patches(cfg, s, measurement, hamiltonian.params, residual, report, log)  # patches averaged
-    if refit:  # candidates and judge, against the Hamiltonian refitted without each candidate
+    if s.refit:  # candidates and judge, against the Hamiltonian refitted without each candidate
         judgement = judge_with_refit(cfg, s, measurement, hamiltonian, residual, report, log, floor)
     else:  # candidates, the realisation floor, judge
         candidates = physics_candidates(cfg, s, hamiltonian.params)
