@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError, ModelFileError
+from ..core.parameters import normalize
 from ..core.io import atomic_path, read_json, write_json
 from ..config import film_thickness_nm, load_config, shipped_config
 from ..dataset.merge import config_hash, physics_config
@@ -132,6 +133,33 @@ def _sealed_figures(metrics: dict) -> dict:
     return out
 
 
+PRECISION_CHECK_IMAGES = 300
+"""Dataset families on which ``precision_effect`` compares the shipped weights with the trained ones."""
+
+
+def precision_effect(trained_dir, shipped_dir, dataset_path, count: int = PRECISION_CHECK_IMAGES) -> dict:
+    """What storing the weights in half precision changes: per parameter, the largest and the mean |Δu| of
+    the prediction (normalized units, prior width = 1) and the change of its MAE against the truth, over the
+    first ``count`` families of the networks' dataset (float32 models in ``trained_dir``, shipped ones in
+    ``shipped_dir``)."""
+    from .data import load_dataset
+    from .predictor import load_models
+
+    data = load_dataset(dataset_path)
+    k = min(count, len(data.images))
+    images, ms = data.images[:k], data.values["Ms"][:k]
+    trained, shipped = load_models(trained_dir), load_models(shipped_dir)
+    out = {"n": int(k)}
+    for name, model in trained.items():
+        a = model.predict(images, ms)["normalized"]
+        b = shipped[name].predict(images, ms)["normalized"]
+        truth = normalize(name, data.values[name][:k], model.bounds)
+        row = {"max_abs_du": float(np.max(np.abs(a - b))), "mean_abs_du": float(np.mean(np.abs(a - b)))}
+        row["mae_change"] = float(np.mean(np.abs(b - truth)) - np.mean(np.abs(a - truth)))
+        out[name] = row
+    return out
+
+
 def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None) -> dict:
     """Write the shipped set from a finished main job in ``results`` (models, the training-data check's
     reference, the posterior, the manifest). Returns the manifest."""
@@ -170,6 +198,8 @@ def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None)
                 "half_precision": bool(half), "parameters": sorted(models), "files": files,
                 "sealed": _sealed_figures(metrics), "sealed_n": (metrics.get("sealed") or {}).get("n_sealed"),
                 "made_by": "forcdecode models ship --results " + str(results)}
+    if half:  # measured, not assumed: the predictions of the stored weights against the trained ones
+        manifest["half_precision_effect"] = precision_effect(models_dir, out / "models", results / "dataset.h5")
     write_json(out / MANIFEST, manifest)
     return manifest
 
