@@ -172,13 +172,11 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_selection_options(tmp_path, mo
 
 
 def test_selection_options_are_the_loops_defaults_and_refuse_unknown_ones():
-    import inspect
-
     from forcdecode.bench.effects_independent import selection_options
-    from forcdecode.loop.physics_effects import analyse_residual
+    from forcdecode.loop.physics_effects import ResidualOptions
 
     options = selection_options()
-    assert options["evidence_suffices"] == inspect.signature(analyse_residual).parameters["evidence_suffices"].default
+    assert options["evidence_suffices"] == ResidualOptions().evidence_suffices
     assert selection_options({"cross_fit": True})["cross_fit"] is True
     with pytest.raises(ValueError, match="unknown selection options"):
         selection_options({"crossfit": True})

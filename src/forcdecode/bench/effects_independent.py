@@ -39,7 +39,7 @@ from ..dataset.params import draw_parameters
 from ..forc.raster import measured_image
 from ..loop import command
 from ..loop.command import resolve_estimator
-from ..loop.physics_effects import NULL_REALISATIONS, analyse_residual
+from ..loop.physics_effects import NULL_REALISATIONS, ResidualOptions
 from ..loop.refit import analyse_with_refit, joint_generalises
 from ..loop.signatures import drift_evidence_of, field_shift_of, measured_point_arrays
 from ..measured import read_forc
@@ -319,7 +319,7 @@ def selection_options(analysis: dict | None = None) -> dict:
     import inspect
 
     defaults = {"cross_fit": inspect.signature(analyse_with_refit).parameters["cross_fit"].default,
-                "evidence_suffices": inspect.signature(analyse_residual).parameters["evidence_suffices"].default}
+                "evidence_suffices": ResidualOptions().evidence_suffices}
     unknown = set(analysis or {}) - set(defaults)
     if unknown:
         raise ValueError(f"unknown selection options {sorted(unknown)}; known: {sorted(defaults)}")

@@ -36,7 +36,7 @@ chosen one and lists the other under ``same_observable_as``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -271,14 +271,11 @@ def null_gains(pseudo_measurements, base_family, fields, mirror: bool = True, no
     # only the gains are kept: the gates (K_u neighbourhood, normalization) decide nothing here, so the
     # candidates are fitted and scored (``gated_candidates``) without the selection, the structure test
     # and the ambiguity stages, and with few bootstrap resamples (they enter only the gates' booleans)
-    import inspect
-
     analysis = {**analysis, "moment_tolerance": 0.0, "saturation_gate": False, "saturation_points": None,
                 "n_boot": NULL_BOOTSTRAPS}
     if not hamiltonian_floor:
         analysis["hamiltonian_families"] = None
-    accepted = set(inspect.signature(gated_candidates).parameters)
-    analysis = {k: v for k, v in analysis.items() if k in accepted}
+    analysis = {k: v for k, v in analysis.items() if k in GATED_OPTIONS}
     gains: dict = {}
     for family in pseudo:
         g = gated_candidates(family, base_family, fields, seed=seed, **analysis)
@@ -792,49 +789,81 @@ class Gated:
     offered: Offered
 
 
-def gated_candidates(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
-                     measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
-                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05, thermal: bool = True,
-                     null_gain: dict | None = None, null_margin: float = 0.05, field_shift: dict | None = None,
-                     drift: dict | None = None, physics_reference_family=None, hamiltonian_families=None,
-                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
-                     saturation_gate: bool = True, saturation_points=None) -> Gated:
+@dataclass(frozen=True)
+class ResidualOptions:
+    """The keyword options of ``analyse_residual`` and ``gated_candidates`` (their meaning and units: the
+    docstring of ``analyse_residual``), with their defaults. ``physics_candidate_families(cfg, params)``
+    returns a dict of the first three, to be given as keywords."""
+
+    physics_families: dict | None = None
+    soft_phase_families: dict | None = None
+    measured_candidates: object = None
+    every_k: int = 4
+    cross_fit: bool = True
+    n_boot: int = 2000
+    seed: int = 0
+    min_relative_gain: float = 0.05
+    equivalence: float = 0.05
+    thermal: bool = True
+    noise_sigma: float | None = None
+    floor_variance: object = None
+    n_profiles: int = 1
+    null_gain: dict | None = None
+    null_margin: float = 0.05
+    field_shift: dict | None = None
+    drift: dict | None = None
+    physics_reference_family: object = None
+    hamiltonian_families: dict | None = None
+    moment_tolerance: float = MOMENT_TOLERANCE
+    evidence_suffices: bool = True
+    saturation_gate: bool = True
+    saturation_points: object = None
+    measured_patches: int = 1
+    sweep_rates: int = 1
+    null_structure: dict | None = None
+
+
+GATED_OPTIONS = frozenset({"physics_families", "soft_phase_families", "measured_candidates", "every_k", "cross_fit",
+                           "n_boot", "seed", "min_relative_gain", "equivalence", "thermal", "null_gain", "null_margin",
+                           "field_shift", "drift", "physics_reference_family", "hamiltonian_families",
+                           "moment_tolerance", "evidence_suffices", "saturation_gate", "saturation_points"})
+"""The ``ResidualOptions`` fields the gates read (``gated_candidates``); the rest are the verdict's."""
+
+
+def residual_options(options: ResidualOptions | None = None, **overrides) -> ResidualOptions:
+    """``options`` (defaults where None) with the keyword ``overrides`` set (TypeError for an unknown one)."""
+    return replace(options or ResidualOptions(), **overrides)
+
+
+def gated_candidates(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
+                     **overrides) -> Gated:
     """Every candidate fitted and scored on held-out curves (per-curve mean-square misfit, m in units
     of the saturation moment) and put through the gates: the first stages of ``analyse_residual``,
-    whose keyword arguments (and units) these are. ``refit.refit_ambiguity`` reads the candidates
-    offered on the unrefitted prediction from it."""
-    p = residual_problem(measured, base_family, fields, order, every_k, cross_fit)
-    library = candidate_library(p, physics_families=physics_families, soft_phase_families=soft_phase_families,
-                                measured_candidates=measured_candidates, thermal=thermal,
-                                physics_reference_family=physics_reference_family,
-                                hamiltonian_families=hamiltonian_families)
+    whose options (``ResidualOptions``, or single ones as keywords) these are. ``refit.refit_ambiguity``
+    reads the candidates offered on the unrefitted prediction from it."""
+    o = residual_options(options, **overrides)
+    p = residual_problem(measured, base_family, fields, order, o.every_k, o.cross_fit)
+    library = candidate_library(p, physics_families=o.physics_families, soft_phase_families=o.soft_phase_families,
+                                measured_candidates=o.measured_candidates, thermal=o.thermal,
+                                physics_reference_family=o.physics_reference_family,
+                                hamiltonian_families=o.hamiltonian_families)
     fits = fit_candidates(p, library)
-    base = baselines(p, library.hamiltonian_families, moment_tolerance)
+    base = baselines(p, library.hamiltonian_families, o.moment_tolerance)
     offered = gate_candidates(p, fits, base, GateSettings(
-        seed=seed, n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence, null_gain=null_gain,
-        null_margin=null_margin, field_shift=field_shift, drift=drift, moment_tolerance=moment_tolerance,
-        evidence_suffices=evidence_suffices, saturation_gate=saturation_gate, saturation_points=saturation_points))
+        seed=o.seed, n_boot=o.n_boot, min_relative_gain=o.min_relative_gain, equivalence=o.equivalence,
+        null_gain=o.null_gain, null_margin=o.null_margin, field_shift=o.field_shift, drift=o.drift,
+        moment_tolerance=o.moment_tolerance, evidence_suffices=o.evidence_suffices,
+        saturation_gate=o.saturation_gate, saturation_points=o.saturation_points))
     return Gated(p, fits, base, offered)
 
 
-def analyse_residual(measured, base_family, fields, order=None, *, physics_families=None, soft_phase_families=None,
-                     measured_candidates=None, every_k: int = 4, cross_fit: bool = True, n_boot: int = 2000,
-                     seed: int = 0, min_relative_gain: float = 0.05, equivalence: float = 0.05,
-                     thermal: bool = True, noise_sigma: float | None = None, floor_variance=None,
-                     n_profiles: int = 1, null_gain: dict | None = None,
-                     null_margin: float = 0.05, field_shift: dict | None = None, drift: dict | None = None,
-                     physics_reference_family=None, hamiltonian_families=None,
-                     moment_tolerance: float = MOMENT_TOLERANCE, evidence_suffices: bool = True,
-                     saturation_gate: bool = True, saturation_points=None, measured_patches: int = 1,
-                     sweep_rates: int = 1, null_structure: dict | None = None) -> dict:
+def analyse_residual(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
+                     **overrides) -> dict:
     """Trace the residual measured − re-simulated to the effect the model lacks.
 
-    Signature (all families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal,
-    m normalized to the film's saturation moment):
-
-    analyse_residual(measured, base_family, fields, order=None, *, physics_families=None,
-                     soft_phase_families=None, measured_candidates=None, every_k=4, cross_fit=True,
-                     n_boot=2000, seed=0, min_relative_gain=0.05, equivalence=0.05) -> dict
+    All families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal, m normalized to
+    the film's saturation moment. The options below are the fields of ``ResidualOptions`` (``options``), or
+    single ones given as keywords.
 
     ``seed``: the config seed; the bootstraps draw from its ``bootstrap`` stream (``core.streams``).
 
@@ -935,23 +964,17 @@ def analyse_residual(measured, base_family, fields, order=None, *, physics_famil
     one sweep rate (``sweep_rates`` < 2: "ambiguous: thermal_activation, switching-field distribution",
     the separating measurement a FORC family at another sweep rate).
     """
-    g = gated_candidates(measured, base_family, fields, order, physics_families=physics_families,
-                         soft_phase_families=soft_phase_families, measured_candidates=measured_candidates,
-                         every_k=every_k, cross_fit=cross_fit, n_boot=n_boot, seed=seed,
-                         min_relative_gain=min_relative_gain, equivalence=equivalence, thermal=thermal,
-                         null_gain=null_gain, null_margin=null_margin, field_shift=field_shift, drift=drift,
-                         physics_reference_family=physics_reference_family, hamiltonian_families=hamiltonian_families,
-                         moment_tolerance=moment_tolerance, evidence_suffices=evidence_suffices,
-                         saturation_gate=saturation_gate, saturation_points=saturation_points)
+    o = residual_options(options, **overrides)
+    g = gated_candidates(measured, base_family, fields, order, o)
     p, fits, base, offered = g.problem, g.fits, g.baselines, g.offered
-    choice = choose(p, fits, offered, seed, n_boot, min_relative_gain, equivalence)
-    verdict = judge(p, fits, choice.chosen, noise_sigma=noise_sigma, floor_variance=floor_variance,
-                    n_profiles=n_profiles, saturation_gate=saturation_gate, saturation_points=saturation_points,
-                    moment_tolerance=moment_tolerance, measured_patches=measured_patches,
-                    null_structure=null_structure)
-    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
-                        min_relative_gain=min_relative_gain, equivalence=equivalence)
-    verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, seed=seed, n_boot=n_boot,
-                                    min_relative_gain=min_relative_gain, equivalence=equivalence,
-                                    sweep_rates=sweep_rates)
-    return residual_report(p, fits, base, choice, verdict, field_shift, drift)
+    choice = choose(p, fits, offered, o.seed, o.n_boot, o.min_relative_gain, o.equivalence)
+    verdict = judge(p, fits, choice.chosen, noise_sigma=o.noise_sigma, floor_variance=o.floor_variance,
+                    n_profiles=o.n_profiles, saturation_gate=o.saturation_gate, saturation_points=o.saturation_points,
+                    moment_tolerance=o.moment_tolerance, measured_patches=o.measured_patches,
+                    null_structure=o.null_structure)
+    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=o.seed, n_boot=o.n_boot,
+                        min_relative_gain=o.min_relative_gain, equivalence=o.equivalence)
+    verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, seed=o.seed, n_boot=o.n_boot,
+                                    min_relative_gain=o.min_relative_gain, equivalence=o.equivalence,
+                                    sweep_rates=o.sweep_rates)
+    return residual_report(p, fits, base, choice, verdict, o.field_shift, o.drift)

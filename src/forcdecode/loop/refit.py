@@ -27,7 +27,6 @@ and the measurement that would separate them (the keys of ``analyse_residual``'s
 
 from __future__ import annotations
 
-import inspect
 
 import numpy as np
 
@@ -38,7 +37,7 @@ from .effects import (EFFECTS, HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors,
 from .patches import PATCH_CHOICES, POOL_SIZE, null_films, single_realisations
 from .signatures import calibrated_shift, field_shift, major_branches, major_loop_protocol, saturated_measured_points
 from ..infer.resimulate import major_loop_branches, resimulate, resimulate_measured, resimulate_with_spread
-from .physics_effects import (SAME_OBSERVABLE, analyse_residual, gated_candidates, merge_null_gains, null_gains,
+from .physics_effects import (GATED_OPTIONS, SAME_OBSERVABLE, analyse_residual, gated_candidates, merge_null_gains, null_gains,
                               physics_candidate_families)
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
@@ -279,7 +278,7 @@ def _offered_on_prediction(cfg: dict, params: dict, measured, fields, prediction
     refit's disorder (key "refit": common random numbers) and without K_u's neighbourhood (the refit
     is the Hamiltonian's change). Cost: one re-simulation per physics grid value, plus one."""
 
-    accepted = set(inspect.signature(gated_candidates).parameters)
+    accepted = GATED_OPTIONS
     dropped = {"physics_families", "soft_phase_families", "physics_reference_family", "hamiltonian_families"}
     kwargs = {k: v for k, v in options.items() if k in accepted and k not in dropped}
     if physics:
