@@ -122,14 +122,21 @@ def _code_commit(root) -> str:
 
 
 def _sealed_figures(metrics: dict) -> dict:
-    """{name: {"skill", "ci90", "mae"}} of the sealed set's parameters and combinations (Alice)."""
+    """{name: {"skill", "ci90", "mae", "against"}} of the sealed set (Alice): a parameter's skill over the best
+    trivial predictor (chosen on validation); a combination's the smaller of its skills over the prior and
+    over M_s only (the README's rule)."""
     sealed = metrics.get("sealed") or {}
     out = {}
-    for group in ("parameters", "combinations"):
-        for name, row in (sealed.get(group) or {}).items():
-            if "skill_vs_best_trivial" in row:
-                out[name] = {"skill": row["skill_vs_best_trivial"], "ci90": row.get("skill_vs_best_trivial_ci90"),
-                             "mae": row.get("mae")}
+    for name, row in (sealed.get("parameters") or {}).items():
+        if "skill_vs_best_trivial" in row:
+            out[name] = {"skill": row["skill_vs_best_trivial"], "ci90": row.get("skill_vs_best_trivial_ci90"),
+                         "mae": row.get("mae"), "against": "best trivial predictor"}
+    for name, row in (sealed.get("combinations") or {}).items():
+        skills = [(row[f"skill_vs_{k}"], row.get(f"skill_vs_{k}_ci90"), k) for k in ("prior", "ms_only")
+                  if row.get(f"skill_vs_{k}") is not None]
+        if skills:
+            skill, ci90, against = min(skills, key=lambda s: s[0])
+            out[name] = {"skill": skill, "ci90": ci90, "mae": row.get("mae"), "against": against}
     return out
 
 
@@ -173,7 +180,7 @@ def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None)
     reference, note = training_image_reference(models_dir, None, hashes)
     if reference is None:
         raise ModelFileError(f"cannot ship: the training-data check's reference: {note}")
-    cfg = load_config(results / "config.json")
+    cfg = read_json(results / "config.json", what="the main job's resolved config")  # the dataset's physics only
     metrics = read_json(results / "metrics.json", what="metrics")
     if not metrics.get("sealed"):
         raise ModelFileError(f"cannot ship: {results / 'metrics.json'} has no sealed-set figures (run the main job to "
@@ -190,6 +197,7 @@ def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None)
     files = {str(p.relative_to(out)): {"sha256": sha256(p), "bytes": p.stat().st_size}
              for p in sorted(out.rglob("*")) if p.is_file() and p.name != MANIFEST}
     manifest = {"format": FORMAT, "config_hash": config_hash(physics_config(cfg)), "model_config_hashes": hashes,
+                "physics_config": physics_config(cfg),
                 "code_commit": _code_commit(root or Path(__file__).resolve().parents[3]),
                 "dataset_sha256": sha256(results / "dataset.h5"), "prior_class": models_prior_class(models),
                 "film": {"name": "laptop default", "mesh": cfg["mesh"], "n_grains": cfg["n_grains"],
