@@ -155,7 +155,7 @@ def answer_table(prediction: Prediction, markdown: bool = False) -> list[str]:
                       "|---|---|---|---|---|---|---|"]
         else:
             lines.append(f"{title:<16}{'value':>12}  {'68 % interval':>26}  {'90 % interval':>26}  {extra:>18}  "
-                         f"{'unit':<8}read from the image?")
+                         f"{'unit':<9}read from the image?")
         for e in estimates.values():
             other = e.bob_error_normalized if title == "parameter" else e.defined_fraction
             other_text = _number(other, 0 if markdown else 18, 3) if other is not None else ("—" if markdown else f"{'—':>18}")
@@ -166,7 +166,7 @@ def answer_table(prediction: Prediction, markdown: bool = False) -> list[str]:
                     lines.append(f"| {e.name} | {shown} | — | — | {other_text if title == 'combination' else '—'} | "
                                  f"{e.unit} | no |")
                 else:
-                    lines.append(f"{e.name:<16}{shown:<88}  {e.unit:<8}no")
+                    lines.append(f"{e.name:<16}{shown:<88}  {e.unit:<9}no")
                 continue
             value = "undefined" if e.value is None else _number(e.value)
             if markdown:
@@ -174,7 +174,7 @@ def answer_table(prediction: Prediction, markdown: bool = False) -> list[str]:
                              f"{other_text} | {e.unit} | {e.read_mark or '—'} |")
             else:
                 lines.append(f"{e.name:<16}{value:>12}  {_interval(e.interval_68, False)}  "
-                             f"{_interval(e.interval_90, False)}  {other_text}  {e.unit:<8}{e.read_mark}")
+                             f"{_interval(e.interval_90, False)}  {other_text}  {e.unit:<9}{e.read_mark}")
     return lines
 
 
