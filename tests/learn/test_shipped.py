@@ -39,7 +39,7 @@ def test_the_manifest_describes_the_laptop_default_the_code_trains(manifest):
 
 def test_every_file_is_the_one_the_manifest_names(manifest):
     on_disk = {str(p.relative_to(SHIPPED)) for p in SHIPPED.rglob("*") if p.is_file()
-               and p.name not in ("manifest.json", "thickness.json")}
+               and p.name != "manifest.json"}
     assert on_disk == set(manifest["files"])
     total = 0
     for name, row in manifest["files"].items():
@@ -61,3 +61,25 @@ def test_the_shipped_models_load_and_answer(manifest):
     assert effect["n"] >= 100
     for name in TARGETS:
         assert effect[name]["mean_abs_du"] < 0.001 and abs(effect[name]["mae_change"]) < 0.002, name
+
+
+def test_the_readmes_headline_figures_are_the_manifests(manifest):
+    """The README's sealed-set table and posterior line quote the shipped manifest, digit for digit."""
+    import re
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    rows = {m.group(1): m for m in re.finditer(
+        r"^\| [^|]+ \| `(\w+)` \| ([\d.]+) \| \**([+-][\d.]+)\** \[([+-][\d.]+), ([+-][\d.]+)\] \|", readme, re.M)}
+    assert set(rows) >= {"K_u", "D", "A_ex", "N_pin", "sigma_w", "delta_w", "D_over_Dc", "Q"}, sorted(rows)
+    for name, m in rows.items():
+        figure = manifest["sealed"][name]
+        assert m.group(2) == f"{figure['mae']:.3f}", name
+        shown = [float(m.group(k)) for k in (3, 4, 5)]
+        assert shown == pytest.approx([figure["skill"], *figure["ci90"]], abs=0.0051), name
+    coverage = manifest["posterior_sealed"]["coverage_90"].values()
+    line = re.search(r"90 % intervals cover ([\d.]+)–([\d.]+) of the sealed families.*?TARP ([\d.]+)", readme, re.S)
+    assert line, "the README's posterior coverage line"
+    assert float(line.group(1)) == pytest.approx(min(coverage), abs=0.0051)
+    assert float(line.group(2)) == pytest.approx(max(coverage), abs=0.0051)
+    assert float(line.group(3)) == pytest.approx(manifest["posterior_sealed"]["tarp_coverage_90"], abs=0.0051)

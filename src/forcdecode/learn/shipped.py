@@ -206,6 +206,12 @@ def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None)
                 "half_precision": bool(half), "parameters": sorted(models), "files": files,
                 "sealed": _sealed_figures(metrics), "sealed_n": (metrics.get("sealed") or {}).get("n_sealed"),
                 "made_by": "forcdecode models ship --results " + str(results)}
+    posterior_metrics = results / "posterior" / "metrics.json"
+    if posterior_metrics.exists():  # the posterior's sealed calibration, which the README quotes
+        sealed = read_json(posterior_metrics, what="posterior metrics").get("sealed") or {}
+        manifest["posterior_sealed"] = {
+            "coverage_90": {n: row.get("coverage_90") for n, row in (sealed.get("per_parameter") or {}).items()},
+            "tarp_coverage_90": ((sealed.get("joint") or {}).get("tarp") or {}).get("coverage_90")}
     if half:  # measured, not assumed: the predictions of the stored weights against the trained ones
         manifest["half_precision_effect"] = precision_effect(models_dir, out / "models", results / "dataset.h5")
     write_json(out / MANIFEST, manifest)
