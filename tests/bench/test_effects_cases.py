@@ -484,3 +484,15 @@ def test_one_dev_case_end_to_end_on_a_small_film(tmp_path):
     s = summarize_user([row])
     assert s["n_library"] == 1 and s["oracle_inputs"] is False
     print(json.dumps({k: row[k] for k in ("status", "verdict", "scores", "sample_s", "loop_s")}))
+
+
+def test_shards_split_a_case_set_without_overlap():
+    from forcdecode.bench.cli import _shard
+    from forcdecode.core.errors import ConfigError
+
+    names = list(range(31))
+    parts = [names[_shard(f"{k}/3", len(names))] for k in (1, 2, 3)]
+    assert sorted(sum(parts, [])) == names and all(parts)
+    for bad in ("0/2", "3/2", "x", "1-2"):
+        with pytest.raises(ConfigError):
+            _shard(bad, 10)

@@ -52,6 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effects --independent: cases.jsonl (resumable), summary.json and the instrument files")
     parser.add_argument("--cases", nargs="+", help="effects --independent: run only these cases (names as in the "
                         "case file; with --oracle as in the table)")
+    parser.add_argument("--shard", metavar="K/N", help="effects --independent (user path): run every N-th case from "
+                        "the K-th (1 ≤ K ≤ N), so that N processes share a set; run them with one --effects-out (each "
+                        "appends its rows to the same cases.jsonl), then once without --shard: it runs nothing and "
+                        "writes the whole set's summary")
     parser.add_argument("--signatures", action="store_true",
                         help="effects --independent: validate the model-free field-shift test instead, on magnum.np "
                              "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
@@ -305,6 +309,8 @@ def _bench_effects_user(args, say) -> int:
         if unknown:
             raise ConfigError(f"--cases: unknown {sorted(unknown)} in the {args.case_set} set")
         cases = [c for c in cases if c["name"] in args.cases]
+    if args.shard:
+        cases = cases[_shard(args.shard, len(cases))]
     check_estimator(loop_args, args.without_estimator)  # refuses before any simulation
     out = Path(args.effects_out) / "user" / args.case_set
     with progress(total=len(cases), desc=f"{args.case_set} cases", unit="cases") as bar:
@@ -316,6 +322,20 @@ def _bench_effects_user(args, say) -> int:
         result = user_confusion(cases, out, loop_args=loop_args, fallback=args.without_estimator,
                                 cache_dir=args.cache_dir, out_jsonl=out / "cases.jsonl", progress=done)
     return _finish(out, result, user_summary_lines(result), args.json, say, omit="cases")
+
+
+def _shard(text: str, count: int) -> slice:
+    """``--shard K/N`` as the slice of the case list it runs (every N-th case from the K-th); ConfigError
+    for anything else."""
+    from ..core.errors import ConfigError
+
+    try:
+        k, n = (int(v) for v in str(text).split("/"))
+    except ValueError:
+        raise ConfigError(f"--shard {text!r}: give K/N, e.g. 1/2") from None
+    if not 1 <= k <= n:
+        raise ConfigError(f"--shard {text!r}: K must be in 1..N")
+    return slice(k - 1, count, n)
 
 
 def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
