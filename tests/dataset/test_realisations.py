@@ -19,6 +19,7 @@ from forcdecode.config import dataset_config, defaults, load_config, realisation
 from forcdecode.core.errors import ConfigError, DatasetError
 from forcdecode.core.streams import STREAMS, stream_rng
 from forcdecode.dataset import simulate as simulate_module
+from forcdecode.dataset import stages as stages_module
 from forcdecode.dataset.merge import config_hash, merge, physics_config
 from forcdecode.dataset.params import draw_parameters
 from forcdecode.dataset.simulate import realisation_rng, simulate
@@ -241,7 +242,7 @@ def test_llg_raw_curves_are_kept_per_realisation(cfg, tmp_path, monkeypatch):
     small = {**cfg, "family_chunk_size": 8, "realisations": 2}
     draw_stage(small, tmp_path / "params.parquet", chunk=0)
     pd.DataFrame({"sample_id": [3], "screen_status": ["passed"]}).to_parquet(tmp_path / "screen.parquet")
-    monkeypatch.setattr(simulate_module, "simulate", fake)
+    monkeypatch.setattr(stages_module, "simulate", fake)  # where the stage looks it up
     simulate_stage(small, tmp_path / "params.parquet", tmp_path / "screen.parquet", 0, tmp_path / "f.h5", part=0)
     with h5py.File(tmp_path / "f.h5", "r") as h5:
         assert h5.attrs["realisations"] == 2 and sorted(h5["raw/3"]) == ["0", "1"]

@@ -22,6 +22,7 @@ from forcdecode.micromag.disorder import periodic_voronoi_labels
 
 ROOT = Path(__file__).resolve().parents[2]
 resim = importlib.import_module("forcdecode.infer.resimulate")  # the module (the package exports the function)
+route = importlib.import_module("forcdecode.forc.simulate")  # the module: the one route from a Hamiltonian to a family
 SAMPLE = 5
 # a square-loop film whose FORCs hardly depend on the disorder realisation on 16x16 cells
 TRUTH = dict(Ms=8e5, A_ex=1.2e-11, K_u=1.5e6, D=1e-3, N_pin=2, sigma_theta_deg=5.0, sigma_K=0.1)
@@ -57,7 +58,7 @@ def _table(predicted: dict) -> pd.DataFrame:
 def exact(cfg, medians, input_family):
     """Closed loop of a prediction equal to the truth; the film builder records every disorder drawn."""
     drawn = []
-    real = resim.build_film
+    real = route.build_film
 
     def spy(cfg_, params, sample_id=None, pinning=None, rng=None):
         film, m0, disorder = real(cfg_, params, sample_id, pinning=pinning, rng=rng)
@@ -65,7 +66,7 @@ def exact(cfg, medians, input_family):
         return film, m0, disorder
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(resim, "build_film", spy)
+        mp.setattr(route, "build_film", spy)  # the one route into the engine (forc.simulate)
         result, families = simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family},
                                                  pd.DataFrame([TRUTH], index=[SAMPLE]), medians, max_samples=5,
                                                  realisations=3)
@@ -117,7 +118,7 @@ def test_llg_protocol_runs_the_adaptive_family_with_slaved_pinning(cfg, monkeypa
     # fast settings (heavy damping, high slew rates) that still reverse the film
     small["protocol"] = {"name": "llg", "alpha": 1.0, "safety": 0.2, "rate_min_T_per_s": 1e8, "rate_max_T_per_s": 1e10}
     calls = {"adaptive": 0, "pinning": []}
-    real_adaptive, real_build = resim.adaptive_family, resim.build_film
+    real_adaptive, real_build = route.adaptive_family, route.build_film
 
     def adaptive(*args, **kwargs):
         calls["adaptive"] += 1
@@ -130,9 +131,9 @@ def test_llg_protocol_runs_the_adaptive_family_with_slaved_pinning(cfg, monkeypa
     def quasistatic(*args, **kwargs):
         raise AssertionError("the llg protocol must not run the quasi-static family")
 
-    monkeypatch.setattr(resim, "adaptive_family", adaptive)
-    monkeypatch.setattr(resim, "build_film", build)
-    monkeypatch.setattr(resim, "quasistatic_family", quasistatic)
+    monkeypatch.setattr(route, "adaptive_family", adaptive)
+    monkeypatch.setattr(route, "build_film", build)
+    monkeypatch.setattr(route, "quasistatic_family", quasistatic)
     soft = {**TRUTH, "K_u": 3e5, "N_pin": 0}
     curves = resim.simulate_family(small, soft, stream_rng(cfg["seed"], "closed_loop_disorder", 0, 0))
     assert calls == {"adaptive": 1, "pinning": ["slaved"]}

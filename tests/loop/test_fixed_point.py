@@ -113,10 +113,10 @@ def _fake_analysis(chosen_per_call, K_u_per_call=None, chi_per_call=None):
 
 
 def test_alternating_effects_are_never_reported_as_converged(monkeypatch):
-    import forcdecode.loop.refit as refit
+    import forcdecode.loop.fixed_point as fixed_point  # where the iteration looks the analysis up
 
     analyse, calls = _fake_analysis(["background", "field_offset"] * 3)
-    monkeypatch.setattr(refit, "analyse_with_refit", analyse)
+    monkeypatch.setattr(fixed_point, "analyse_with_refit", analyse)
     seen = []
     measured = np.triu(np.ones((N, N))) + 0.1 * FIELDS[None, :]
     measured[np.tril_indices(N, -1)] = np.nan
@@ -132,12 +132,12 @@ def test_alternating_effects_are_never_reported_as_converged(monkeypatch):
 
 
 def test_the_same_effect_with_a_moving_hamiltonian_is_not_a_fixed_point(monkeypatch):
-    import forcdecode.loop.refit as refit
+    import forcdecode.loop.fixed_point as fixed_point  # where the iteration looks the analysis up
 
     # the fitted background moves a little each time, so each prediction differs and is analysed anew
     analyse, calls = _fake_analysis(["background"], K_u_per_call={0: 4.0e5, 1: 4.4e5, 2: 4.41e5},
                                     chi_per_call={0: 0.09, 1: 0.095, 2: 0.096})
-    monkeypatch.setattr(refit, "analyse_with_refit", analyse)
+    monkeypatch.setattr(fixed_point, "analyse_with_refit", analyse)
     measured = np.triu(np.ones((N, N))) + 0.1 * FIELDS[None, :]
     measured[np.tril_indices(N, -1)] = np.nan
     result = predict_correct_iterate(CFG, biased_predictor(), measured, FIELDS, max_iterations=4)
@@ -149,7 +149,7 @@ def test_the_same_effect_with_a_moving_hamiltonian_is_not_a_fixed_point(monkeypa
     # with a 0.1 % tolerance the same run is not a fixed point
     analyse, _ = _fake_analysis(["background"], K_u_per_call={0: 4.0e5, 1: 4.4e5, 2: 4.41e5, 3: 4.43e5},
                                 chi_per_call={0: 0.09, 1: 0.095, 2: 0.096, 3: 0.097})
-    monkeypatch.setattr(refit, "analyse_with_refit", analyse)
+    monkeypatch.setattr(fixed_point, "analyse_with_refit", analyse)
     result = predict_correct_iterate(CFG, biased_predictor(), measured, FIELDS, max_iterations=4, tolerance=0.001)
     assert result["converged"] is False and result["n_iterations"] == 4
 
@@ -243,7 +243,7 @@ def test_the_loop_reports_the_iterations(tmp_path, monkeypatch):
 def test_a_joint_refit_that_misses_the_held_out_curves_is_not_used(monkeypatch):
     """The joint refit (Hamiltonian and offset together) lands on an offset that misplaces the held-out
     curves: the iteration reads the effect on the Hamiltonian refitted without it instead."""
-    import forcdecode.loop.refit as refit
+    import forcdecode.loop.fixed_point as fixed_point  # where the iteration looks the analysis up
 
     def analyse(cfg, params, measured, fields, **options):
         without = {**params, "K_u": 4.2e5}
@@ -253,7 +253,7 @@ def test_a_joint_refit_that_misses_the_held_out_curves_is_not_used(monkeypatch):
                 "parameters": {"offset_T": 0.01},
                 "hamiltonian": {"prediction": params, "refit_without_effect": without, "refit_with_effect": joint}}
 
-    monkeypatch.setattr(refit, "analyse_with_refit", analyse)
+    monkeypatch.setattr(fixed_point, "analyse_with_refit", analyse)
     measured = np.triu(np.ones((N, N)))
     measured[np.tril_indices(N, -1)] = np.nan
     result = predict_correct_iterate(CFG, biased_predictor(), measured, FIELDS, max_iterations=2)

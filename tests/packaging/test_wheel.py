@@ -112,3 +112,14 @@ def test_read_and_loop_from_another_directory(installed):
     _run([forcdecode, "loop", data, "--out", "loop"], installed["cwd"], installed["env"])
     report = json.loads((installed["cwd"] / "loop" / "report.json").read_text())
     assert report["status"] == "out of domain" and report["in_domain"] is False
+
+
+def test_the_wheel_ships_the_trained_models_and_stays_under_50_mb(installed):
+    """Issue 60: a file decoded right after `pip install`: the shipped models come with the wheel."""
+    size_mb = installed["wheel"].stat().st_size / 1e6
+    assert size_mb < 50, f"the wheel is {size_mb:.1f} MB"
+    out = _run([installed["python"], "-c", "from forcdecode.learn.shipped import read_manifest, resolve_models; "
+                "d, line = resolve_models(None); read_manifest(d.parent); print(line)"],
+               installed["cwd"], installed["env"]).stdout
+    assert out.startswith("models: the shipped laptop default models"), out
+    print(f"wheel {installed['wheel'].name}: {size_mb:.1f} MB")

@@ -327,8 +327,6 @@ def _bench_effects_user(args, say) -> int:
 def _shard(text: str, count: int) -> slice:
     """``--shard K/N`` as the slice of the case list it runs (every N-th case from the K-th); ConfigError
     for anything else."""
-    from ..core.errors import ConfigError
-
     try:
         k, n = (int(v) for v in str(text).split("/"))
     except ValueError:

@@ -198,8 +198,6 @@ def run(args) -> int:
                                split_seed=int(cfg["seed"]), learning=learning, draws=args.draws,
                                levels=(est.metadata.get("settings") or {}).get("levels"))
         if args.out:
-            from ..core.io import write_json
-
             write_json(args.out, table)
         for line in split_coverage_lines(table):
             print(line)

@@ -862,8 +862,6 @@ def _markdown(path, report, analysis) -> str:
                 lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
                              f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
             if refined.get("beyond_prior"):
-                from ..infer.refine import beyond_prior_lines
-
                 lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
             check = refined.get("predictive_check")
             if check:
