@@ -127,178 +127,232 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1)
 
 
-def run(args) -> int:
-    import torch
+def _step_train(args) -> int:
+    """`forcdecode learn train`."""
+    import torch  # heavy: only the steps that train or sample load it
 
-    if args.step == "train":
-        from ..core.parameters import TARGETS
-        from .data import load_dataset
-        from .pipeline import train_parameter
+    from ..core.parameters import TARGETS
+    from .data import load_dataset
+    from .pipeline import train_parameter
 
-        torch.set_num_threads(max(1, args.threads))
-        cfg = read_config(args.config)
-        if args.parameter not in TARGETS:
-            raise ConfigError(f"unknown parameter {args.parameter!r} (one of {', '.join(TARGETS)})")
-        data = load_dataset(args.dataset)
-        metrics = train_parameter(data, args.parameter, cfg.get("learning", {}), cfg["seed"], args.model,
-                                  args.predictions, log=_log)
-        write_json(args.metrics, json.loads(json.dumps(metrics, default=float)))
-        return 0
-    if args.step == "posterior":
-        from pathlib import Path
+    torch.set_num_threads(max(1, args.threads))
+    cfg = read_config(args.config)
+    if args.parameter not in TARGETS:
+        raise ConfigError(f"unknown parameter {args.parameter!r} (one of {', '.join(TARGETS)})")
+    data = load_dataset(args.dataset)
+    metrics = train_parameter(data, args.parameter, cfg.get("learning", {}), cfg["seed"], args.model,
+                              args.predictions, log=_log)
+    write_json(args.metrics, json.loads(json.dumps(metrics, default=float)))
+    return 0
 
-        from .data import load_dataset
-        from .posterior import train_posterior
 
-        torch.set_num_threads(max(1, args.threads))
-        cfg = read_config(args.config)
-        settings = dict(cfg.get("posterior") or {})
-        if args.settings:
-            try:
-                settings.update(json.loads(args.settings))
-            except (json.JSONDecodeError, TypeError, ValueError) as error:
-                raise ConfigError(f"--settings is not a JSON mapping: {error}") from None
-        data = load_dataset(args.dataset)
-        train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
-                        Path(args.figures) / "posterior_calibration.png", log=_log)
-        return 0
-    if args.step == "posterior-check":
-        from .data import load_dataset
-        from .posterior import PosteriorEstimator
-        from .posterior_check import check_lines, fresh_calibration, write_check
+def _step_posterior(args) -> int:
+    """`forcdecode learn posterior`."""
+    import torch  # heavy: only the steps that train or sample load it
 
-        torch.set_num_threads(max(1, args.threads))
-        est = PosteriorEstimator.load(args.posterior)
-        training = load_dataset(args.training_dataset) if args.training_dataset else None
-        seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
-        levels = (est.metadata.get("settings") or {}).get("levels")  # None: the posterior section's default
-        learning, split_seed = None, None
-        if args.config:
-            from ..config import defaults
+    from pathlib import Path
 
-            cfg = read_config(args.config)
-            learning, split_seed = {**defaults("learning"), **(cfg.get("learning") or {})}, int(cfg["seed"])
-        metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
-                                    training_data=training, learning=learning, split_seed=split_seed)
-        write_check(metrics, args.out, args.figure)
-        for line in check_lines(metrics):
-            print(line)
-        return 0
-    if args.step == "posterior-splits":
+    from .data import load_dataset
+    from .posterior import train_posterior
+
+    torch.set_num_threads(max(1, args.threads))
+    cfg = read_config(args.config)
+    settings = dict(cfg.get("posterior") or {})
+    if args.settings:
+        try:
+            settings.update(json.loads(args.settings))
+        except (json.JSONDecodeError, TypeError, ValueError) as error:
+            raise ConfigError(f"--settings is not a JSON mapping: {error}") from None
+    data = load_dataset(args.dataset)
+    train_posterior(data, settings, cfg.get("learning", {}), cfg["seed"], args.model, args.metrics,
+                    Path(args.figures) / "posterior_calibration.png", log=_log)
+    return 0
+
+
+def _step_posterior_check(args) -> int:
+    """`forcdecode learn posterior-check`."""
+    import torch  # heavy: only the steps that train or sample load it
+
+    from .data import load_dataset
+    from .posterior import PosteriorEstimator
+    from .posterior_check import check_lines, fresh_calibration, write_check
+
+    torch.set_num_threads(max(1, args.threads))
+    est = PosteriorEstimator.load(args.posterior)
+    training = load_dataset(args.training_dataset) if args.training_dataset else None
+    seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
+    levels = (est.metadata.get("settings") or {}).get("levels")  # None: the posterior section's default
+    learning, split_seed = None, None
+    if args.config:
         from ..config import defaults
-        from .data import load_dataset
-        from .posterior import PosteriorEstimator
-        from .posterior_check import split_coverage, split_coverage_lines
 
-        torch.set_num_threads(max(1, args.threads))
-        est = PosteriorEstimator.load(args.posterior)
+        cfg = read_config(args.config)
+        learning, split_seed = {**defaults("learning"), **(cfg.get("learning") or {})}, int(cfg["seed"])
+    metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
+                                training_data=training, learning=learning, split_seed=split_seed)
+    write_check(metrics, args.out, args.figure)
+    for line in check_lines(metrics):
+        print(line)
+    return 0
+
+
+def _step_posterior_splits(args) -> int:
+    """`forcdecode learn posterior-splits`."""
+    import torch  # heavy: only the steps that train or sample load it
+
+    from ..config import defaults
+    from .data import load_dataset
+    from .posterior import PosteriorEstimator
+    from .posterior_check import split_coverage, split_coverage_lines
+
+    torch.set_num_threads(max(1, args.threads))
+    est = PosteriorEstimator.load(args.posterior)
+    cfg = read_config(args.config)
+    learning = {**defaults("learning"), **(cfg.get("learning") or {})}
+    table = split_coverage(est, load_dataset(args.dataset), seed=int(est.metadata.get("seed", cfg["seed"])),
+                           split_seed=int(cfg["seed"]), learning=learning, draws=args.draws,
+                           levels=(est.metadata.get("settings") or {}).get("levels"))
+    if args.out:
+        write_json(args.out, table)
+    for line in split_coverage_lines(table):
+        print(line)
+    return 0
+
+
+def _step_posterior_recalibrate(args) -> int:
+    """`forcdecode learn posterior-recalibrate`."""
+    import torch  # heavy: only the steps that train or sample load it
+
+    from ..config import defaults
+    from .data import load_dataset
+    from .posterior import PosteriorEstimator
+    from .posterior_check import (apply_recalibration, check_lines, fresh_calibration, fresh_recalibration,
+                                  recalibration_lines)
+    from .splits import assign_splits
+
+    torch.set_num_threads(max(1, args.threads))
+    est = PosteriorEstimator.load(args.posterior)
+    training = load_dataset(args.training_dataset) if args.training_dataset else None
+    seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
+    fresh = load_dataset(args.dataset)
+    record = fresh_recalibration(est, fresh, seed=seed, draws=args.draws, training_data=training,
+                                 gate_alpha=args.gate_alpha)
+    est.metadata = apply_recalibration(est, record, fresh.sample_id, training)
+    report = {"recalibration": record, "test_split": None}
+    if args.config:
+        if training is None:
+            raise ConfigError("--config scores the training run's test split: pass --training-dataset too")
         cfg = read_config(args.config)
         learning = {**defaults("learning"), **(cfg.get("learning") or {})}
-        table = split_coverage(est, load_dataset(args.dataset), seed=int(est.metadata.get("seed", cfg["seed"])),
-                               split_seed=int(cfg["seed"]), learning=learning, draws=args.draws,
-                               levels=(est.metadata.get("settings") or {}).get("levels"))
-        if args.out:
-            write_json(args.out, table)
-        for line in split_coverage_lines(table):
+        test = assign_splits(training.sample_id, cfg["seed"], learning["split"], learning["protocol"])["test"]
+        levels = (est.metadata.get("settings") or {}).get("levels")
+        report["test_split"] = fresh_calibration(est, training.take(test), seed=seed, draws=args.draws,
+                                                 levels=levels)
+        report["test_split"]["reported_on"] = "the training run's test split, recalibrated on the fresh draw"
+    est.save(args.out, **est.metadata)
+    write_json(args.report, json.loads(json.dumps(report, default=float)))
+    for line in recalibration_lines(record):
+        print(line)
+    if report["test_split"] is not None:
+        print("on the training run's test split:")
+        for line in check_lines(report["test_split"])[1:]:
             print(line)
-        return 0
-    if args.step == "posterior-recalibrate":
-        from ..config import defaults
-        from .data import load_dataset
-        from .posterior import PosteriorEstimator
-        from .posterior_check import (apply_recalibration, check_lines, fresh_calibration, fresh_recalibration,
-                                      recalibration_lines)
-        from .splits import assign_splits
+    return 0
 
-        torch.set_num_threads(max(1, args.threads))
-        est = PosteriorEstimator.load(args.posterior)
-        training = load_dataset(args.training_dataset) if args.training_dataset else None
-        seed = args.seed if args.seed is not None else int(est.metadata.get("seed", 0))
-        fresh = load_dataset(args.dataset)
-        record = fresh_recalibration(est, fresh, seed=seed, draws=args.draws, training_data=training,
-                                     gate_alpha=args.gate_alpha)
-        est.metadata = apply_recalibration(est, record, fresh.sample_id, training)
-        report = {"recalibration": record, "test_split": None}
-        if args.config:
-            if training is None:
-                raise ConfigError("--config scores the training run's test split: pass --training-dataset too")
-            cfg = read_config(args.config)
-            learning = {**defaults("learning"), **(cfg.get("learning") or {})}
-            test = assign_splits(training.sample_id, cfg["seed"], learning["split"], learning["protocol"])["test"]
-            levels = (est.metadata.get("settings") or {}).get("levels")
-            report["test_split"] = fresh_calibration(est, training.take(test), seed=seed, draws=args.draws,
-                                                     levels=levels)
-            report["test_split"]["reported_on"] = "the training run's test split, recalibrated on the fresh draw"
-        est.save(args.out, **est.metadata)
-        write_json(args.report, json.loads(json.dumps(report, default=float)))
-        for line in recalibration_lines(record):
-            print(line)
-        if report["test_split"] is not None:
-            print("on the training run's test split:")
-            for line in check_lines(report["test_split"])[1:]:
-                print(line)
-        return 0
-    if args.step == "compare":
-        from .compare import compare_estimators, comparison_markdown
 
-        for line in comparison_markdown(compare_estimators(args.metrics, args.posterior, out=args.out)):
-            print(line)
-        return 0
-    if args.step == "posterior-tune":
-        from .data import load_dataset
-        from .posterior_tune import tune_posterior, tuning_lines
+def _step_compare(args) -> int:
+    """`forcdecode learn compare`."""
+    from .compare import compare_estimators, comparison_markdown
 
-        torch.set_num_threads(max(1, args.threads))
-        cfg = read_config(args.config)
-        from json import JSONDecodeError, loads
+    for line in comparison_markdown(compare_estimators(args.metrics, args.posterior, out=args.out)):
+        print(line)
+    return 0
 
-        from .posterior_tune import CANDIDATES
 
-        try:
-            candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
-        except JSONDecodeError as error:
-            raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
-        if not candidates or not all(isinstance(c, dict) for c in candidates):
-            raise ConfigError(f"--candidates must be a non-empty JSON list of settings mappings, got {args.candidates}")
-        result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
-                                cfg["seed"], candidates=candidates, out=args.out, log=_log,
-                                weight_seeds=tuple(range(max(1, args.weight_seeds))))
-        for line in tuning_lines(result):
-            print(line)
-        return 0
-    if args.step == "evaluate":
-        from .report import evaluate, markdown
+def _step_posterior_tune(args) -> int:
+    """`forcdecode learn posterior-tune`."""
+    import torch  # heavy: only the steps that train or sample load it
 
-        from ..config import defaults
+    from .data import load_dataset
+    from .posterior_tune import tune_posterior, tuning_lines
 
-        cfg = read_config(args.config) if args.config else {}
-        n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
-        metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
-                           dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models,
-                           sealed=read_json(args.sealed, what="sealed figures") if args.sealed else None)
-        print(markdown(metrics))
-        return 0
-    if args.step == "sealed":
-        from ..config import defaults
-        from .data import load_dataset
-        from .predictor import load_models
-        from .sealed import alice_sealed_metrics, sealed_lines
+    torch.set_num_threads(max(1, args.threads))
+    cfg = read_config(args.config)
+    from json import JSONDecodeError, loads
 
-        cfg = read_config(args.config)
-        settings = {**defaults("learning"), **(cfg.get("learning") or {})}
-        metrics = alice_sealed_metrics(load_models(args.models), load_dataset(args.dataset), load_dataset(args.sealed),
-                                       seed=int(cfg["seed"]), settings=settings, n_boot=int(settings["bootstrap"]))
-        write_json(args.out, json.loads(json.dumps(metrics, default=float)))
-        for line in sealed_lines(metrics):
-            print(line)
-        return 0
-    if args.step == "attach-sealed":
-        from .sealed import attach_sealed
+    from .posterior_tune import CANDIDATES
 
-        write_json(args.out, attach_sealed(read_json(args.metrics, what="metrics"),
-                                           read_json(args.sealed, what="sealed figures")))
-        return 0
-    raise ValueError(f"unknown step {args.step}")  # argparse allows only the steps above
+    try:
+        candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
+    except JSONDecodeError as error:
+        raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
+    if not candidates or not all(isinstance(c, dict) for c in candidates):
+        raise ConfigError(f"--candidates must be a non-empty JSON list of settings mappings, got {args.candidates}")
+    result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
+                            cfg["seed"], candidates=candidates, out=args.out, log=_log,
+                            weight_seeds=tuple(range(max(1, args.weight_seeds))))
+    for line in tuning_lines(result):
+        print(line)
+    return 0
+
+
+def _step_evaluate(args) -> int:
+    """`forcdecode learn evaluate`."""
+    from .report import evaluate, markdown
+
+    from ..config import defaults
+
+    cfg = read_config(args.config) if args.config else {}
+    n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
+    metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
+                       dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models,
+                       sealed=read_json(args.sealed, what="sealed figures") if args.sealed else None)
+    print(markdown(metrics))
+    return 0
+
+
+def _step_sealed(args) -> int:
+    """`forcdecode learn sealed`."""
+    from ..config import defaults
+    from .data import load_dataset
+    from .predictor import load_models
+    from .sealed import alice_sealed_metrics, sealed_lines
+
+    cfg = read_config(args.config)
+    settings = {**defaults("learning"), **(cfg.get("learning") or {})}
+    metrics = alice_sealed_metrics(load_models(args.models), load_dataset(args.dataset), load_dataset(args.sealed),
+                                   seed=int(cfg["seed"]), settings=settings, n_boot=int(settings["bootstrap"]))
+    write_json(args.out, json.loads(json.dumps(metrics, default=float)))
+    for line in sealed_lines(metrics):
+        print(line)
+    return 0
+
+
+def _step_attach_sealed(args) -> int:
+    """`forcdecode learn attach-sealed`."""
+    from .sealed import attach_sealed
+
+    write_json(args.out, attach_sealed(read_json(args.metrics, what="metrics"),
+                                       read_json(args.sealed, what="sealed figures")))
+    return 0
+
+STEPS = {
+    "train": _step_train,
+    "posterior": _step_posterior,
+    "posterior-check": _step_posterior_check,
+    "posterior-splits": _step_posterior_splits,
+    "posterior-recalibrate": _step_posterior_recalibrate,
+    "compare": _step_compare,
+    "posterior-tune": _step_posterior_tune,
+    "evaluate": _step_evaluate,
+    "sealed": _step_sealed,
+    "attach-sealed": _step_attach_sealed,
+}
+"""`forcdecode learn STEP`: each step's runner (args → exit status)."""
+
+
+def run(args) -> int:
+    return STEPS[args.step](args)
 
 
 # ---------------------------------------------------------------- predict
