@@ -3,17 +3,18 @@
 import numpy as np
 import pytest
 
-from forcdecode.bench.thickness import SAFE_MAE_INCREASE, film_at, safe_range, summarize
+from forcdecode.bench.thickness import SAFE_MAE_INCREASE, safe_range, summarize
+from forcdecode.config import with_thickness
 from forcdecode.core.errors import ConfigError
 
 
-def test_film_at_changes_only_the_layer_thickness():
+def test_a_film_at_another_thickness_changes_only_the_layer_thickness():
     cfg = {"mesh": {"nx": 64, "ny": 64, "nz": 1, "dx_nm": 2.0, "dy_nm": 2.0, "dz_nm": 4.0}, "seed": 1}
-    thin = film_at(cfg, 2.0)
+    thin = with_thickness(cfg, 2.0)
     assert thin["mesh"] == {**cfg["mesh"], "dz_nm": 2.0} and cfg["mesh"]["dz_nm"] == 4.0
-    assert film_at({**cfg, "mesh": {**cfg["mesh"], "nz": 2}}, 8.0)["mesh"]["nz"] == 1
+    assert with_thickness({**cfg, "mesh": {**cfg["mesh"], "nz": 2}}, 8.0)["mesh"]["nz"] == 1
     with pytest.raises(ConfigError):
-        film_at(cfg, 0.0)
+        with_thickness(cfg, 0.0)
 
 
 def _rows(errors_by_thickness, n=80, seed=0):

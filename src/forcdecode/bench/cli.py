@@ -7,17 +7,17 @@ import argparse
 import json
 import os
 
-from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_function, parse_extension
-from . import engine, film_learning, films, prior_learning, realisations
 from ..config import defaults, load_config, shipped_config
 from ..core.errors import ConfigError
 from ..core.io import read_json, write_json
 from ..core.parameters import NAMES, normalize
 from ..core.progress import counter, echo, progress
 from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic
+from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_function, parse_extension
 from ..learn.data import load_dataset
 from ..learn.shipped import resolve_models
 from ..learn.splits import assign_splits
+from . import engine, film_learning, films, prior_learning, realisations
 from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
                                   user_summary_lines)
 from .information_cli import bench_information

@@ -32,13 +32,13 @@ import numpy as np
 
 from ..core import physics as phys
 from ..core.errors import ConfigError, ForcdecodeError, ModelFileError
-from ..loop.effects import NO_EFFECT_MEMBERS
 from ..core.io import atomic_path, read_json, write_json
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..forc.raster import measured_image
 from ..loop import command
 from ..loop.command import resolve_estimator
+from ..loop.effects import NO_EFFECT_MEMBERS
 from ..loop.physics_effects import NULL_REALISATIONS, ResidualOptions
 from ..loop.refit import analyse_with_refit, joint_generalises
 from ..loop.signatures import drift_evidence_of, field_shift_of, measured_point_arrays

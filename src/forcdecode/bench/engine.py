@@ -12,13 +12,13 @@ import time
 
 import numpy as np
 
-from ..core.streams import stream_rng
-from ..forc.protocol import quasistatic_family
-from ..micromag import Mesh, disordered_film
 from ..config import defaults, load_config, shipped_config
+from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..forc.adaptive import adaptive_family
+from ..forc.protocol import quasistatic_family
 from ..forc.raster import rasterize_grid_family
+from ..micromag import Mesh, disordered_film
 from ..micromag.build import sweep_options
 from ..micromag.effective_field import compute_effective_field
 from ..reference.magnumnp_film import MagnumFilm

@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import norm
 
-from ..core.streams import stream_rng
 from ..config import load_config, shipped_config
+from ..core.streams import stream_rng
 from ..forc.protocol import quasistatic_family
 from ..micromag.build import sweep_options
 from ..micromag.film import Film

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from . import information_films as info
 from ..config import load_config, shipped_config
 from ..core.errors import ConfigError
 from ..core.io import write_json
+from . import information_films as info
 
 FILMS_TARGET_DEFAULT = ["laptop:20x2", "laptop_paper_grains:20x2", "box128:20x1", "box128:8x2", "paper:5x1"]
 """``--films``'s default belongs to ``bench films``; left at it, ``bench information`` runs the laptop film."""

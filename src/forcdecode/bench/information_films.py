@@ -44,19 +44,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.parameters import denormalize, normalize
 from ..core import physics
-from .films import film_config
-from .information import (QUANT_STEP, _finite_list, best_direction, best_matched_direction, compressed_fisher, crb,
-                          fisher_from_families, matched_direction_crb, matched_filter_crb_pooled, principal_angle_deg,
-                          stencil, upper_triangle)
 from ..core.io import atomic_path, write_json
+from ..core.parameters import denormalize, normalize
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..dataset.simulate import screen
 from ..forc.protocol import quasistatic_family
 from ..forc.raster import rasterize_grid_family
 from ..micromag.build import build_film, slew_rate_options, sweep_options
+from .films import film_config
+from .information import (QUANT_STEP, _finite_list, best_direction, best_matched_direction, compressed_fisher, crb,
+                          fisher_from_families, matched_direction_crb, matched_filter_crb_pooled, principal_angle_deg,
+                          stencil, upper_triangle)
 
 NAMES = ("K_u", "A_ex", "D", "N_pin", "sigma_theta_deg", "sigma_K")
 """The parameters differentiated (normalized units; M_s is given)."""

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from ..core.streams import stream_rng
 from . import effects_independent

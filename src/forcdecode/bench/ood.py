@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import ConfigError
-from ..core.parameters import DEFAULT_BOUNDS
 from ..core.io import read_json, write_json
+from ..core.parameters import DEFAULT_BOUNDS
 from ..dataset.simulate import simulate
 from ..forc.raster import rasterize_grid_family
 from ..infer.predictive_check import check_figure, predictive_check

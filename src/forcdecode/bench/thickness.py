@@ -49,12 +49,6 @@ FILE = "thickness.json"
 """The study's summary (the table and the safe range); shipped beside the models' manifest."""
 
 
-film_at = with_thickness
-"""The config's film at another thickness (``config.with_thickness``)."""
-models_thickness_nm = film_thickness_nm
-"""The thickness (nm) of the config's film (``config.film_thickness_nm``)."""
-
-
 def draw_cases(cfg: dict, count: int, first_id: int = FIRST_ID, max_draws: int | None = None) -> list[tuple[int, dict]]:
     """``count`` Hamiltonians of the config's prior class that pass the dataset's screening on the config's
     own film (what the models were trained on), with their sample ids (the disorder of each is its id's)."""
@@ -73,7 +67,7 @@ def decode_row(cfg: dict, models: dict, sample_id: int, params: dict, thickness_
     """One Hamiltonian as a film of ``thickness_nm``, decoded: truth and prediction in prior widths."""
     prior = Prior(cfg.get("prior", "paper"), cfg.get("bounds"))
     start = time.perf_counter()
-    family = simulate(film_at(cfg, thickness_nm), params, sample_id)
+    family = simulate(with_thickness(cfg, thickness_nm), params, sample_id)
     row = {"sample_id": int(sample_id), "thickness_nm": float(thickness_nm), "status": family["status"],
            "family_s": time.perf_counter() - start}
     if family["status"] != "ok":
@@ -111,7 +105,7 @@ def run_study(cfg: dict, models_dir, out_dir, count: int = 60, thicknesses_nm=TH
                 progress(row)
     ids = {sample_id for sample_id, _ in cases}
     rows = [r for r in read_rows(rows_path) if r["sample_id"] in ids and r["thickness_nm"] in set(map(float, thicknesses_nm))]
-    summary = summarize(rows, reference_nm=models_thickness_nm(cfg), seed=cfg["seed"])
+    summary = summarize(rows, reference_nm=film_thickness_nm(cfg), seed=cfg["seed"])
     write_json(out / FILE, summary)
     return summary
 
@@ -187,5 +181,5 @@ def summary_lines(summary: dict) -> list[str]:
     return lines
 
 
-__all__ = ["FILE", "FIRST_ID", "SAFE_MAE_INCREASE", "THICKNESSES_NM", "decode_row", "draw_cases", "film_at",
-           "models_thickness_nm", "run_study", "safe_range", "summarize", "summary_lines"]
+__all__ = ["FILE", "FIRST_ID", "SAFE_MAE_INCREASE", "THICKNESSES_NM", "decode_row", "draw_cases", "run_study",
+           "safe_range", "summarize", "summary_lines"]

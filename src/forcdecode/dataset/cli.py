@@ -13,10 +13,10 @@
 from __future__ import annotations
 
 import argparse
-from . import stages
 from ..core.errors import ConfigError
 from ..core.io import read_config
 from ..core.progress import say
+from . import stages
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

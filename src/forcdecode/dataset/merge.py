@@ -14,8 +14,8 @@ import pandas as pd
 from .. import __version__
 from ..config import dataset_config, realisations
 from ..core import io
-from ..core.parameters import NAMES as PARAMETERS
 from ..core.errors import DatasetError
+from ..core.parameters import NAMES as PARAMETERS
 
 
 def config_hash(cfg: dict) -> str:

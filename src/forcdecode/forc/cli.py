@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from .render import measured_diagram, measured_grid, save_diagram_png, simulated_diagram
 from ..core.errors import ConfigError
 from .diagram import Variforc
+from .render import measured_diagram, measured_grid, save_diagram_png, simulated_diagram
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

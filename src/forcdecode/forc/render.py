@@ -9,8 +9,8 @@ import numpy as np
 
 from ..core.errors import InputFileError
 from ..core.io import atomic_path
-from .diagram import ForcDiagram, Variforc, forc_distribution, plot_diagram, variforc_distribution
 from ..measured import read_forc
+from .diagram import ForcDiagram, Variforc, forc_distribution, plot_diagram, variforc_distribution
 
 
 def diagram_of_grid(reversal_fields_T, fields_T, curves_m, smoothing_factor: int = 3, kernel: str = "pike",

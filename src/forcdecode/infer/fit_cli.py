@@ -15,10 +15,10 @@ import sys
 import time
 from pathlib import Path
 
-from .refine import add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation, parse_extension
 from ..config import load_config, shipped_config
 from ..core.errors import ConfigError
 from ..core.io import write_json
+from .refine import add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation, parse_extension
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

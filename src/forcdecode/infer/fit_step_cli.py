@@ -16,12 +16,12 @@ import argparse
 import time
 from pathlib import Path
 
-from .refine import (DEFAULT_PRIOR, add_refinement_arguments, family_key, finish_fit, fit_round, observation,
-                     parse_extension, start_fit)
 from ..config import load_config, shipped_config
 from ..core.errors import ConfigError
 from ..core.io import write_json
 from .fit import Refinement
+from .refine import (DEFAULT_PRIOR, add_refinement_arguments, family_key, finish_fit, fit_round, observation,
+                     parse_extension, start_fit)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

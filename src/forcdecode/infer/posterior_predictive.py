@@ -19,15 +19,15 @@ import time
 import numpy as np
 import pandas as pd
 
+from ..config import defaults
 from ..core.errors import DatasetError, SimulationError
+from ..core.io import atomic_path, read_config, write_json, write_parquet
 from ..core.parameters import denormalize
 from ..core.streams import stream_rng, stream_seed
-from ..learn.scoring import median_with_interval
-from .resimulate import observation_error, run_tasks
-from ..config import defaults
-from ..core.io import atomic_path, read_config, write_json, write_parquet
 from ..learn.data import load_dataset
+from ..learn.scoring import median_with_interval
 from ..learn.splits import assign_splits
+from .resimulate import observation_error, run_tasks
 
 
 def draws_as_hamiltonians(draws_u, names, Ms: float, bounds: dict) -> list[dict]:

@@ -18,12 +18,12 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
+from .._runtime import tune_allocator
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.simulate import protocol_name, simulate_family as simulate_grid_family
 from ..micromag.build import build_film, sweep_options
-from .._runtime import tune_allocator
 
 DISORDER_STREAM = "closed_loop_disorder"
 """Named stream of every re-simulation's disorder (keys: sample id or a label, realisation); never a

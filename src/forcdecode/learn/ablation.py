@@ -28,9 +28,9 @@ from ..core.errors import ConfigError, InputFileError
 from ..core.io import read_config, write_json
 from ..core.parameters import TARGETS
 from ..core.streams import stream_seed
+from .data import load_dataset
 from .pipeline import scores
 from .train import fit_alice
-from .data import load_dataset
 
 HEADS = ("small", "paper")
 

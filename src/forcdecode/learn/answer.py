@@ -44,12 +44,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.errors import ConfigError
 from ..core.parameters import COMBINATION_BY_NAME, TARGETS, normalize, normalize_combination
 from ..core.streams import stream_rng
+from .combinations import available, combinations_of, references
 from .prediction import PRIOR_ONLY, Prediction
 from .scoring import fit_ms_only, knn_median, skill_over_best_trivial
-from ..core.errors import ConfigError
-from .combinations import available, combinations_of, references
 
 FORMAT = "forcdecode-identification/1"
 SPLIT = "validation"

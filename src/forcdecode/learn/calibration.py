@@ -36,8 +36,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import special, stats
 
-from ..core.errors import ConfigError, DatasetError
 from ..core import io
+from ..core.errors import ConfigError, DatasetError
 
 DEFAULT_LEVELS = (0.5, 0.68, 0.9)
 RECALIBRATION_MIN_SAMPLES = 20

@@ -26,9 +26,9 @@ import json
 import sys
 import time
 
-from .estimator_choice import add_estimator_arguments, default_posterior_path
 from ..core.errors import ConfigError
 from ..core.io import read_config, read_json, write_json
+from .estimator_choice import add_estimator_arguments, default_posterior_path
 from .prior_class import check_prior_class
 from .shipped import check_thickness, models_thickness_nm, resolve_models
 

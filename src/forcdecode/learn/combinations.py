@@ -29,12 +29,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import io
 from ..core.parameters import (COMBINATION_BY_NAME, COMBINATION_NAMES, combination_reference, denormalize, k_eff,
                                normalize_combination, wall_energy)
 from .calibration import calibration_metrics
 from .scoring import (accuracy_with_intervals, fit_ms_only, knn_median, median_with_interval, skill,
                       skill_interval)
-from ..core import io
 
 RIDGE_PAIR = ("A_ex", "D")
 RIDGE_FIGURE_FAMILIES = 4

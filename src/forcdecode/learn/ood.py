@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..core.errors import ModelFileError
 from ..config import defaults
+from ..core.errors import ModelFileError
 from .splits import assign_splits
 
 K_NEIGHBOURS = 5

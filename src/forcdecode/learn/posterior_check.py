@@ -25,9 +25,9 @@ from ..core import io
 from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
 from .calibration import calibration_figure, marginal_coverage, probability_integral_transform, recalibrated_calibration
+from .combinations import available, posterior_combination_metrics
 from .scoring import binomial_band
 from .splits import SPLITS, assign_splits
-from .combinations import available, posterior_combination_metrics
 
 PIT_BINS = 10
 

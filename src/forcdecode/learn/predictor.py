@@ -11,14 +11,14 @@ import torch
 
 from ..core.errors import InputFileError, ModelFileError, OutOfDomainError
 from ..core.parameters import denormalize, normalize, prior_class
-from .encoding import readout
-from .models import build_network, image_tensor
-from .uncertainty import ConformalIntervals, quantile_to_error
 from ..forc.raster import measurement_on_grid, quantize
 from ..measured import read_forc
 from .answer import PREDATES
+from .encoding import readout
+from .models import build_network, image_tensor
 from .prediction import Prediction, answer_table, basis_lines
 from .prior_class import prior_class_line
+from .uncertainty import ConformalIntervals, quantile_to_error
 
 
 @dataclass

@@ -24,9 +24,9 @@ import numpy as np
 
 from ..core.errors import DatasetError
 from ..core.streams import stream_rng
+from .combinations import alice_combination_metrics
 from .data import LearningData
 from .scoring import _mae, accuracy_with_intervals, fit_ms_only, knn_median, skill, skill_interval
-from .combinations import alice_combination_metrics
 
 SEALED_NOTE = ("sealed: a separate id range simulated by the main job and scored once, at its end, by the frozen "
                "models; never used for a choice, a gate or a threshold (the test split was looked at during "

@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import ConfigError, ModelFileError
-from ..core.parameters import normalize
-from ..core.io import atomic_path, read_json, write_json
 from ..config import film_thickness_nm, load_config, shipped_config
+from ..core.errors import ConfigError, ModelFileError
+from ..core.io import atomic_path, read_json, write_json
+from ..core.parameters import normalize
 from ..dataset.merge import config_hash, physics_config
 
 SHIPPED = Path(__file__).resolve().parents[1] / "shipped" / "laptop"
@@ -240,7 +240,6 @@ def models_thickness_nm(models_dir) -> float:
     for place in (Path(models_dir), Path(models_dir).parent):
         if (place / MANIFEST).exists():
             return float(read_json(place / MANIFEST, what="shipped manifest")["film"]["thickness_nm"])
-
     return film_thickness_nm(load_config(shipped_config("config")))
 
 

@@ -16,8 +16,8 @@ from pathlib import Path
 from ..config import film_thickness_nm, load_config as load, shipped_config, with_thickness
 from ..core.io import read_json, write_json
 from ..infer.refine import METHODS
-from ..learn.shipped import check_thickness, resolve_models
 from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
+from ..learn.shipped import check_thickness, resolve_models
 from .measured_loop import _json_ready, close_loop_on_file
 from .physics_effects import NULL_REALISATIONS
 

@@ -25,9 +25,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.errors import ConfigError
-from .physics_effects import NULL_REALISATIONS
 from ..forc.raster import fill_below_reversal, quantize
 from .effects import EFFECTS, correct_measurement, measurement_clock
+from .physics_effects import NULL_REALISATIONS
 from .refit import analyse_with_refit
 
 

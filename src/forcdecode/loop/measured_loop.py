@@ -21,24 +21,24 @@ import numpy as np
 
 from ..core.errors import ConfigError, ModelFileError, PriorClassError
 from ..core.io import atomic_path, write_json, write_text
+from ..core.parameters import TARGETS, denormalize, normalize
 from ..core.progress import counter, progress, say
 from ..core.streams import stream_rng
-from ..learn.prediction import Prediction, answer_table, basis_lines
-from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
-                              physics_candidate_families)
-from .report_page import diagrams_figure, write_report_page
-from ..core.parameters import TARGETS, denormalize, normalize
 from ..forc.raster import measurement_on_grid
 from ..forc.simulate import protocol_name
 from ..infer.posterior_predictive import draws_as_hamiltonians
 from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function, parse_extension
 from ..infer.resimulate import observation_error, resimulate_measured, resimulate_with_spread
+from ..learn.prediction import Prediction, answer_table, basis_lines
 from ..learn.prior_class import check_prior_class, prior_class_line
 from ..measured import read_forc
 from .fixed_point import image_of_family
 from .patches import (POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, null_films, rasterized_singles,
                       single_realisations)
+from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
+                              physics_candidate_families)
 from .refit import measured_saturation, realisation_floor
+from .report_page import diagrams_figure, write_report_page
 from .structure import null_structure_floor
 
 

@@ -41,15 +41,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..core.streams import stream_rng
-from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
-                         saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
+from ..forc.simulate import protocol_name
+from ..forc.thermal import coercivity_scaled_family
+from ..infer.resimulate import resimulate
 from .effects import (EFFECTS, HAMILTONIAN_CHANGE, REALISATION_NOISE, SWITCHING_FIELD_DISTRIBUTION, _beats,
                       _grid_resolution, beats_null_gain, bootstrap_resamples, choose_candidate,
                       equivalent_candidates, fit_effect, heldout_folds, heldout_mse, measurement_clock,
                       separating_measurements)
-from ..forc.simulate import protocol_name
-from ..forc.thermal import coercivity_scaled_family
-from ..infer.resimulate import resimulate
+from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
+                         saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .structure import describe, residual_structure
 
 PHYSICS_PARAMETERS = {"K_2": "K_2_J_per_m3", "bias_field": "B_bias_T", "field_tilt": "tilt_deg"}

@@ -32,13 +32,13 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from ..core.streams import stream_rng
+from ..infer.resimulate import major_loop_branches, resimulate, resimulate_measured, resimulate_with_spread
 from .effects import (EFFECTS, HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors, _per_curve_mse, beats_floor,
                       equivalent_candidates, fit_effect, heldout_folds, measurement_clock, separating_measurements)
 from .patches import PATCH_CHOICES, POOL_SIZE, null_films, single_realisations
-from .signatures import calibrated_shift, field_shift, major_branches, major_loop_protocol, saturated_measured_points
-from ..infer.resimulate import major_loop_branches, resimulate, resimulate_measured, resimulate_with_spread
 from .physics_effects import (GATED_OPTIONS, SAME_OBSERVABLE, analyse_residual, gated_candidates, merge_null_gains, null_gains,
                               physics_candidate_families)
+from .signatures import calibrated_shift, field_shift, major_branches, major_loop_protocol, saturated_measured_points
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
 GOLDEN = (np.sqrt(5) - 1) / 2

@@ -26,15 +26,15 @@ import time
 import numpy as np
 import pandas as pd
 
+from ..config import defaults
 from ..core.errors import DatasetError, SimulationError
 from ..core.io import atomic_path, read_config, write_json, write_parquet
-from ..core.streams import stream_rng
 from ..core.parameters import NAMES as PARAMETERS, denormalize
+from ..core.streams import stream_rng
 from ..forc.simulate import protocol_name
 from ..infer.resimulate import observation_error, run_tasks
-from ..learn.scoring import median_with_interval
-from ..config import defaults
 from ..learn.data import load_dataset
+from ..learn.scoring import median_with_interval
 
 ROLES = ("prediction", "floor", "null")
 """The three re-simulated Hamiltonians of a sample: predicted, true (floor), training median (null)."""

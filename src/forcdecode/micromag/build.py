@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import defaults
 from ..core.streams import stream_rng
 from .disorder import disordered_film
 from .mesh import Mesh
-from ..config import defaults
 
 REFERENCE_CELLS = 256 * 256 * 2
 """Cells of the seed paper's grid, on which N_pin counts pinning sites."""

@@ -76,7 +76,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.physics import MU0  # a constant, not our engine: the generator stays independent of micromag
 from ..measured.writers import write_lakeshore_csv, write_micromag_0015
 from .magnumnp_film import MagnumFilm
 

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.streams import stream_rng, stream_seed
-from ..splits import SPLITS
-from .estimator import PosteriorEstimator
 from ..calibration import (fit_recalibration, gate_recalibration, probability_integral_transform,
                            recalibration_likelihood_ratio, sbc_ks_pvalues, sbc_ranks)
+from ..splits import SPLITS
+from .estimator import PosteriorEstimator
 
 
 def split_diagnostics(est: PosteriorEstimator, data, u, splits: dict, draws: int, seed: int) -> dict:

@@ -13,13 +13,13 @@ import torch
 from ...core.errors import ConfigError, OutOfDomainError
 from ...core.parameters import DEFAULT_PRIOR_CLASS, denormalize, normalize
 from ...core.streams import stream_seed
-from ..models import image_tensor
-from .file_format import read_estimator, save_estimator
-from .flow import SQUEEZE, PosteriorNet, _float32, from_coordinates, from_latent, to_coordinates, to_latent
 from ...dataset.params import draw_log_density
 from ..answer import posterior_flags
 from ..calibration import recalibrate_draws, widen
 from ..combinations import summarize_draws
+from ..models import image_tensor
+from .file_format import read_estimator, save_estimator
+from .flow import SQUEEZE, PosteriorNet, _float32, from_coordinates, from_latent, to_coordinates, to_latent
 
 RECALIBRATION_REFERENCE_DRAWS = 1000
 """Draws behind each observation's marginal CDFs when a recalibrated sample of fewer is asked."""

@@ -14,8 +14,8 @@ from torch import nn
 
 from ...config import defaults, schema
 from ...core.errors import ConfigError
-from ..models import MS_NODES, conv_features
 from ...dataset.params import draw_prior_cdf, draw_prior_ppf
+from ..models import MS_NODES, conv_features
 
 SQUEEZE = 1e-3
 """u is squeezed to [ε, 1 − ε] before the logit."""

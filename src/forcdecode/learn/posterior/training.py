@@ -17,6 +17,10 @@ from ...core import io
 from ...core.errors import ConfigError, DatasetError
 from ...core.parameters import LOG_SCALE, TARGETS
 from ...core.streams import stream_rng, stream_seed
+from ..answer import posterior_identification
+from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics, conformal_coverage,
+                           conformal_widening, recalibrated_calibration)
+from ..combinations import available, posterior_combination_metrics, ridge_figure, ridge_summary
 from ..scoring import binomial_band
 from ..splits import SPLITS, assign_splits
 from ..train import with_float32_default
@@ -25,10 +29,6 @@ from .calibration import (fit_held_out_recalibration, recalibration_families, re
 from .estimator import PosteriorEstimator
 from .file_format import FORMAT
 from .flow import BOUNDED_SUPPORT, EMBEDDINGS, PosteriorNet, _float32, _make_embedding, posterior_settings, to_latent
-from ..answer import posterior_identification
-from ..calibration import (RECALIBRATION_MIN_SAMPLES, calibration_figure, calibration_metrics, conformal_coverage,
-                           conformal_widening, recalibrated_calibration)
-from ..combinations import available, posterior_combination_metrics, ridge_figure, ridge_summary
 
 
 @_float32
