@@ -20,6 +20,7 @@ import numpy as np
 
 from .._runtime import tune_allocator
 from ..core.errors import ConfigError
+from ..core.parallel import map_in_order
 from ..core.streams import stream_rng
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.simulate import protocol_name, simulate_family as simulate_grid_family
@@ -48,19 +49,30 @@ def simulate_family(cfg: dict, params: dict, rng: np.random.Generator) -> np.nda
     return simulate_grid_family(cfg, params, rng=rng).curves_mz
 
 
+def grid_single(cfg: dict, params: dict, key: int | str, profile: int) -> np.ndarray:
+    """One grid family of ``params`` on disorder profile ``profile`` of ``key`` (stream
+    ``closed_loop_disorder``, keys (``key``, ``profile``) of the config seed): a module-level worker of
+    ``core.parallel.map_in_order``."""
+    return simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, profile))
+
+
+def _profiles(cfg: dict, params: dict, n_profiles: int, first_profile: int, key, progress) -> list:
+    """The grid families of profiles ``first_profile`` … ``first_profile + n_profiles − 1``, in order (on
+    the active ``core.parallel`` workers, if any)."""
+    if n_profiles < 1:
+        raise ValueError("n_profiles must be >= 1")
+    return map_in_order(grid_single, [(cfg, params, key, first_profile + p) for p in range(n_profiles)],
+                        progress=progress)
+
+
 def resimulate(cfg: dict, params: dict, n_profiles: int = 1, first_profile: int = 0, progress=None,
                key: int | str = "measured") -> np.ndarray:
     """Grid family (n_fields × n_fields, NaN below the diagonal) averaged over ``n_profiles``
     disorder profiles; profile p draws its disorder from stream ``closed_loop_disorder`` with keys
     (``key``, ``first_profile + p``) of the config seed."""
-    if n_profiles < 1:
-        raise ValueError("n_profiles must be >= 1")
     total = None
-    for p in range(n_profiles):
-        curves = simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, first_profile + p))
+    for curves in _profiles(cfg, params, n_profiles, first_profile, key, progress):
         total = curves if total is None else total + curves
-        if progress is not None:
-            progress(p + 1, n_profiles)
     return total / n_profiles
 
 
@@ -68,15 +80,10 @@ def resimulate_with_spread(cfg: dict, params: dict, n_profiles: int = 2, first_p
                            key: int | str = "measured") -> tuple[np.ndarray, np.ndarray]:
     """``resimulate`` (same streams, same mean) and the variance of m between the profiles at every
     point (ddof 1; zeros for one profile): the disorder floor of an observation error."""
-    if n_profiles < 1:
-        raise ValueError("n_profiles must be >= 1")
     total = squares = None
-    for p in range(n_profiles):
-        curves = simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, first_profile + p))
+    for curves in _profiles(cfg, params, n_profiles, first_profile, key, progress):
         total = curves if total is None else total + curves
         squares = curves**2 if squares is None else squares + curves**2
-        if progress is not None:
-            progress(p + 1, n_profiles)
     mean = total / n_profiles
     variance = (squares - n_profiles * mean**2) / (n_profiles - 1) if n_profiles > 1 else np.zeros_like(mean)
     return mean, np.clip(variance, 0, None)
@@ -108,14 +115,20 @@ def resimulate_measured(cfg: dict, params: dict, reversal_fields_T, curve_fields
     the mean ⟨m⟩·ĥ at its fields (input order)."""
     if n_profiles < 1:
         raise ValueError("n_profiles must be >= 1")
+    families = map_in_order(measured_single, [(cfg, params, key, first_profile + p, reversal_fields_T, curve_fields_T,
+                                               max_step_T) for p in range(n_profiles)], progress=progress)
     total = None
-    for p in range(n_profiles):
-        family = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, first_profile + p),
-                                   reversal_fields_T, curve_fields_T, max_step_T=max_step_T)
+    for family in families:
         total = family.curves if total is None else [a + b for a, b in zip(total, family.curves)]
-        if progress is not None:
-            progress(p + 1, n_profiles)
     return [c / n_profiles for c in total]
+
+
+def measured_single(cfg: dict, params: dict, key: int | str, profile: int, reversal_fields_T, curve_fields_T,
+                    max_step_T: float | None = None):
+    """``simulate_measured`` on disorder profile ``profile`` of ``key`` (the streams of ``grid_single``):
+    a module-level worker of ``core.parallel.map_in_order``."""
+    return simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, profile), reversal_fields_T,
+                             curve_fields_T, max_step_T=max_step_T)
 
 
 def major_loop_branches(cfg: dict, params: dict, top_T: float, step_T: float = 0.01, n_profiles: int = 1,

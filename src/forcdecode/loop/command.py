@@ -15,11 +15,16 @@ from pathlib import Path
 
 from ..config import film_thickness_nm, load_config as load, shipped_config, with_thickness
 from ..core.io import read_json, write_json
+from ..core.parallel import available_cores
 from ..infer.refine import METHODS
 from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
 from ..learn.shipped import check_thickness, resolve_models
 from .measured_loop import _json_ready, close_loop_on_file
 from .physics_effects import NULL_REALISATIONS
+
+MAX_DEFAULT_WORKERS = 8
+"""``--workers``'s default: the cores this process may use, at most this many (a workstation's loop gains
+little beyond it: its largest batch is the 21 physics-side candidates)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,6 +90,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="thin the measured protocol to about this many points (default 5000)")
     parser.add_argument("--measured-max-step-mT", type=float, default=2.0,
                         help="largest field sub-step of the measured-protocol re-simulation, mT (default 2)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="processes simulating the loop's independent families (the re-simulation's profiles, the "
+                             "patch pool, the physics-side candidates); the answer does not depend on it (default: "
+                             f"the cores this process may use, at most {MAX_DEFAULT_WORKERS})")
     parser.add_argument("--json", action="store_true",
                         help="print the report (report.json's content: the decoded Hamiltonian with each parameter's "
                              "and combination's read_from_image flag and basis, the verdict) instead of the summary")
@@ -151,6 +160,7 @@ def run(args) -> int:
                                 refine_workers=args.refine_workers, refine_method=args.refine_method,
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
+                                workers=args.workers or min(available_cores(), MAX_DEFAULT_WORKERS),
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     # the report on disk says the film's thickness and, where auto chose, which estimator answered and why
     report["film_thickness_nm"], report["thickness"] = film_thickness_nm(cfg), thickness_line

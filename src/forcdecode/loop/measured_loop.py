@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.errors import ConfigError, ModelFileError, PriorClassError
 from ..core.io import atomic_path, write_json, write_text
+from ..core.parallel import map_in_order, using_workers
 from ..core.parameters import TARGETS, denormalize, normalize
 from ..core.progress import counter, progress, say
 from ..core.streams import stream_rng
@@ -250,7 +251,8 @@ class LoopSettings:
     ``refine_extend`` (["N_pin", "D=3", …]): refine in a box beyond the prior's bound and report the mass past
     it. ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
     not named an effect; ConfigError outside [0, 1). ``training_dataset``: the dataset of Alice's image-only
-    training-data check (default ``models_dir``/../dataset.h5)."""
+    training-data check (default ``models_dir``/../dataset.h5). ``workers``: processes simulating the independent
+    families (``core.parallel``; the answer does not depend on it)."""
 
     params: dict | None = None
     models_dir: object = "results/models"
@@ -278,6 +280,7 @@ class LoopSettings:
     refine_extend: object = None
     moment_tolerance: float = MOMENT_TOLERANCE
     training_dataset: object = None
+    workers: int = 1
 
 
 @dataclass
@@ -608,8 +611,9 @@ def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Re
     points = sum(len(c) for c in m.data.curves)
     progress = counter("single realisations", "families")
     if points <= RASTERIZED_MAX_POINTS and protocol_name(cfg) == "quasistatic" and m.moment_saturation > 0:
+        pool_step_T = float(cfg.get("loop", {}).get("pool_max_step_T", 0.0)) or None  # 0: the file's own points
         pool = rasterized_singles(cfg, params, m.data, m.moment_saturation, m.domain.moment_offset_Am2, pool_size,
-                                  max_step_T=s.measured_max_step_T or MEASURED_MAX_STEP_T, progress=progress)
+                                  max_step_T=pool_step_T, progress=progress)
         where = "the file's own protocol, put on the grid as the file is"
         if pool.fallbacks:
             where += f" ({pool.fallbacks} of {len(pool)} on the grid: they do not saturate in the file's window)"
@@ -632,16 +636,23 @@ def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r:
     Hamiltonian averaging the file's patch number (``patches.null_films``, each also mirrored, with the
     file's noise), analysed against the same re-simulation with the same candidates."""
     films = null_films(floor.pool, floor.patches.floor_patches, count=max(s.null_realisations, 1), seed=cfg["seed"])
-    progress = counter("realisation floor", "effect-free films")
+    # each film with its own noise (seed + k), as the refit path's; merged in the films' order
+    gains = map_in_order(_null_film_gains, [(film, resim, m.fields, r.noise, cfg["seed"] + k, s, candidates)
+                                            for k, film in enumerate(films)],
+                         progress=counter("realisation floor", "effect-free films"))
     null = {}
-    for k, film in enumerate(films):  # each film with its own noise (seed + k), as the refit path's
-        null = merge_null_gains(null, null_gains([film], resim, m.fields, noise_sigma=r.noise, seed=cfg["seed"] + k,
-                                                 hamiltonian_floor=True, every_k=s.every_k, n_profiles=s.profiles,
-                                                 **candidates))
-        progress(k + 1, len(films))
+    for film_gains in gains:
+        null = merge_null_gains(null, film_gains)
     noise = stream_rng(cfg["seed"], "null_noise", "structure_floor")
     residuals = [film - resim + (r.noise or 0.0) * noise.normal(size=film.shape) for film in films]
     return FileFloor(floor.patches, floor.pool, null, [(film - resim) ** 2 for film in films], residuals)
+
+
+def _null_film_gains(film, resim, fields, noise_sigma, seed: int, s: LoopSettings, candidates: dict) -> dict:
+    """One null film's gains (``physics_effects.null_gains``, mirrored): a module-level worker of
+    ``core.parallel.map_in_order``."""
+    return null_gains([film], resim, fields, noise_sigma=noise_sigma, seed=seed, hamiltonian_floor=True,
+                      every_k=s.every_k, n_profiles=s.profiles, **candidates)
 
 
 def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
@@ -746,7 +757,12 @@ def close_loop_on_file(path, out, cfg: dict, settings: "LoopSettings | None" = N
     if s.null_realisations is None:  # the config's floor size (loop.null_films)
         s = replace(s, null_realisations=int(cfg.get("loop", {}).get("null_films", NULL_REALISATIONS)))
     setup = check_options(s)
-    out = Path(out)
+    with using_workers(s.workers):
+        return _close_loop(path, Path(out), cfg, s, setup, log)
+
+
+def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup, log) -> dict:
+    """``close_loop_on_file``'s stages (its settings checked, inside its workers' block)."""
     out.mkdir(parents=True, exist_ok=True)
     measurement, report = read_domain(path, cfg)  # domain
     if measurement.domain_note is not None and not s.force:

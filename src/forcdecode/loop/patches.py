@@ -29,7 +29,8 @@ import numpy as np
 
 from ..core.streams import stream_rng
 from ..forc.raster import measurement_on_grid
-from ..infer.resimulate import DISORDER_STREAM, simulate_family, simulate_measured
+from ..core.parallel import map_in_order
+from ..infer.resimulate import DISORDER_STREAM, grid_single, measured_single, simulate_family
 
 PATCH_CHOICES = (1, 2, 4, 8)
 """Patch numbers the estimate tells apart; a family smoother than 8-patch averages of the decoded
@@ -65,12 +66,7 @@ def single_realisations(cfg: dict, params: dict, count: int = POOL_SIZE, key: st
     """``count`` single-realisation grid families of ``params`` (SI), realisation k drawing its disorder
     from stream ``closed_loop_disorder`` with keys (``key``, k): independent of the re-simulation's own
     profiles (key "measured")."""
-    singles = []
-    for k in range(count):
-        singles.append(simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k)))
-        if progress is not None:
-            progress(k + 1, count)
-    return singles
+    return map_in_order(grid_single, [(cfg, params, key, k) for k in range(count)], progress=progress)
 
 
 RASTERIZED_MAX_POINTS = 4000
@@ -105,9 +101,9 @@ def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: flo
     fields = [np.concatenate([[h], np.asarray(c.field_T, float)[1:]]) if abs(float(c.field_T[0]) - h) < 1e-9
               else np.asarray(c.field_T, float) for h, c in zip(reversal, data.curves)]
     singles = _Pool()
-    for k in range(count):
-        family = simulate_measured(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k), reversal, fields,
-                                   max_step_T=max_step_T)
+    families = map_in_order(measured_single, [(cfg, params, key, k, reversal, fields, max_step_T) for k in range(count)],
+                            progress=progress)
+    for k, family in enumerate(families):
         pseudo = replace(data, curves=[replace(c, moment_Am2=moment_offset_Am2 + moment_saturation_Am2 * np.asarray(v))
                                        for c, v in zip(data.curves, family.curves)])
         _, grid, note, saturation, domain = measurement_on_grid(pseudo, B_max, n, with_domain=True)
@@ -121,8 +117,6 @@ def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: flo
             # re-simulation it is compared with
             singles.append(grid * (saturation / moment_saturation_Am2)
                            + (domain.moment_offset_Am2 - moment_offset_Am2) / moment_saturation_Am2)
-        if progress is not None:
-            progress(k + 1, count)
     return singles
 
 

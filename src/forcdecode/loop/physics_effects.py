@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..core.parallel import map_in_order
 from ..core.streams import stream_rng
 from ..forc.simulate import protocol_name
 from ..forc.thermal import coercivity_scaled_family
@@ -109,29 +110,22 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
 
 
     tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
-    total = (1 + len(K_2_ratios or ()) + len(bias_fields_T or ()) + len(soft_K_u_ratios) + len(tilts_deg or ())
-             + len(K_u_changes or ()))
-    done = []
-
-    def run(extra):
-        family = resimulate(cfg, {**params, **extra}, n_profiles=n_profiles, first_profile=first_profile, key=key)
-        done.append(1)
-        if progress is not None:
-            progress(len(done), total)
-        return family
-
     K_u = float(params["K_u"])
-    physics = {}
-    if K_2_ratios:
-        physics["K_2"] = {r * K_u: run({"K_2": r * K_u}) for r in K_2_ratios}
-    if bias_fields_T:
-        physics["bias_field"] = {float(b): run({"B_bias_T": float(b)}) for b in bias_fields_T}
-    if tilts_deg:
-        physics["field_tilt"] = {float(t): run({"field_tilt_deg": float(t)}) for t in tilts_deg}
-    soft = {r * K_u: run({"K_u": r * K_u}) for r in soft_K_u_ratios}
-    neighbourhood = {float(c): run({"K_u": (1 + c) * K_u}) for c in (K_u_changes or ())}
-    return {"physics_families": physics, "soft_phase_families": soft, "hamiltonian_families": neighbourhood,
-            "physics_reference_family": run({})}
+    # every family to simulate, in the order they were always made: (group, size, the parameters it changes)
+    plan = [("K_2", r * K_u, {"K_2": r * K_u}) for r in (K_2_ratios or ())]
+    plan += [("bias_field", float(b), {"B_bias_T": float(b)}) for b in (bias_fields_T or ())]
+    plan += [("field_tilt", float(t), {"field_tilt_deg": float(t)}) for t in (tilts_deg or ())]
+    plan += [("soft", r * K_u, {"K_u": r * K_u}) for r in soft_K_u_ratios]
+    plan += [("neighbourhood", float(c), {"K_u": (1 + c) * K_u}) for c in (K_u_changes or ())]
+    plan += [("reference", None, {})]
+    families = map_in_order(resimulate, [(cfg, {**params, **extra}, n_profiles, first_profile, None, key)
+                                         for _, _, extra in plan], progress=progress)
+    groups: dict = {}
+    for (group, size, _), family in zip(plan, families):
+        groups.setdefault(group, {})[size] = family
+    physics = {name: groups[name] for name in ("K_2", "bias_field", "field_tilt") if name in groups}
+    return {"physics_families": physics, "soft_phase_families": groups.get("soft", {}),
+            "hamiltonian_families": groups.get("neighbourhood", {}), "physics_reference_family": groups["reference"][None]}
 
 
 def fit_interpolated_effect(measured, families: dict, base_family, train) -> dict:
