@@ -61,6 +61,10 @@ def test_loop_names_an_undeclared_background(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["effect"] == "background"
     assert report["heldout_rms_after"] < 0.5 * report["heldout_rms_before"]
+    # the film's thickness is in the report the loop wrote (once); with --params no model decodes the file,
+    # so the line says that instead of judging the thickness against the models' safe range
+    assert report["film_thickness_nm"] == pytest.approx(cfg["mesh"]["dz_nm"] * cfg["mesh"]["nz"])
+    assert "--params gives the Hamiltonian" in report["thickness"] and "OUTSIDE" not in report["thickness"]
     # the background was judged on the measured points past the re-simulated loop's closure: its own
     # form describes them (a scale alone would leave the slope)
     evidence = report["analysis"]["candidates"]["background"]["saturation_evidence"]

@@ -10,14 +10,15 @@ from the image: prior only", ``learn.answer``) and the verdict, or with ``--json
 from __future__ import annotations
 
 import argparse
-
-from pathlib import Path
+import json
 
 from ..config import film_thickness_nm, load_config as load, shipped_config, with_thickness
-from ..core.io import read_json, write_json
+from ..core.io import read_json
 from ..core.parallel import available_cores
 from ..infer.refine import METHODS
 from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
+from ..learn.predictor import prediction_lines
+from ..learn.prior_class import prior_class_line
 from ..learn.shipped import check_thickness, resolve_models
 from .measured_loop import _json_ready, close_loop_on_file
 from .physics_effects import NULL_REALISATIONS
@@ -135,8 +136,12 @@ def run(args) -> int:
     choice = resolve_estimator(args)
     if not args.json and not params:
         print(args.models_line)
-    thickness_line = check_thickness(args.models, args.thickness_nm, film_thickness_nm(cfg),
-                                     force=args.force or bool(params))
+    if params:  # no model decodes the file: its thickness only sets the re-simulated film
+        thickness = film_thickness_nm(cfg) if args.thickness_nm is None else args.thickness_nm
+        thickness_line = (f"film thickness: {thickness:g} nm (--params gives the Hamiltonian, no model decodes the "
+                          "file; the re-simulation uses this thickness)")
+    else:
+        thickness_line = check_thickness(args.models, args.thickness_nm, film_thickness_nm(cfg), force=args.force)
     if args.thickness_nm is not None:
         cfg = with_thickness(cfg, args.thickness_nm)
     if not args.json:
@@ -146,6 +151,10 @@ def run(args) -> int:
     else:
         low, high, count = args.ms_sweep
         ms_values = list(np.linspace(low * 1e3, high * 1e3, max(1, int(count))))
+    # the report on disk says the film's thickness and, where auto chose, which estimator answered and why
+    extras = {"film_thickness_nm": film_thickness_nm(cfg), "thickness": thickness_line}
+    if choice is not None:
+        extras.update(estimator_choice=choice, models=args.models_line)
     report = close_loop_on_file(args.file, args.out, cfg, params=params, models_dir=args.models,
                                 ms_values_A_per_m=ms_values, profiles=args.profiles,
                                 sweep_profiles=args.sweep_profiles, every_k=args.every_k,
@@ -161,28 +170,17 @@ def run(args) -> int:
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
                                 workers=args.workers or min(available_cores(), MAX_DEFAULT_WORKERS),
+                                report_extras=extras,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
-    # the report on disk says the film's thickness and, where auto chose, which estimator answered and why
-    report["film_thickness_nm"], report["thickness"] = film_thickness_nm(cfg), thickness_line
-    if choice is not None:
-        report["estimator_choice"] = choice
-        report["models"] = args.models_line
-    write_json(Path(args.out) / "report.json", _json_ready(report))
     if choice is not None and not args.json:
         print(f"estimator: {choice['estimator']} (auto: {choice['basis']})")
     if args.json:
-        import json
-
         print(json.dumps(_json_ready(report), indent=2))
         return 0
     if report.get("prior_class"):
-        from ..learn.prior_class import prior_class_line
-
         print(prior_class_line(report["prior_class"], report.get("prior_check")))
     prediction = report.get("prediction")
     if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
-        from ..learn.predictor import prediction_lines
-
         ms = report.get("Ms_chosen_A_per_m", prediction.get("Ms"))
         swept = report.get("Ms_source") == "swept"
         for line in prediction_lines(prediction, f"{args.file}: decoded Hamiltonian", ms / 1e3,

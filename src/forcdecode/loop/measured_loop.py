@@ -252,7 +252,8 @@ class LoopSettings:
     it. ``moment_tolerance``: relative uncertainty of the moment normalization inside which a fitted scale is
     not named an effect; ConfigError outside [0, 1). ``training_dataset``: the dataset of Alice's image-only
     training-data check (default ``models_dir``/../dataset.h5). ``workers``: processes simulating the independent
-    families (``core.parallel``; the answer does not depend on it)."""
+    families (``core.parallel``; the answer does not depend on it). ``report_extras``: entries the caller adds
+    to every report this run writes (the command line's film thickness and estimator choice)."""
 
     params: dict | None = None
     models_dir: object = "results/models"
@@ -281,6 +282,7 @@ class LoopSettings:
     moment_tolerance: float = MOMENT_TOLERANCE
     training_dataset: object = None
     workers: int = 1
+    report_extras: dict | None = None
 
 
 @dataclass
@@ -765,6 +767,7 @@ def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup,
     """``close_loop_on_file``'s stages (its settings checked, inside its workers' block)."""
     out.mkdir(parents=True, exist_ok=True)
     measurement, report = read_domain(path, cfg)  # domain
+    report.update(s.report_extras or {})
     if measurement.domain_note is not None and not s.force:
         return stop(out, path, report, "out of domain", "\nNo prediction is made (`--force` analyses it anyway).\n")
     hamiltonian = estimate(cfg, s, measurement, setup, report, out, path, log)  # estimate
