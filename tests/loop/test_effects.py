@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from forcdecode.loop.effects import select_effect
+from forcdecode.loop.effects import _offset_family, select_effect
 
 
 def synthetic_family(n=48):
@@ -132,3 +132,34 @@ def test_an_effect_shown_apart_from_the_held_out_curves_needs_only_a_lower_held_
     chosen, scores = choose({"shift"})
     assert chosen == "shift" and scores["shift"]["accepted"]
     assert choose({"flat"})[0] == "none"
+
+
+def _offset_family_curve_by_curve(sim, fields, delta):
+    """The field-offset family as first written: each curve with np.interp (the reference of the vectorized one)."""
+    n = len(fields)
+    rows = int(np.rint(delta / (fields[1] - fields[0])))
+    out = np.full(sim.shape, np.nan)
+    for i in range(n):
+        k = min(max(i - rows, 0), n - 1)
+        curve = sim[k].copy()
+        curve[:k] = curve[k]
+        out[i, i:] = np.interp(np.clip(fields[i:] - delta, fields[0], fields[-1]), fields, curve)
+    return np.where(np.isfinite(sim), out, np.nan)
+
+
+def test_the_offset_family_is_np_interp_curve_by_curve_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for n in (16, 33, 64):
+        fields = np.linspace(-1, 1, n)
+        step = fields[1] - fields[0]
+        upper = np.triu(np.ones((n, n), dtype=bool))
+        for trial in range(150):
+            sim = np.where(upper, np.tanh(0.1 * rng.normal(size=(n, n)).cumsum(axis=1)), np.nan)
+            for _ in range(int(rng.integers(0, 4))):  # holes: np.interp's rules around a NaN
+                sim[rng.integers(n), rng.integers(n)] = np.nan
+            if trial % 11 == 0:  # flat stretches: its rule for equal neighbours
+                sim = np.where(upper, np.round(3 * sim) / 3, np.nan)
+            delta = float(rng.choice([0.05 * rng.normal(), 0.5 * rng.normal(), 0.0, step * rng.integers(-5, 5),
+                                      0.5 * step, -0.5 * step, 1.5, -3.0]))
+            expected = _offset_family_curve_by_curve(sim, fields, delta)
+            assert np.array_equal(_offset_family(sim, fields, delta), expected, equal_nan=True), (n, trial, delta)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -49,6 +50,16 @@ COMBINATIONS = ("background+field_offset", "background+additive_drift", "backgro
 together are left out: on one clock they are nearly collinear)."""
 
 
+@lru_cache(maxsize=8)
+def _grid_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """0 … n − 1 and the n × n mask of the FORC triangle (H ≥ H_r), read-only."""
+    index = np.arange(n)
+    upper = index[None, :] >= index[:, None]
+    index.setflags(write=False)
+    upper.setflags(write=False)
+    return index, upper
+
+
 def _offset_family(sim, fields, delta):
     """The family an instrument whose reported fields are off by δ (T) records, as rasterized.
 
@@ -60,18 +71,33 @@ def _offset_family(sim, fields, delta):
     sub-row part δ·∂m/∂H_r stays in the residual). Beyond the simulated window the film is taken to
     stay where the window leaves it (the edge value along a curve, the edge curve in H_r: saturated
     ends), so the model is defined at every measured point and a candidate cannot shrink its misfit by
-    shifting points out of the comparison."""
+    shifting points out of the comparison.
+
+    Vectorized over the curves (every curve is read at the same shifted fields), and bit for bit
+    ``np.interp`` curve by curve, its rules at a node and around a NaN included
+    (``tests/loop/test_effects.py``): this family is evaluated some 10⁵ times per file."""
     n = len(fields)
     step = fields[1] - fields[0]
     rows = int(np.rint(delta / step))
-    out = np.full(sim.shape, np.nan)
-    for i in range(n):
-        k = min(max(i - rows, 0), n - 1)  # the simulated curve whose reversal field is the true one of row i
-        curve = sim[k].copy()
-        curve[:k] = curve[k]  # below the reversal point the curve holds m(H_r, H_r)
-        h = np.clip(fields[i:] - delta, fields[0], fields[-1])
-        out[i, i:] = np.interp(h, fields, curve)
-    return np.where(np.isfinite(sim), out, np.nan)
+    index, upper = _grid_indices(n)
+    source = np.clip(index - rows, 0, n - 1)  # the simulated curve whose reversal field is the true one of row i
+    # below its reversal point a curve holds m(H_r, H_r)
+    curves = np.where(index[None, :] < source[:, None], sim[source, source][:, None], sim[source])
+    h = np.clip(fields - delta, fields[0], fields[-1])
+    j = np.clip(np.searchsorted(fields, h, side="right") - 1, 0, n - 2)  # fields[j] <= h < fields[j + 1]
+    left, right = curves[:, j], curves[:, j + 1]
+    slope = (right - left) / (fields[j + 1] - fields[j])
+    with np.errstate(invalid="ignore"):
+        out = slope * (h - fields[j]) + left
+        lost = np.isnan(out)
+        if lost.any():  # np.interp's second try from the right node, then a flat interval's value
+            out = np.where(lost, slope * (h - fields[j + 1]) + right, out)
+            out = np.where(np.isnan(out) & (left == right), left, out)
+    out = np.where(h == fields[j], left, out)  # on a node: its value
+    at_end = h == fields[-1]
+    if at_end.any():
+        out[:, at_end] = curves[:, -1:]
+    return np.where(upper & np.isfinite(sim), out, np.nan)
 
 
 def _clock(order):
