@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from ._runtime import tune_allocator
+from ._runtime import limit_blas_threads, tune_allocator
 
 # command name -> (module, one-line help)
 COMMANDS = {
@@ -42,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     tune_allocator()
+    limit_blas_threads()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     if argv and argv[0] in COMMANDS:

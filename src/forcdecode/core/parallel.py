@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 
-from .._runtime import tune_allocator
+from .._runtime import limit_blas_threads, tune_allocator
 
 _ACTIVE: list[ProcessPoolExecutor | None] = [None]
 _WORKERS: list[int] = [1]
@@ -44,6 +44,7 @@ def _init_worker() -> None:
     import numba  # a worker's own numba (heavy, and only the workers need its thread setting here)
 
     tune_allocator()
+    limit_blas_threads()
     numba.set_num_threads(1)
 
 

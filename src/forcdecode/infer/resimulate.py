@@ -18,7 +18,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
-from .._runtime import tune_allocator
+from .._runtime import limit_blas_threads, tune_allocator
 from ..core.errors import ConfigError
 from ..core.parallel import map_in_order
 from ..core.streams import stream_rng
@@ -171,6 +171,7 @@ def _init_worker() -> None:
     import numba
 
     tune_allocator()
+    limit_blas_threads()
     numba.set_num_threads(1)
 
 
