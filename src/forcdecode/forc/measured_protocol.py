@@ -200,6 +200,8 @@ class _PointByPoint:
         self.quantum = max(float(settings.field_tol_T), 1e-12)  # fields within field_tol_T fall into neighbouring bins
         self.out = [None] * protocol.reversal.size
         self.done = []  # (reversal field, curve index) of finished curves
+        self.m = None  # the state being relaxed
+        self.states, self.descending, self.level_of = {}, None, {}  # the descending branch (``descend``)
 
     def descend(self, m0, top, levels):
         """Saturate at ``top`` and descend through ``levels`` (T, decreasing), keeping the state and
