@@ -15,7 +15,7 @@ import numpy as np
 from ..core.errors import SimulationError
 from .demag import periodic_film_kernel
 from .effective_field import FieldModel, compute_effective_field, torque_and_max, total_energy
-from .llg import run_llg_rk45
+from .llg import StepControl, run_llg_rk45
 from .mesh import Mesh
 from .minimize import exchange_filter, local_scale, minimize_bb, minimize_bb_fourier
 
@@ -243,8 +243,8 @@ class Film:
         """Integrate LLG in place for ``duration_s`` (adaptive Dormand–Prince RK45)."""
         self._check_m(m)
         t, dt, acc, rej, ok = run_llg_rk45(m, self.model, self._field_vector(B_ext_T), float(ramp_T_per_s),
-                                           float(alpha), 0.0, float(duration_s), float(dt_s), float(tol),
-                                           int(max_steps))
+                                           float(alpha), 0.0, float(duration_s),
+                                           StepControl(float(dt_s), float(tol), int(max_steps)))
         if not np.all(np.isfinite(m)):
             raise SimulationError(f"LLG diverged at t = {t:.3e} s (non-finite magnetization)")
         return LLGResult(float(t), float(dt), int(acc), int(rej), bool(ok))
