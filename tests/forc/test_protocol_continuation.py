@@ -23,7 +23,7 @@ import pytest
 from forcdecode.forc.protocol import quasistatic_family
 from forcdecode.forc.raster import rasterize_grid_family
 from forcdecode.micromag import Mesh, disordered_film
-from forcdecode.micromag.minimize import exchange_filter, local_scale, minimize_bb, minimize_bb_fourier
+from forcdecode.micromag.minimize import fourier_preconditioner, minimize_bb, minimize_bb_fourier
 
 from test_protocol_shortcut import make_film
 
@@ -95,8 +95,8 @@ def test_fourier_preconditioner_reaches_the_same_minimum_in_fewer_iterations():
     a, b = m.copy(), m.copy()
     B = np.array([0.0, 0.0, 0.3])
     it_plain, torque_plain, ok_plain, _ = minimize_bb(a, film.model, B, 1e-5, 20_000, 0.5, 0.0)
-    filt, scale = exchange_filter(film.model, 3.0), local_scale(film.model, 3.0)
-    it_f, torque_f, ok_f, _ = minimize_bb_fourier(b, film.model, B, 1e-5, 20_000, 0.5, 0.0, filt, scale, 3.0)
+    it_f, torque_f, ok_f, _ = minimize_bb_fourier(b, film.model, B, 1e-5, 20_000, 0.5, 0.0,
+                                                  fourier_preconditioner(film.model, 3.0))
     print(f"plain {it_plain} iterations, fourier {it_f}; max |dm| {np.abs(a - b).max():.2e}")
     assert ok_plain and ok_f and torque_f < 1e-5
     assert np.abs(a - b).max() < 1e-3

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from forcdecode.forc.thermal import (arrhenius_family, coercivity_scaled_family, ramp_switching_field,
-                                     sharrock_epsilon, sharrock_switching_field)
+from forcdecode.forc.thermal import (ParticleEnsemble, arrhenius_family, coercivity_scaled_family,
+                                     ramp_switching_field, sharrock_epsilon, sharrock_switching_field)
 
 B_K, BETA = 0.5, 60.0  # anisotropy field (T), KV/k_BT
 
@@ -15,10 +15,11 @@ def test_sharrock_field_is_where_half_the_particles_switched_after_the_waiting_t
     for t in (1e-3, 1.0, 100.0):
         B_sw = sharrock_switching_field(B_K, BETA, t)
         assert B_sw == pytest.approx(B_K * (1 - np.sqrt(np.log(1e9 * t / np.log(2)) / BETA)))
-        (m,) = arrhenius_family([B_K], [0.0], BETA, t, [-B_sw], [[-B_sw]], saturation_field_T=1.0)
+        particle = ParticleEnsemble([B_K], [0.0], BETA)
+        (m,) = arrhenius_family(particle, t, [-B_sw], [[-B_sw]], saturation_field_T=1.0)
         assert (1 - m[0]) / 2 == pytest.approx(0.5, abs=1e-9)  # probability of having switched
         # 20 mT weaker or stronger: clearly fewer or more than half (the law is steep)
-        weaker, stronger = arrhenius_family([B_K], [0.0], BETA, t, [-B_sw + 0.02, -B_sw - 0.02],
+        weaker, stronger = arrhenius_family(particle, t, [-B_sw + 0.02, -B_sw - 0.02],
                                             [[-B_sw + 0.02], [-B_sw - 0.02]], saturation_field_T=1.0)
         assert (1 - weaker[0]) / 2 < 0.2 and (1 - stronger[0]) / 2 > 0.8
     assert sharrock_switching_field(B_K, 5.0, 1.0) == 0.0  # superparamagnetic on that time scale
@@ -27,7 +28,7 @@ def test_sharrock_field_is_where_half_the_particles_switched_after_the_waiting_t
 def test_swept_macrospin_switches_at_the_sweep_rate_law():
     step, dwell = 2e-4, 0.02  # 10 mT/s
     H = np.arange(1.0, -1.0, -step)
-    family = arrhenius_family([B_K], [0.0], BETA, dwell, H, [[h] for h in H])
+    family = arrhenius_family(ParticleEnsemble([B_K], [0.0], BETA), dwell, H, [[h] for h in H])
     m = np.array([c[0] for c in family])
     measured = -H[np.argmax(m < 0)]
     law = ramp_switching_field(B_K, BETA, step / dwell)
@@ -52,8 +53,8 @@ def test_coercivity_scaling_reproduces_a_thermally_activated_ensemble():
             out[i, i:] = values
         return out
 
-    cold = on_grid(arrhenius_family(B_Ks, bias, 1e6, 0.01, *protocol, max_step_T=2e-3))
-    hot = on_grid(arrhenius_family(B_Ks, bias, BETA, 0.01, *protocol, max_step_T=2e-3))
+    cold = on_grid(arrhenius_family(ParticleEnsemble(B_Ks, bias, 1e6), 0.01, *protocol, max_step_T=2e-3))
+    hot = on_grid(arrhenius_family(ParticleEnsemble(B_Ks, bias, BETA), 0.01, *protocol, max_step_T=2e-3))
     np.testing.assert_allclose(coercivity_scaled_family(cold, grid, 0.0), cold, atol=1e-12)
     fit = minimize_scalar(lambda e: np.nanmean((coercivity_scaled_family(cold, grid, e) - hot) ** 2),
                           bounds=(0, 0.7), method="bounded")

@@ -1,5 +1,5 @@
 """The FORC protocol (field sweeps of the simulated film) and the 64×64 rasterization."""
 
-from .protocol import ForcFamily, quasistatic_family
+from .protocol import ForcFamily, SweepSettings, quasistatic_family
 
-__all__ = ["ForcFamily", "quasistatic_family"]
+__all__ = ["ForcFamily", "SweepSettings", "quasistatic_family"]

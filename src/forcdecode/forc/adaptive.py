@@ -63,12 +63,26 @@ def estimate_tau_max(film: Film, m0: np.ndarray, B_max_T: float, settings: SlewR
     return float(rate), settings.alpha, True
 
 
-def sweep(film: Film, m, B_from, B_to, tau_max, settings: SlewRate, grid, on_grid=None, stats=None):
-    """Ramp μ0H from ``B_from`` to ``B_to`` with the adaptive rate; returns recorded (fields, m_z).
+@dataclass(frozen=True)
+class Ramp:
+    """What every adaptive sweep of one family shares: the ``film``, the slew-rate ``settings``, the
+    switching rate ``tau_max`` (τ_z,max, 1/s: |d⟨m_z⟩/dt| at ⟨m_z⟩ = 0 in the probe experiment) that
+    sets the rate dH/dt = safety·τ_z,max/χ_zz (T/s), and ``stats`` (a dict whose ``llg_steps`` counts
+    the LLG steps, or None)."""
+
+    film: Film
+    settings: SlewRate
+    tau_max: float
+    stats: dict | None = None
+
+
+def sweep(ramp: Ramp, m, B_from, B_to, grid, on_grid=None):
+    """Ramp μ0H from ``B_from`` to ``B_to`` (T) with the adaptive rate; returns recorded (fields, m_z).
 
     ``on_grid(index, B, m)`` is called at every grid field passed (sub-steps end exactly there); if it
     returns True the sweep stops.
     """
+    film, settings, tau_max, stats = ramp.film, ramp.settings, ramp.tau_max, ramp.stats
     direction = 1.0 if B_to > B_from else -1.0
     B = B_from
     fields, mzs = [B], [m[2].mean()]
@@ -127,7 +141,8 @@ def adaptive_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: flo
         states[index] = state
         return False
 
-    desc_fields, desc_mz = sweep(film, m, B_max_T, -B_max_T, tau_max, settings, grid, keep, stats)
+    ramp = Ramp(film, settings, tau_max, stats)
+    desc_fields, desc_mz = sweep(ramp, m, B_max_T, -B_max_T, grid, keep)
     raw = [None] * n_fields
     raw[-1] = (np.array([B_max_T]), np.array([states[-1][2].mean()]))
     for i in range(n_fields - 2, -1, -1):
@@ -140,7 +155,7 @@ def adaptive_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: flo
                 return True
             return False
 
-        fields, mzs = sweep(film, m, grid[i], B_max_T, tau_max, settings, grid, check, stats)
+        fields, mzs = sweep(ramp, m, grid[i], B_max_T, grid, check)
         if "index" in joined:
             tail_fields, tail_mz = raw[joined["index"]]
             keep_tail = tail_fields > fields[-1] + 1e-12

@@ -127,8 +127,8 @@ def forc_distribution(reversal_fields_T, fields_T, curves_m, smoothing_factor: i
     ci, cj = np.nonzero(valid)
     radius = np.full(ci.size, sf, dtype=np.int64)
     unused = np.zeros(ci.size)
-    rho = _local_fits(m, valid, ci, cj, hr, h, _PIKE if kernel == "pike" else _LOESS, step_r, step_h, 1.0,
-                      int(min_points), radius, radius, unused, unused)
+    rho = _local_fits(m, valid, (hr, h, step_r, step_h, 1.0), (ci, cj, radius, radius, unused, unused),
+                      _PIKE if kernel == "pike" else _LOESS, int(min_points))
     return ForcDiagram(hr, h, rho, sf, kernel)
 
 
@@ -152,8 +152,8 @@ def variforc_distribution(reversal_fields_T, fields_T, curves_m, settings: Varif
     min_h = float(np.min(np.diff(h))) if h.size > 1 else step
     rad_r = np.ceil((s_c + s_u) * step / min_r).astype(np.int64)
     rad_h = np.ceil((s_c + s_u) * step / min_h).astype(np.int64)
-    rho = _local_fits(m, valid, ci, cj, hr, h, _VARIFORC, step_r, step_h, step, max(6, int(min_points)),
-                      rad_r, rad_h, s_c, s_u)
+    rho = _local_fits(m, valid, (hr, h, step_r, step_h, step), (ci, cj, rad_r, rad_h, s_c, s_u), _VARIFORC,
+                      max(6, int(min_points)))
     return ForcDiagram(hr, h, rho, settings.sc1, "variforc")
 
 
@@ -173,8 +173,15 @@ def _egli_weight(a, s):
 
 
 @numba.njit(cache=True)
-def _local_fits(m, valid, ci, cj, hr, h, kind, step_r, step_h, step, min_points, rad_r, rad_h, s_c, s_u):
-    """ρ at the nodes (ci, cj) from weighted local quadratic fits (see the module docstring)."""
+def _local_fits(m, valid, axes, nodes, kind, min_points):
+    """ρ at the nodes from weighted local quadratic fits (see the module docstring).
+
+    ``axes``: (H_r, H, their steps ΔH_r and ΔH, the VARIFORC step), fields in T; ``nodes``: (row
+    and column of each node, its neighbourhood's half widths in rows and columns, its VARIFORC
+    smoothing factors s_c and s_u; per node arrays); ``kind``: _PIKE, _LOESS or _VARIFORC; a node
+    needs ``min_points`` weighted points."""
+    hr, h, step_r, step_h, step = axes
+    ci, cj, rad_r, rad_h, s_c, s_u = nodes
     nr, nh = m.shape
     rho = np.full((nr, nh), np.nan)
     a = np.empty((6, 6))

@@ -24,7 +24,7 @@ holds it, and its remainder is copied:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,8 +50,38 @@ class ForcFamily:
         return self.fields_T
 
 
-def _relax(film: Film, m, B, torque_tol_T, max_iterations, stats, initial_step=0.0):
-    result = film.minimize(m, B, torque_tol_T=torque_tol_T, max_iterations=max_iterations,
+@dataclass(frozen=True)
+class SweepSettings:
+    """How a quasi-static sweep relaxes the film at each field, and which work it shares.
+
+    - ``torque_tol_T``: a relaxation has converged when the largest cell torque |m × B_eff| is below
+      it (T);
+    - ``max_iterations``: the cap on the minimizer's iterations per relaxation;
+    - ``substeps``: relaxations per grid step, at evenly spaced intermediate fields (≥ 1);
+    - ``extrapolate``: start each relaxation from the last step's linear response (``Continuation``);
+    - ``warm_step``: start each relaxation with the previous one's last Barzilai–Borwein step;
+    - ``same_state_tol``: two states closer than this (max cell |Δm|, dimensionless) are the same
+      state and a curve reaching one continues as the curve that holds it; 0 disables every
+      remainder copy (the reference);
+    - ``merge_curves``: also copy remainders from earlier FORCs, not only from the descending branch;
+    - ``merge_memory_MB``: memory for the FORC states kept to merge into (MiB, float32 states).
+
+    The fields are the keywords ``micromag.build.sweep_options`` reads from a config.
+    """
+
+    torque_tol_T: float = 1e-3
+    max_iterations: int = 20_000
+    substeps: int = 1
+    extrapolate: bool = False
+    warm_step: bool = False
+    same_state_tol: float = 0.02
+    merge_curves: bool = True
+    merge_memory_MB: float = 256.0
+
+
+def _relax(film: Film, m, B, settings: SweepSettings, stats, initial_step=0.0):
+    """Relax ``m`` (in place) at the field ``B`` (T, along z) and count the work in ``stats``."""
+    result = film.minimize(m, B, torque_tol_T=settings.torque_tol_T, max_iterations=settings.max_iterations,
                            initial_step=initial_step)
     stats["iterations"] += result.iterations
     stats["relaxations"] += 1
@@ -73,10 +103,9 @@ class Continuation:
     films (``tests/forc/test_protocol_shortcuts.py``).
     """
 
-    def __init__(self, film: Film, torque_tol_T, max_iterations, stats, extrapolate=False, warm_step=False,
-                 reversible_dm: float = 0.1):
-        self.film, self.tol, self.max_iterations, self.stats = film, torque_tol_T, max_iterations, stats
-        self.extrapolate, self.warm_step, self.reversible_dm = extrapolate, warm_step, reversible_dm
+    def __init__(self, film: Film, settings: SweepSettings, stats, reversible_dm: float = 0.1):
+        self.film, self.settings, self.stats = film, settings, stats
+        self.extrapolate, self.warm_step, self.reversible_dm = settings.extrapolate, settings.warm_step, reversible_dm
         self.step = 0.0
         self.start(None, None)
 
@@ -95,8 +124,7 @@ class Continuation:
                 m += delta * ((B - self.last_B) / (self.last_B - self.prev_B))
                 m /= np.sqrt((m * m).sum(axis=0))
                 self.stats["predicted"] = self.stats.get("predicted", 0) + 1
-        result = _relax(self.film, m, B, self.tol, self.max_iterations, self.stats,
-                        self.step if self.warm_step else 0.0)
+        result = _relax(self.film, m, B, self.settings, self.stats, self.step if self.warm_step else 0.0)
         if result.converged and result.last_step > 0.0:
             self.step = result.last_step
         if self.extrapolate:
@@ -106,17 +134,23 @@ class Continuation:
 
 
 def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_tol_T: float = 1e-3,
-                      max_iterations: int = 20_000, substeps: int = 1, stats=None, keep_states=False,
-                      extrapolate: bool = False, warm_step: bool = False):
+                      max_iterations: int = 20_000, *, stats=None, keep_states=False, **settings):
     """Saturate at ``fields_T[-1]`` (the largest) and descend through ``fields_T`` (increasing grid)
     to its first value. Returns (⟨m_z⟩ per field, states, final m): ``states`` holds the state at
     every field (``keep_states=True``), at the given indices only (a dict index → state, for a
-    sequence of indices), or is None."""
+    sequence of indices), or is None. ``settings``: the other ``SweepSettings`` fields by keyword
+    (``substeps``, ``extrapolate``, ``warm_step``); ``stats`` counts the work (a new dict if None)."""
+    sweep_settings = SweepSettings(torque_tol_T=torque_tol_T, max_iterations=max_iterations, **settings)
+    return _descend(film, m0, fields_T, sweep_settings, stats, keep_states)
+
+
+def _descend(film: Film, m0: np.ndarray, fields_T: np.ndarray, settings: SweepSettings, stats, keep_states):
+    """``descending_branch`` with its settings as one ``SweepSettings``."""
     stats = stats if stats is not None else {"iterations": 0, "relaxations": 0, "unconverged": 0}
     n = len(fields_T)
     m = np.array(m0, dtype=np.float64, order="C", copy=True)
-    sweep = Continuation(film, torque_tol_T, max_iterations, stats, extrapolate, warm_step)
-    _relax(film, m, fields_T[-1], torque_tol_T, max_iterations, stats)
+    sweep = Continuation(film, settings, stats)
+    _relax(film, m, fields_T[-1], settings, stats)
     sweep.start(m, fields_T[-1])
     if keep_states is True:
         states = np.empty((n,) + m.shape, dtype=np.float64)
@@ -127,7 +161,7 @@ def descending_branch(film: Film, m0: np.ndarray, fields_T: np.ndarray, torque_t
     descending = np.empty(n)
     previous = fields_T[-1]
     for j in range(n - 1, -1, -1):
-        for B in np.linspace(previous, fields_T[j], substeps + 1)[1:]:
+        for B in np.linspace(previous, fields_T[j], settings.substeps + 1)[1:]:
             sweep.relax(m, B)
         previous = fields_T[j]
         if not np.all(np.isfinite(m)):
@@ -181,37 +215,35 @@ class StateMemory:
         return None
 
 
-def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0,
-                       torque_tol_T: float = 1e-3, max_iterations: int = 20_000, substeps: int = 1,
-                       same_state_tol: float = 0.02, progress=None, extrapolate: bool = False,
-                       warm_step: bool = False, merge_curves: bool = True,
-                       merge_memory_MB: float = 256.0) -> ForcFamily:
-    """Simulate a FORC family with the quasi-static path. ``m0`` is not modified.
+def quasistatic_family(film: Film, m0: np.ndarray, n_fields: int = 64, B_max_T: float = 1.0, *, progress=None,
+                       settings: SweepSettings | None = None, **overrides) -> ForcFamily:
+    """Simulate a FORC family with the quasi-static path on ``n_fields`` fields over ±``B_max_T``
+    (T). ``m0`` is not modified.
 
-    ``substeps`` relaxations are made per grid step (at evenly spaced intermediate fields) to follow
-    the field more finely than the recorded grid. ``progress(done, total)`` is called per curve.
-    ``same_state_tol`` = 0 disables every remainder copy (the reference); ``merge_curves`` also
-    copies from earlier FORCs, not only from the descending branch (module docstring).
-    Raises ``SimulationError`` if the magnetization becomes non-finite.
+    ``settings`` (default ``SweepSettings()``) says how each field is relaxed and which work is shared
+    (module docstring); ``overrides`` replace single fields of it by keyword (``torque_tol_T=...``,
+    ``same_state_tol=...``, or ``**micromag.build.sweep_options(cfg)``). ``progress(done, total)`` is
+    called per curve. Raises ``SimulationError`` if the magnetization becomes non-finite.
     """
+    settings = replace(settings if settings is not None else SweepSettings(), **overrides)
     if n_fields < 2:
         raise ValueError("n_fields must be at least 2")
-    if substeps < 1:
+    if settings.substeps < 1:
         raise ValueError("substeps must be >= 1")
     start = time.perf_counter()
     fields = np.linspace(-B_max_T, B_max_T, n_fields)
     stats = {"iterations": 0, "relaxations": 0, "unconverged": 0, "curves_shortened": 0, "curves_merged": 0}
-    descending, states, m = descending_branch(film, m0, fields, torque_tol_T, max_iterations, substeps, stats,
-                                              keep_states=True, extrapolate=extrapolate, warm_step=warm_step)
-    sweep = Continuation(film, torque_tol_T, max_iterations, stats, extrapolate, warm_step)
+    descending, states, m = _descend(film, m0, fields, settings, stats, keep_states=True)
+    sweep = Continuation(film, settings, stats)
     curves = np.full((n_fields, n_fields), np.nan)
-    memory = StateMemory(merge_memory_MB * 2**20) if merge_curves and same_state_tol > 0 else None
+    same_state_tol = settings.same_state_tol
+    memory = StateMemory(settings.merge_memory_MB * 2**20) if settings.merge_curves and same_state_tol > 0 else None
     for i in range(n_fields - 1, -1, -1):
         curves[i, i] = descending[i]
         m[...] = states[i]
         sweep.start(m, fields[i])
         for j in range(i + 1, n_fields):
-            for B in np.linspace(fields[j - 1], fields[j], substeps + 1)[1:]:
+            for B in np.linspace(fields[j - 1], fields[j], settings.substeps + 1)[1:]:
                 sweep.relax(m, B)
             if np.abs(m - states[j]).max() < same_state_tol:
                 curves[i, j:] = curves[j, j:]

@@ -331,16 +331,57 @@ def _upper_branch(curves_by_hr, calibration):
     return h[keep], y[keep], labels[keep]
 
 
-def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64, *,
-                       calibration=None, calibration_moments=None,
-                       correction_noise_relative: float | None = None) -> MeasuredDomain:
-    """The rule of the module docstring for curves (field_T, moment) reversed at ``reversal_fields_T``
-    (any order; each curve from its reversal field upward). ``calibration``: (H_cal, M_cal) on the
-    upper branch, optional; ``calibration_moments``: all calibration moments (noise cross-check);
-    ``correction_noise_relative``: σ_f, the relative noise of each curve's drift-correction factor;
-    None: ``correction_noise(calibration_moments)`` when they are given (the curves corrected by them,
-    the reader's default), else 0; pass 0 for curves that were not drift-corrected.
-    Returns a ``MeasuredDomain`` with the completed grid family (``family``, ``source``)."""
+@dataclass(frozen=True)
+class _Family:
+    """A measured family as the saturation checks read it (moments in A·m², fields in T)."""
+
+    hr: np.ndarray  # reversal fields, increasing
+    curves: list  # per reversal field, (fields, moments) sorted by field
+    B_max_T: float  # half width of the training window
+    step: float  # training-grid step 2 B_max/(n − 1)
+    sigma: float  # white point noise σ (NaN when it cannot be estimated)
+    everything: np.ndarray  # every moment of every curve
+    M_half: float  # half the loop height, (max − min)/2
+    relative: float  # σ_f, relative noise of a curve's drift-correction factor (0 without correction)
+    n_checks: int  # checks that can refuse a saturated film (the Bonferroni split of ALPHA_FILE)
+    noise: _Noise  # the noise-only tolerance of a comparison
+
+
+@dataclass(frozen=True)
+class _LowerEnd:
+    """The lower end: the curves that coincide with the lowest one and the branch they pool (T, A·m²)."""
+
+    accepted: list  # indices of the curves coinciding with the lowest (0 included)
+    first_miss: tuple | None  # (curve, fields, differences, tolerances) of the first one that does not
+    H_close: float  # closure field: the highest reversal field of a coinciding curve
+    low_h: np.ndarray  # the pooled branch up to H_close: fields
+    low_y: np.ndarray  # its moments
+    low_med: np.ndarray  # their running median
+    H_flat: float  # the branch is flat (within τ and FLAT_SLOPE_PER_T) up to here
+    H: float  # H_−, the lower saturation field: min(H_close, H_flat)
+    saturated: bool  # H_− at least a grid step above the lowest reversal field, inside the window
+
+
+@dataclass(frozen=True)
+class _UpperEnd:
+    """The upper end: the ascending major branch against the upper branch U (T, A·m²)."""
+
+    U_h: np.ndarray  # the upper branch: fields
+    U_y: np.ndarray  # its moments
+    U_med: np.ndarray  # their running median
+    a: int  # the curve taken as the ascending branch (the one of the lower end reaching highest)
+    h: np.ndarray  # fields where the ascending branch is compared with U
+    d: np.ndarray  # the running-median differences there
+    tol: np.ndarray  # their tolerances
+    H_close: float | None  # the branch coincides with U from here on (None: not at its end)
+    H_flat: float  # U is flat (within τ and FLAT_SLOPE_PER_T) from here on
+    H: float | None  # H_+, the upper saturation field: max(H_close, H_flat); None without closure
+    saturated: bool  # H_+ at least a grid step below the branch's end, inside the window
+
+
+def _measured_family(reversal_fields_T, curves, B_max_T, n, calibration_moments,
+                     correction_noise_relative) -> _Family:
+    """Stage 1: the curves sorted, the noise σ and σ_f, the loop height and the Bonferroni split."""
     hr = np.asarray(reversal_fields_T, float)
     order = np.argsort(hr, kind="stable")
     hr = hr[order]
@@ -360,13 +401,14 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
     n_checks = n_lower + 3
     noise = _Noise(sigma=sigma if np.isfinite(sigma) else 0.0, relative=relative, level=2 / 255 * M_half,
                    alpha=ALPHA_FILE / n_checks)
-    # reported: the tolerance of a saturated point of a comparison along the lowest curve
-    tau = float(noise.tolerance(np.abs(everything).max(), K=curves[0][0].size, medianed=curves[0][0].size >= 3)[0])
-    reasons = []
+    return _Family(hr, curves, B_max_T, step, sigma, everything, M_half, relative, n_checks, noise)
 
-    # lower end: curves that coincide with the lowest one
+
+def _coinciding_with_lowest(fam: _Family):
+    """Stage 2a: the curves, from the lowest reversal field up, that coincide with the lowest one
+    (each against the coinciding curve reaching highest); returns (their indices, the first miss)."""
+    curves, noise = fam.curves, fam.noise
     accepted = [0]
-    first_miss = None
     for k in range(1, len(curves)):
         ref = max(accepted, key=lambda a: curves[a][0][-1])
         h, d = _difference(*curves[k], *curves[ref])
@@ -376,8 +418,14 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
         if h.size >= 3 and np.all(np.abs(d) <= tol):
             accepted.append(k)
             continue
-        first_miss = (k, h, d, tol)
-        break
+        return accepted, (k, h, d, tol)
+    return accepted, None
+
+
+def _lower_end(fam: _Family) -> _LowerEnd:
+    """Stage 2: closure and flatness of the lower end (module docstring, **Coincidence**)."""
+    curves, hr, noise = fam.curves, fam.hr, fam.noise
+    accepted, first_miss = _coinciding_with_lowest(fam)
     H_close_minus = float(hr[accepted[-1]])
     lower_points = [(h[h <= H_close_minus + 1e-12], y[h <= H_close_minus + 1e-12])
                     for h, y in (curves[a] for a in accepted)]
@@ -387,45 +435,54 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
     low_label = np.concatenate([np.full(p[0].size, a) for p, a in zip(lower_points, accepted)])[order]
     low_med = _running_median(low_y)
     allowed = np.maximum(noise.tolerance(low_med, offset_share=_offset_share(low_label, 0)),
-                         FLAT_SLOPE_PER_T * M_half * (low_h - low_h[0]))
+                         FLAT_SLOPE_PER_T * fam.M_half * (low_h - low_h[0]))
     steep = np.abs(low_med - low_med[0]) > allowed
     H_flat_minus = float(low_h[np.argmax(steep) - 1]) if steep.any() and np.argmax(steep) > 0 else (
         float(low_h[0]) if steep.any() else H_close_minus)
     H_minus = min(H_close_minus, H_flat_minus)
-    lower_saturated = H_minus - hr[0] >= step - 1e-12 and H_minus >= -B_max_T
-    if not lower_saturated:
-        if H_close_minus - hr[0] < step - 1e-12:
-            if first_miss is not None and first_miss[1].size:
-                k, h, d, tol = first_miss
-                j = int(np.argmax(np.abs(d) / tol))
-                reasons.append(
-                    f"lower end not saturated: the curves reversed at {hr[0]:+.4f} T and {hr[k]:+.4f} T differ by "
+    lower_saturated = H_minus - hr[0] >= fam.step - 1e-12 and H_minus >= -fam.B_max_T
+    return _LowerEnd(accepted, first_miss, H_close_minus, low_h, low_y, low_med, H_flat_minus, H_minus,
+                     lower_saturated)
+
+
+def _lower_end_reason(fam: _Family, lower: _LowerEnd) -> str | None:
+    """Stage 3: why the lower end is not saturated (None when it is)."""
+    if lower.saturated:
+        return None
+    hr, step, sigma, M_half, H_close_minus = fam.hr, fam.step, fam.sigma, fam.M_half, lower.H_close
+    if H_close_minus - hr[0] < step - 1e-12:
+        if lower.first_miss is not None and lower.first_miss[1].size:
+            k, h, d, tol = lower.first_miss
+            j = int(np.argmax(np.abs(d) / tol))
+            return (f"lower end not saturated: the curves reversed at {hr[0]:+.4f} T and {hr[k]:+.4f} T differ by "
                     f"{abs(d[j]):.3g} A m² ({100 * abs(d[j]) / M_half:.1f} % of the half loop height, "
                     f"{abs(d[j]) / sigma if sigma > 0 else np.inf:.0f} σ; noise alone exceeds {tol[j]:.3g} A m² "
-                    f"there with probability {100 * noise.alpha:.2g} %) at {h[j]:+.4f} T; curves coincide only "
+                    f"there with probability {100 * fam.noise.alpha:.2g} %) at {h[j]:+.4f} T; curves coincide only "
                     f"up to H_r = {H_close_minus:+.4f} T, {step:.3f} T (one training-grid step) above the lowest "
                     "reversal field is needed")
-            else:
-                reasons.append(f"lower end not saturated: curves coincide only up to H_r = {H_close_minus:+.4f} T "
-                               f"({H_close_minus - hr[0]:.4f} T above the lowest reversal field; {step:.3f} T needed)")
-        elif H_minus < -B_max_T:
-            reasons.append(f"the loop saturates on the negative side only below {H_minus:+.3f} T, beyond the "
-                           f"training window's {-B_max_T:+.2f} T")
-        else:
-            change, slope = _branch_change(low_h, low_med)
-            reasons.append(f"lower branch closed (curves coincide up to H_r = {H_close_minus:+.4f} T) but not saturated: "
-                           f"over [{low_h[0]:+.3f}, {low_h[-1]:+.3f}] T it changes by {change:.3g} A m² "
-                           f"({100 * change / M_half:.0f} % of the half loop height; "
-                           f"slope {100 * abs(slope) / M_half:.0f} % "
-                           f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
-                           "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
+        return (f"lower end not saturated: curves coincide only up to H_r = {H_close_minus:+.4f} T "
+                f"({H_close_minus - hr[0]:.4f} T above the lowest reversal field; {step:.3f} T needed)")
+    if lower.H < -fam.B_max_T:
+        return (f"the loop saturates on the negative side only below {lower.H:+.3f} T, beyond the "
+                f"training window's {-fam.B_max_T:+.2f} T")
+    low_h = lower.low_h
+    change, slope = _branch_change(low_h, lower.low_med)
+    return (f"lower branch closed (curves coincide up to H_r = {H_close_minus:+.4f} T) but not saturated: "
+            f"over [{low_h[0]:+.3f}, {low_h[-1]:+.3f}] T it changes by {change:.3g} A m² "
+            f"({100 * change / M_half:.0f} % of the half loop height; "
+            f"slope {100 * abs(slope) / M_half:.0f} % "
+            f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
+            "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
 
-    # upper end: the ascending major branch against the upper branch
+
+def _upper_end(fam: _Family, lower: _LowerEnd, calibration) -> _UpperEnd:
+    """Stage 4: closure of the ascending major branch on the upper branch U, and U's flatness."""
+    curves, noise = fam.curves, fam.noise
     cal = None
     if calibration is not None and np.all(np.isfinite(calibration)):
         cal = (float(calibration[0]), float(calibration[1]))
     U_h, U_y, U_label = _upper_branch(curves, cal)
-    a = max(accepted, key=lambda k: curves[k][0][-1])
+    a = max(lower.accepted, key=lambda k: curves[k][0][-1])
     A_h, A_y = curves[a]
     h, d = _difference(A_h, A_y, U_h, U_y)
     H_close_plus = None
@@ -437,49 +494,60 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
     top = float(U_h[-1])
     U_med = _running_median(U_y)
     allowed = np.maximum(noise.tolerance(U_med, offset_share=_offset_share(U_label, U_h.size - 1)),
-                         FLAT_SLOPE_PER_T * M_half * (top - U_h))
+                         FLAT_SLOPE_PER_T * fam.M_half * (top - U_h))
     steep = np.abs(U_med - U_med[-1]) > allowed
     H_flat_plus = float(U_h[U_h.size - np.argmax(steep[::-1])]) if steep.any() else float(U_h[0])
     H_plus = None if H_close_plus is None else max(H_close_plus, H_flat_plus)
-    upper_saturated = H_plus is not None and h[-1] - H_plus >= step - 1e-12 and H_plus <= B_max_T
-    if not upper_saturated:
-        if H_close_plus is None or h[-1] - H_close_plus < step - 1e-12:
-            tail = h >= h[-1] - step if h.size else h
-            j = int(np.argmax(np.where(tail, np.abs(d) / tol_plus, 0))) if h.size else None
-            if j is None:
-                reasons.append("upper end not saturated: the ascending branch does not reach the upper branch")
-            else:
-                reasons.append(
-                    f"upper end not saturated: the branch from the lowest reversal field ({hr[a]:+.4f} T) ends at "
-                    f"{A_h[-1]:+.4f} T and still differs from the upper (descending) branch by {abs(d[j]):.3g} A m² "
-                    f"({100 * abs(d[j]) / M_half:.1f} % of the half loop height, "
-                    f"{abs(d[j]) / sigma if sigma > 0 else np.inf:.0f} σ; noise alone exceeds {tol_plus[j]:.3g} A m² "
-                    f"there with probability {100 * noise.alpha:.2g} %) at {h[j]:+.4f} T"
-                    + (f"; it coincides only from {H_close_plus:+.4f} T on ({step:.3f} T needed)"
-                       if H_close_plus is not None else ""))
-        elif H_plus > B_max_T:
-            reasons.append(f"the loop saturates on the positive side only at {H_plus:+.3f} T, beyond the training "
-                           f"window's {B_max_T:+.2f} T")
-        else:
-            sel = U_h >= H_close_plus - 1e-12
-            change, slope = _branch_change(U_h[sel], U_med[sel])
-            reasons.append(f"upper branch closed (from {H_close_plus:+.4f} T) but not saturated: over "
-                           f"[{H_close_plus:+.3f}, {top:+.3f}] T it changes by {change:.3g} A m² "
-                           f"({100 * change / M_half:.0f} % of the half loop height; "
-                           f"slope {100 * abs(slope) / M_half:.0f} % "
-                           f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
-                           "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
+    upper_saturated = H_plus is not None and h[-1] - H_plus >= fam.step - 1e-12 and H_plus <= fam.B_max_T
+    return _UpperEnd(U_h, U_y, U_med, a, h, d, tol_plus, H_close_plus, H_flat_plus, H_plus, upper_saturated)
 
-    # normalization from the saturated branches (or the curve extremes when they are not saturated)
+
+def _upper_end_reason(fam: _Family, upper: _UpperEnd) -> str | None:
+    """Stage 5: why the upper end is not saturated (None when it is)."""
+    if upper.saturated:
+        return None
+    hr, step, sigma, M_half = fam.hr, fam.step, fam.sigma, fam.M_half
+    h, d, tol_plus, H_close_plus = upper.h, upper.d, upper.tol, upper.H_close
+    if H_close_plus is None or h[-1] - H_close_plus < step - 1e-12:
+        tail = h >= h[-1] - step if h.size else h
+        j = int(np.argmax(np.where(tail, np.abs(d) / tol_plus, 0))) if h.size else None
+        if j is None:
+            return "upper end not saturated: the ascending branch does not reach the upper branch"
+        A_h = fam.curves[upper.a][0]
+        return (f"upper end not saturated: the branch from the lowest reversal field ({hr[upper.a]:+.4f} T) ends at "
+                f"{A_h[-1]:+.4f} T and still differs from the upper (descending) branch by {abs(d[j]):.3g} A m² "
+                f"({100 * abs(d[j]) / M_half:.1f} % of the half loop height, "
+                f"{abs(d[j]) / sigma if sigma > 0 else np.inf:.0f} σ; noise alone exceeds {tol_plus[j]:.3g} A m² "
+                f"there with probability {100 * fam.noise.alpha:.2g} %) at {h[j]:+.4f} T"
+                + (f"; it coincides only from {H_close_plus:+.4f} T on ({step:.3f} T needed)"
+                   if H_close_plus is not None else ""))
+    if upper.H > fam.B_max_T:
+        return (f"the loop saturates on the positive side only at {upper.H:+.3f} T, beyond the training "
+                f"window's {fam.B_max_T:+.2f} T")
+    U_h = upper.U_h
+    sel = U_h >= H_close_plus - 1e-12
+    change, slope = _branch_change(U_h[sel], upper.U_med[sel])
+    return (f"upper branch closed (from {H_close_plus:+.4f} T) but not saturated: over "
+            f"[{H_close_plus:+.3f}, {float(U_h[-1]):+.3f}] T it changes by {change:.3g} A m² "
+            f"({100 * change / M_half:.0f} % of the half loop height; "
+            f"slope {100 * abs(slope) / M_half:.0f} % "
+            f"per T, a saturated branch changes by at most {100 * FLAT_SLOPE_PER_T:.0f} % per T): a "
+            "reversible, unsaturated magnetization (a paramagnetic slope or a reversible rotation)")
+
+
+def _normalization(fam: _Family, lower: _LowerEnd, upper: _UpperEnd):
+    """Stage 6: M_sat and M_0 (A·m²) from the saturated branches (or the curves' last values when
+    they are not saturated), how they were found, and the high-field slope of U (A·m²/T)."""
+    curves, U_h, U_y, H_plus = fam.curves, upper.U_h, upper.U_y, upper.H
     if H_plus is not None:
         upper_vals = np.concatenate([y[h >= H_plus - 1e-12] for h, y in curves] + [U_y[U_h >= H_plus - 1e-12]])
     else:
         upper_vals = U_y[-RUNNING:]
     U_s = float(np.median(upper_vals))
-    L_s = float(np.median(low_y)) if low_y.size else float(everything.min())
+    L_s = float(np.median(lower.low_y)) if lower.low_y.size else float(fam.everything.min())
     M_sat, M_0 = (U_s - L_s) / 2, (U_s + L_s) / 2
     normalization = "saturated branches: M_sat = (U_s - L_s)/2, M_0 = (U_s + L_s)/2"
-    if not (lower_saturated and upper_saturated) or not M_sat > 0:
+    if not (lower.saturated and upper.saturated) or not M_sat > 0:
         # no saturated branches bracket the loop (a family analysed out of the domain): the median of
         # the curves' values at their largest field, no offset
         M_sat, M_0 = float(np.median([y[-1] for _, y in curves])), 0.0
@@ -489,22 +557,43 @@ def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int =
         sel = U_h >= H_plus - 1e-12
         if sel.sum() >= 3 and np.ptp(U_h[sel]) > 0:
             slope = float(np.polyfit(U_h[sel], U_y[sel], 1)[0])
+    return M_sat, M_0, normalization, slope
 
+
+def analyse_saturation(reversal_fields_T, curves, B_max_T: float = 1.0, n: int = 64, *,
+                       calibration=None, calibration_moments=None,
+                       correction_noise_relative: float | None = None) -> MeasuredDomain:
+    """The rule of the module docstring for curves (field_T, moment) reversed at ``reversal_fields_T``
+    (any order; each curve from its reversal field upward). ``calibration``: (H_cal, M_cal) on the
+    upper branch, optional; ``calibration_moments``: all calibration moments (noise cross-check);
+    ``correction_noise_relative``: σ_f, the relative noise of each curve's drift-correction factor;
+    None: ``correction_noise(calibration_moments)`` when they are given (the curves corrected by them,
+    the reader's default), else 0; pass 0 for curves that were not drift-corrected.
+    Returns a ``MeasuredDomain`` with the completed grid family (``family``, ``source``)."""
+    fam = _measured_family(reversal_fields_T, curves, B_max_T, n, calibration_moments, correction_noise_relative)
+    curves = fam.curves
+    # reported: the tolerance of a saturated point of a comparison along the lowest curve
+    tau = float(fam.noise.tolerance(np.abs(fam.everything).max(), K=curves[0][0].size,
+                                    medianed=curves[0][0].size >= 3)[0])
+    lower = _lower_end(fam)
+    upper = _upper_end(fam, lower, calibration)
+    reasons = [r for r in (_lower_end_reason(fam, lower), _upper_end_reason(fam, upper)) if r is not None]
+    M_sat, M_0, normalization, slope = _normalization(fam, lower, upper)
     domain = MeasuredDomain(
-        usable=False, reason=None, noise_Am2=sigma, tolerance_Am2=tau, M_half_Am2=M_half, H_minus_T=H_minus,
-        H_plus_T=H_plus, lower_saturated=bool(lower_saturated), upper_saturated=bool(upper_saturated),
-        moment_saturation_Am2=M_sat, moment_offset_Am2=M_0,
+        usable=False, reason=None, noise_Am2=fam.sigma, tolerance_Am2=tau, M_half_Am2=fam.M_half,
+        H_minus_T=lower.H, H_plus_T=upper.H, lower_saturated=bool(lower.saturated),
+        upper_saturated=bool(upper.saturated), moment_saturation_Am2=M_sat, moment_offset_Am2=M_0,
         calibration_noise_Am2=calibration_noise(calibration_moments) if calibration_moments is not None else float("nan"),
         high_field_slope_Am2_per_T=slope)
     if not M_sat > 0:
         reasons.append("the saturation moment is not positive (M_sat <= 0)")
-    family, source, summary = _complete(hr, curves, U_h, U_y, domain, B_max_T, n, noise)
-    summary.update(correction_noise_relative=relative, false_refusal_rate_file=ALPHA_FILE,
-                   false_refusal_rate_per_check=noise.alpha, refusing_checks=n_checks,
+    family, source, summary = _complete(fam.hr, curves, upper.U_h, upper.U_y, domain, B_max_T, n, fam.noise)
+    summary.update(correction_noise_relative=fam.relative, false_refusal_rate_file=ALPHA_FILE,
+                   false_refusal_rate_per_check=fam.noise.alpha, refusing_checks=fam.n_checks,
                    tolerance_rule="tau_i = max(z_K s_i, q), z_K = Phi^-1(1 - alpha/(2K)), "
                                   "s_i^2 = sigma^2 + 2 sigma_f^2 M_i^2, q = (2/255) M_half",
-                   closure_field_lower_T=H_close_minus, closure_field_upper_T=H_close_plus,
-                   flat_field_lower_T=H_flat_minus, flat_field_upper_T=H_flat_plus, training_grid_step_T=step,
+                   closure_field_lower_T=lower.H_close, closure_field_upper_T=upper.H_close,
+                   flat_field_lower_T=lower.H_flat, flat_field_upper_T=upper.H_flat, training_grid_step_T=fam.step,
                    normalization=normalization)
     domain.family, domain.source, domain.summary = family, source, summary
     unknown = summary["fraction_unknown"]

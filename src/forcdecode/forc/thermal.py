@@ -22,6 +22,8 @@ Fields μ0H in tesla; energies in joules; times in seconds; K in J/m³, V in m³
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 K_B = 1.380649e-23
@@ -70,14 +72,32 @@ def _relax_populations(p_up, B, B_K, bias, beta, f0, dwell):
         return eq + (p_up - eq) * np.exp(-total * dwell)
 
 
-def arrhenius_family(B_K_T, bias_T, KV_over_kT: float, dwell_s: float, reversal_fields_T, curve_fields_T, *,
-                     f0_Hz: float = ATTEMPT_FREQUENCY_HZ, saturation_field_T: float | None = None,
-                     max_step_T: float | None = None) -> list:
-    """⟨m⟩ of an ensemble of aligned Stoner–Wohlfarth particles (anisotropy fields ``B_K_T``, bias
-    fields ``bias_T``, arrays of one value per particle, equal weight; m = ±1 each) on a FORC protocol:
-    saturate, descend through the reversal fields (decreasing), then each curve from its reversal
-    state through its fields; ``dwell_s`` at every field (and every sub-step of at most
-    ``max_step_T`` on the way). Returns per curve the ensemble m at its fields (input order)."""
+@dataclass(frozen=True)
+class ParticleEnsemble:
+    """Aligned Stoner–Wohlfarth particles of equal weight, m = ±1 each (module docstring).
+
+    - ``B_K_T``: the anisotropy field B_K = 2K/M_s of each particle (T, one value per particle);
+    - ``bias_T``: the bias (interaction) field of each particle (T; one value per particle, or one
+      for all);
+    - ``KV_over_kT``: β = KV/k_BT, the zero-field barrier over the thermal energy (dimensionless,
+      common to all);
+    - ``f0_Hz``: the Néel–Arrhenius attempt frequency (Hz).
+    """
+
+    B_K_T: object
+    bias_T: object
+    KV_over_kT: float
+    f0_Hz: float = ATTEMPT_FREQUENCY_HZ
+
+
+def arrhenius_family(ensemble: ParticleEnsemble, dwell_s: float, reversal_fields_T, curve_fields_T, *,
+                     saturation_field_T: float | None = None, max_step_T: float | None = None) -> list:
+    """⟨m⟩ of an ``ensemble`` of aligned Stoner–Wohlfarth particles on a FORC protocol: saturate
+    (at ``saturation_field_T``, default the protocol's largest field), descend through the reversal
+    fields (decreasing), then each curve from its reversal state through its fields; ``dwell_s``
+    (s) at every field (and every sub-step of at most ``max_step_T`` on the way). Fields in T.
+    Returns per curve the ensemble m at its fields (input order)."""
+    B_K_T, bias_T, KV_over_kT, f0_Hz = ensemble.B_K_T, ensemble.bias_T, ensemble.KV_over_kT, ensemble.f0_Hz
     B_K = np.asarray(B_K_T, float)
     bias = np.broadcast_to(np.asarray(bias_T, float), B_K.shape)
     reversal = np.asarray(reversal_fields_T, float)
@@ -165,5 +185,5 @@ def activation_volume_m3(epsilon: float, K_eff_J_per_m3: float, temperature_K: f
     return float(K_B * temperature_K * np.log(f0_Hz * time_s / np.log(2)) / (K_eff_J_per_m3 * epsilon**2))
 
 
-__all__ = ["ATTEMPT_FREQUENCY_HZ", "K_B", "activation_volume_m3", "arrhenius_family", "coercivity_scaled_family",
-           "ramp_switching_field", "sharrock_epsilon", "sharrock_switching_field"]
+__all__ = ["ATTEMPT_FREQUENCY_HZ", "K_B", "ParticleEnsemble", "activation_volume_m3", "arrhenius_family",
+           "coercivity_scaled_family", "ramp_switching_field", "sharrock_epsilon", "sharrock_switching_field"]

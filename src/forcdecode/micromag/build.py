@@ -78,9 +78,10 @@ def build_film(cfg: dict, params: dict, sample_id: int | None = None, pinning: s
 
 
 def sweep_options(cfg: dict) -> dict:
-    """Keyword arguments of the quasi-static protocol (``forc.protocol``) from the config's
-    ``minimizer`` section (torque criterion, iteration cap, the continuation shortcuts) and the
-    ``protocol`` section's remainder copy (``same_state_tol``, ``merge_curves``, ``merge_memory_MB``)."""
+    """Keyword arguments of the quasi-static protocol (the fields of ``forc.protocol.SweepSettings``,
+    as ``quasistatic_family`` takes them) from the config's ``minimizer`` section (torque criterion,
+    iteration cap, the continuation shortcuts) and the ``protocol`` section's remainder copy
+    (``same_state_tol``, ``merge_curves``, ``merge_memory_MB``)."""
 
     mini = cfg["minimizer"]
     protocol = {**defaults("protocol"), **cfg.get("protocol", {})}

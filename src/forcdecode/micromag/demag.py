@@ -255,8 +255,11 @@ def _inverse_add(hk, out):
 
 
 @numba.njit(cache=True)
-def add_demag_field(m, Ms, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, out):
-    """Add the demag flux density B = −μ0 M_s N m (tesla) of magnetization ``m`` to ``out``."""
+def add_demag_field(m, model, out):
+    """Add the demag flux density B = −μ0 M_s N m (tesla) of magnetization ``m`` to ``out``.
+    ``model``: the film's ``effective_field.FieldModel`` (M_s in A/m and the kernel arrays
+    ``kxx`` … ``kyz_imag`` of ``periodic_film_kernel``)."""
     mk = np.fft.rfft2(m)
-    hk = _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, MU0 * Ms)
+    hk = _multiply_kernel(mk, model.kxx, model.kyy, model.kzz, model.kxy, model.kxz_imag, model.kyz_imag,
+                          MU0 * model.Ms)
     _inverse_add(hk, out)

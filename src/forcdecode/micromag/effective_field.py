@@ -46,8 +46,7 @@ def compute_effective_field(m, model, B_ext, out):
     if model.use_dmi:
         add_dmi_field(m, model.Ms, model.D, model.dx, model.dy, out)
     if model.use_demag:
-        add_demag_field(m, model.Ms, model.kxx, model.kyy, model.kzz, model.kxy,
-                        model.kxz_imag, model.kyz_imag, out)
+        add_demag_field(m, model, out)
     if model.use_zeeman:
         add_zeeman_field(B_ext, out)
     add_zeeman_field(model.B_bias, out)

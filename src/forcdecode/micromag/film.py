@@ -15,9 +15,9 @@ import numpy as np
 from ..core.errors import SimulationError
 from .demag import periodic_film_kernel
 from .effective_field import FieldModel, compute_effective_field, torque_and_max, total_energy
-from .llg import run_llg_rk45
+from .llg import StepControl, run_llg_rk45
 from .mesh import Mesh
-from .minimize import exchange_filter, local_scale, minimize_bb, minimize_bb_fourier
+from .minimize import fourier_preconditioner, minimize_bb, minimize_bb_fourier
 
 FOURIER_STIFFNESS_T = 3.0
 """S of the Fourier preconditioner (T): the stiffness all modes share, of the order of the
@@ -209,11 +209,10 @@ class Film:
         self._check_m(m)
         redone = False
         if self.preconditioner == "fourier":
-            filt, scale = self._fourier_preconditioner()
             start = m.copy() if self.fourier_guard_dm > 0 else None
             it, torque, ok, h = minimize_bb_fourier(m, self.model, self._field_vector(B_ext_T), float(torque_tol_T),
                                                     int(max_iterations), float(max_rotation_rad), float(initial_step),
-                                                    filt, scale, FOURIER_STIFFNESS_T)
+                                                    self._fourier_preconditioner())
             if start is not None and np.abs(m - start).max() > self.fourier_guard_dm:
                 # an irreversible event: its path (and so the minimum reached) belongs to plain descent
                 m[...] = start
@@ -234,7 +233,7 @@ class Film:
     def _fourier_preconditioner(self):
         cached = getattr(self, "_fourier_cache", None)
         if cached is None:
-            cached = (exchange_filter(self.model, FOURIER_STIFFNESS_T), local_scale(self.model, FOURIER_STIFFNESS_T))
+            cached = fourier_preconditioner(self.model, FOURIER_STIFFNESS_T)
             object.__setattr__(self, "_fourier_cache", cached)
         return cached
 
@@ -243,8 +242,8 @@ class Film:
         """Integrate LLG in place for ``duration_s`` (adaptive Dormand–Prince RK45)."""
         self._check_m(m)
         t, dt, acc, rej, ok = run_llg_rk45(m, self.model, self._field_vector(B_ext_T), float(ramp_T_per_s),
-                                           float(alpha), 0.0, float(duration_s), float(dt_s), float(tol),
-                                           int(max_steps))
+                                           float(alpha), 0.0, float(duration_s),
+                                           StepControl(float(dt_s), float(tol), int(max_steps)))
         if not np.all(np.isfinite(m)):
             raise SimulationError(f"LLG diverged at t = {t:.3e} s (non-finite magnetization)")
         return LLGResult(float(t), float(dt), int(acc), int(rej), bool(ok))

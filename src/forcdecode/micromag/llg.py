@@ -14,6 +14,8 @@ The applied field may ramp linearly in time along z: B_ext(t) = B_ext0 + ẑ·ra
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numba
 import numpy as np
 
@@ -30,6 +32,11 @@ _B1, _B3, _B4, _B5, _B6 = 35 / 384, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84
 # difference 5th − 4th order weights (error estimate)
 _E1, _E3, _E4, _E5, _E6, _E7 = 71 / 57600, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40
 _C2, _C3, _C4, _C5 = 1 / 5, 3 / 10, 4 / 5, 8 / 9
+
+StepControl = namedtuple("StepControl", ["dt", "tol", "max_steps"])
+"""Step control of ``run_llg_rk45`` (a namedtuple: numba passes it into compiled code): the first step
+``dt`` (s), the error tolerance ``tol`` (max cell |m5 − m4| per step, dimensionless) and ``max_steps``
+(accepted plus rejected)."""
 
 
 @numba.njit(cache=True)
@@ -79,8 +86,11 @@ def _normalize(m):
 
 
 @numba.njit(cache=True)
-def _stage(y, m, h, c1, k1, c2, k2, c3, k3, c4, k4, c5, k5, c6, k6):
-    """y = m + h Σ c_s k_s, one fused pass without temporaries."""
+def _stage(y, m, h, weights, slopes):
+    """y = m + h Σ c_s k_s over the six ``weights`` c_s and ``slopes`` k_s (dm/dt, 1/s; arrays like
+    ``m``, any one where its weight is 0), one fused pass without temporaries."""
+    c1, c2, c3, c4, c5, c6 = weights
+    k1, k2, k3, k4, k5, k6 = slopes
     _, nz, ny, nx = m.shape
     for c in range(3):
         for k in range(nz):
@@ -92,12 +102,14 @@ def _stage(y, m, h, c1, k1, c2, k2, c3, k3, c4, k4, c5, k5, c6, k6):
 
 
 @numba.njit(cache=True)
-def run_llg_rk45(m, model, B_ext0, ramp_T_per_s, alpha, t_start, t_end, dt, tol, max_steps):
-    """Integrate LLG in place from ``t_start`` to ``t_end`` (s); B_ext(t) = B_ext0 + ẑ ramp·(t − t_start).
+def run_llg_rk45(m, model, B_ext0, ramp_T_per_s, alpha, t_start, t_end, control):
+    """Integrate LLG in place from ``t_start`` to ``t_end`` (s); B_ext(t) = B_ext0 + ẑ ramp·(t − t_start)
+    (T, T/s), Gilbert damping ``alpha``, steps as ``control`` (a ``StepControl``) says.
 
     Returns (t reached, next dt, accepted steps, rejected steps, ok). ``ok`` is False if the
     solution became non-finite or ``max_steps`` ran out before ``t_end``.
     """
+    dt, tol, max_steps = control.dt, control.tol, control.max_steps
     field = np.empty_like(m)
     k1 = np.empty_like(m)
     k2 = np.empty_like(m)
@@ -122,22 +134,22 @@ def run_llg_rk45(m, model, B_ext0, ramp_T_per_s, alpha, t_start, t_end, dt, tol,
             h = t_end - t
             last = True
         tau = t - t_start
-        _stage(y, m, h, _A21, k1, 0.0, k1, 0.0, k1, 0.0, k1, 0.0, k1, 0.0, k1)
+        _stage(y, m, h, (_A21, 0.0, 0.0, 0.0, 0.0, 0.0), (k1, k1, k1, k1, k1, k1))
         _ramped(B_ext0, ramp_T_per_s, tau + _C2 * h, b)
         llg_rhs(y, model, b, alpha, field, k2)
-        _stage(y, m, h, _A31, k1, _A32, k2, 0.0, k1, 0.0, k1, 0.0, k1, 0.0, k1)
+        _stage(y, m, h, (_A31, _A32, 0.0, 0.0, 0.0, 0.0), (k1, k2, k1, k1, k1, k1))
         _ramped(B_ext0, ramp_T_per_s, tau + _C3 * h, b)
         llg_rhs(y, model, b, alpha, field, k3)
-        _stage(y, m, h, _A41, k1, _A42, k2, _A43, k3, 0.0, k1, 0.0, k1, 0.0, k1)
+        _stage(y, m, h, (_A41, _A42, _A43, 0.0, 0.0, 0.0), (k1, k2, k3, k1, k1, k1))
         _ramped(B_ext0, ramp_T_per_s, tau + _C4 * h, b)
         llg_rhs(y, model, b, alpha, field, k4)
-        _stage(y, m, h, _A51, k1, _A52, k2, _A53, k3, _A54, k4, 0.0, k1, 0.0, k1)
+        _stage(y, m, h, (_A51, _A52, _A53, _A54, 0.0, 0.0), (k1, k2, k3, k4, k1, k1))
         _ramped(B_ext0, ramp_T_per_s, tau + _C5 * h, b)
         llg_rhs(y, model, b, alpha, field, k5)
-        _stage(y, m, h, _A61, k1, _A62, k2, _A63, k3, _A64, k4, _A65, k5, 0.0, k1)
+        _stage(y, m, h, (_A61, _A62, _A63, _A64, _A65, 0.0), (k1, k2, k3, k4, k5, k1))
         _ramped(B_ext0, ramp_T_per_s, tau + h, b)
         llg_rhs(y, model, b, alpha, field, k6)
-        _stage(y, m, h, _B1, k1, 0.0, k2, _B3, k3, _B4, k4, _B5, k5, _B6, k6)
+        _stage(y, m, h, (_B1, 0.0, _B3, _B4, _B5, _B6), (k1, k2, k3, k4, k5, k6))
         llg_rhs(y, model, b, alpha, field, k7)
         err = 0.0
         _, nz, ny, nx = m.shape

@@ -21,6 +21,8 @@ Everything runs inside numba: no Python overhead per iteration.
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numba
 import numpy as np
 
@@ -106,11 +108,12 @@ def _bb_products(step4, torque_old4, torque4, precondition, inverse_precondition
 
 
 @numba.njit(**_KERNEL)
-def _torque_and_bb_products(m4, field4, frozen3, precondition, inverse_precondition, step4, torque_old4, torque4,
-                            squares):
+def _torque_and_bb_products(m4, field4, frozen3, metric, step4, torque_old4, torque4, squares):
     """New torque τ = B − (m·B)m (zero on frozen cells) and, with y = τ_old − τ, the sums in the
-    preconditioned metric s·P⁻¹s, s·y, y·P y. Returns (max |τ|, max |P τ|, ss, sy, yy); ``squares``
-    is scratch (one value per cell). Three short loops, each vectorized, not one long one that is not."""
+    preconditioned metric s·P⁻¹s, s·y, y·P y. ``metric``: (P, P⁻¹), the diagonal preconditioner and
+    its inverse per cell. Returns (max |τ|, max |P τ|, ss, sy, yy); ``squares`` is scratch (one value
+    per cell). Three short loops, each vectorized, not one long one that is not."""
+    precondition, inverse_precondition = metric
     _torque_and_squares(m4, field4, frozen3, torque4, squares)
     max_sq = 0.0
     max_p_sq = 0.0
@@ -169,7 +172,7 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad,
         torque, torque_old = torque_old, torque  # torque_old now holds the torque the step used
         compute_effective_field(m, model, B_ext, field)
         max_torque, max_p_torque, ss, sy, yy = _torque_and_bb_products(
-            m, field, model.frozen, precondition, inverse_precondition, step, torque_old, torque, squares)
+            m, field, model.frozen, (precondition, inverse_precondition), step, torque_old, torque, squares)
         max_torque = max(max_torque, relax_slaved_cells(m, field, model))
         if max_torque < torque_tol_T:
             return iteration, max_torque, True, h
@@ -185,6 +188,17 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad,
 
 
 # ---------------------------------------------------------------- Fourier-preconditioned variant
+FourierPreconditioner = namedtuple("FourierPreconditioner", ["filt", "scale", "stiffness_T"])
+"""P = D^{1/2} F D^{1/2} of ``minimize_bb_fourier`` (a namedtuple: numba passes it into compiled
+code): ``filt`` the in-plane exchange filter F(k) (``exchange_filter``), ``scale`` the cell-local
+D^{1/2} (``local_scale``) and ``stiffness_T`` the shared stiffness S (T) both were built with."""
+
+
+def fourier_preconditioner(model, stiffness_T: float = 1.0) -> FourierPreconditioner:
+    """The ``FourierPreconditioner`` of ``model`` for the shared stiffness ``stiffness_T`` (T)."""
+    return FourierPreconditioner(exchange_filter(model, stiffness_T), local_scale(model, stiffness_T), stiffness_T)
+
+
 def exchange_filter(model, stiffness_T: float = 1.0) -> np.ndarray:
     """F(k) = S/(S + λ(k)) on the rfft2 grid (ny, nx//2 + 1): λ(k) = (2A/M_s)(4 sin²(k_x dx/2)/dx² +
     4 sin²(k_y dy/2)/dy²) (T) is the in-plane exchange stiffness of the mode k, S the stiffness every
@@ -287,10 +301,11 @@ def _dot(a4, b4):
 
 @numba.njit(cache=True)
 def minimize_bb_fourier(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad, initial_step,
-                        filt, scale, stiffness):
-    """``minimize_bb`` with the preconditioner P = D^{1/2} F D^{1/2} (``exchange_filter``,
-    ``local_scale``): direction d = tangent part of P τ, BB steps s·P⁻¹s/s·y and s·y/y·Py with
-    y = τ_old − τ (P y = Pτ_old − Pτ, no extra transform). Same convergence test (max |τ|)."""
+                        preconditioner):
+    """``minimize_bb`` with the preconditioner P = D^{1/2} F D^{1/2} (a ``FourierPreconditioner``):
+    direction d = tangent part of P τ, BB steps s·P⁻¹s/s·y and s·y/y·Py with y = τ_old − τ
+    (P y = Pτ_old − Pτ, no extra transform). Same convergence test (max |τ|)."""
+    filt, scale, stiffness = preconditioner.filt, preconditioner.scale, preconditioner.stiffness_T
     field = np.empty_like(m)
     torque = np.empty_like(m)
     torque_old = np.empty_like(m)

@@ -189,18 +189,76 @@ def _steps(start: float, stop: float, max_step: float) -> np.ndarray:
     return np.linspace(start, stop, n + 1)[1:]
 
 
-def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: IndependentFilm = IndependentFilm(),
-                    seed: int = 0, K_2: float = 0.0, B_bias_T: float = 0.0, tilt_deg: float = 0.0,
-                    K_u: float | None = None, cache_dir=None, progress=None) -> SampleFamily:
-    """The FORC family of ``params`` (SI: Ms, A_ex, K_u, D, sigma_K, sigma_theta_deg) on the sample
-    ``film``, computed by magnum.np (module docstring). ``reversal_fields_T``: the curves' reversal
-    fields; ``curve_fields_T[k]``: the fields of curve k from its reversal field upward (the field the
-    sample feels, before any instrument offset). ``seed``: the disorder realisation. ``K_u``
-    overrides params["K_u"] (a soft phase). Raises RuntimeError when a relaxation does not converge."""
+@dataclass(frozen=True)
+class SamplePhysics:
+    """The independent sample's physics beyond ``params`` (module docstring, Physics of the sample).
 
+    - ``K_2``: second-order anisotropy −K_2 (u·m)⁴ along the grains' axes (J/m³); 0: off;
+    - ``B_bias_T``: a bias field B_bias ẑ felt by the film (T);
+    - ``tilt_deg``: the applied field's tilt ψ from the film normal, towards x (degrees); the
+      instrument records ⟨m⟩·ĥ;
+    - ``K_u``: the uniaxial anisotropy (J/m³) instead of ``params["K_u"]`` (a soft phase); None:
+      ``params``'.
+    """
+
+    K_2: float = 0.0
+    B_bias_T: float = 0.0
+    tilt_deg: float = 0.0
+    K_u: float | None = None
+
+
+@dataclass(frozen=True)
+class _SampleProtocol:
+    """A FORC protocol as the sample feels it: reversal fields (T), per curve its fields (T, from the
+    reversal field upward), and the curves' order of simulation (highest reversal field first)."""
+
+    reversal: np.ndarray
+    curve_fields_T: list
+    order: np.ndarray
+
+    @classmethod
+    def of(cls, reversal_fields_T, curve_fields_T) -> _SampleProtocol:
+        reversal = np.asarray(reversal_fields_T, float)
+        return cls(reversal, curve_fields_T, np.argsort(reversal)[::-1])
+
+    def top(self) -> float:
+        """The field the sample is saturated at: the protocol's largest (T)."""
+        return max(float(np.max(np.concatenate([np.atleast_1d(f) for f in self.curve_fields_T]))),
+                   float(self.reversal.max()))
+
+
+class _Relaxer:
+    """magnum.np relaxations of ``sample`` at B·ĥ + B_bias ẑ (T) to ``film``'s torque criterion,
+    counted in ``stats["relaxations"]``; ``project`` is the recorded ⟨m⟩·ĥ."""
+
+    def __init__(self, sample: MagnumFilm, film: IndependentFilm, physics: SamplePhysics, stats: dict):
+        psi = math.radians(physics.tilt_deg)
+        self.sample, self.film, self.stats = sample, film, stats
+        self.direction = np.array([math.sin(psi), 0.0, math.cos(psi)])
+        self.bias = np.array([0.0, 0.0, float(physics.B_bias_T)])
+
+    def __call__(self, m, B):
+        """The state relaxed from ``m`` at the applied field B (T along ĥ); RuntimeError if it does not converge."""
+        film = self.film
+        m = self.sample.minimize(m, B_ext_T=B * self.direction + self.bias, torque_tol_T=film.torque_tol_T,
+                                 max_iterations=film.max_iterations)
+        if not self.sample.last_minimize_converged:
+            raise RuntimeError(f"magnum.np relaxation did not converge at {B:+.4f} T within {film.max_iterations} "
+                               "iterations")
+        self.stats["relaxations"] += 1
+        return m
+
+    def project(self, m) -> float:
+        """⟨m⟩·ĥ, what the instrument's coils along the applied field see."""
+        return float(np.tensordot(self.direction, m.reshape(3, -1).mean(axis=1), axes=1))
+
+
+def _disordered_sample(params: dict, film: IndependentFilm, seed: int, physics: SamplePhysics, cache_dir):
+    """The magnum.np sample of ``params`` with the disorder and pins of realisation ``seed`` (drawn
+    here, not from our streams), and its initial state: +z, pinning cells at their own moments."""
     rng = np.random.default_rng([int(seed), 9001])  # our streams are not used: another code, another draw
     factor, axis = independent_disorder(film, float(params["sigma_K"]), float(params["sigma_theta_deg"]), rng)
-    K_u = float(params["K_u"] if K_u is None else K_u)
+    K_u = float(params["K_u"] if physics.K_u is None else physics.K_u)
     K_cells = (K_u * factor)[None]
     pins, pin_moments = independent_pins(film, np.random.default_rng([int(seed), 9002]))
     if pins.size:
@@ -213,38 +271,44 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
     sample = MagnumFilm(film.nx, film.ny, 1, d, d, film.thickness_nm * 1e-9, float(params["Ms"]), float(params["A_ex"]),
                         K_u=K_cells, easy_axis=axis, D=float(params["D"]), pbc_images=film.pbc_images,
                         cache_dir=cache_dir, alpha=1.0)
-    if K_2:
-        _add_second_order_anisotropy(sample, K_2)
-    psi = math.radians(tilt_deg)
-    direction = np.array([math.sin(psi), 0.0, math.cos(psi)])
-    bias = np.array([0.0, 0.0, float(B_bias_T)])
-    stats = {"relaxations": 0, "points_copied": 0, "wall_s": 0.0}
-    start = time.perf_counter()
-
-    def relax(m, B):
-        m = sample.minimize(m, B_ext_T=B * direction + bias, torque_tol_T=film.torque_tol_T,
-                            max_iterations=film.max_iterations)
-        if not sample.last_minimize_converged:
-            raise RuntimeError(f"magnum.np relaxation did not converge at {B:+.4f} T within {film.max_iterations} "
-                               "iterations")
-        stats["relaxations"] += 1
-        return m
-
-    def project(m):
-        return float(np.tensordot(direction, m.reshape(3, -1).mean(axis=1), axes=1))
-
-    reversal = np.asarray(reversal_fields_T, float)
-    order = np.argsort(reversal)[::-1]
-    top = max(float(np.max(np.concatenate([np.atleast_1d(f) for f in curve_fields_T]))), float(reversal.max()))
+    if physics.K_2:
+        _add_second_order_anisotropy(sample, physics.K_2)
     m = np.zeros((3, 1, film.ny, film.nx))
     m[2] = 1.0
     if pins.size:
         m[:, 0, j, i] = pin_moments  # a pinning cell keeps (near) its initial pole throughout
+    return sample, m
+
+
+def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: IndependentFilm = IndependentFilm(),
+                    seed: int = 0, cache_dir=None, progress=None, **physics) -> SampleFamily:
+    """The FORC family of ``params`` (SI: Ms, A_ex, K_u, D, sigma_K, sigma_theta_deg) on the sample
+    ``film``, computed by magnum.np (module docstring). ``reversal_fields_T``: the curves' reversal
+    fields; ``curve_fields_T[k]``: the fields of curve k from its reversal field upward (the field the
+    sample feels, before any instrument offset). ``seed``: the disorder realisation. ``physics``: the
+    ``SamplePhysics`` fields by keyword (``K_2``, ``B_bias_T``, ``tilt_deg``, ``K_u``: a soft phase).
+    ``progress(done, total)`` is called per curve. Raises RuntimeError when a relaxation does not converge."""
+    sample_physics = SamplePhysics(**physics)
+    sample, m = _disordered_sample(params, film, seed, sample_physics, cache_dir)
+    stats = {"relaxations": 0, "points_copied": 0, "wall_s": 0.0}
+    start = time.perf_counter()
+    relax = _Relaxer(sample, film, sample_physics, stats)
+    protocol = _SampleProtocol.of(reversal_fields_T, curve_fields_T)
+    top = protocol.top()
     m = relax(m, top)
     if film.sweep_step_T is not None:
-        curves = _lattice_sweep(film, m, top, reversal, curve_fields_T, order, relax, project, stats, progress)
-        stats["wall_s"] = time.perf_counter() - start
-        return SampleFamily(reversal, [np.asarray(f, float) for f in curve_fields_T], curves, stats)
+        curves = _lattice_sweep(film, relax, m, top, protocol, progress)
+    else:
+        curves = _stepped_sweep(film, relax, m, top, protocol, progress)
+    stats["wall_s"] = time.perf_counter() - start
+    return SampleFamily(protocol.reversal, [np.asarray(f, float) for f in curve_fields_T], curves, stats)
+
+
+def _stepped_sweep(film: IndependentFilm, relax: _Relaxer, m, top: float, protocol: _SampleProtocol, progress) -> list:
+    """The stepped protocol of the module docstring (steps of at most ``film.max_step_T`` through the
+    measured points; a curve meeting the state of the curve above at one of its fields continues as
+    it): per curve the moments at its fields."""
+    reversal, curve_fields_T, order = protocol.reversal, protocol.curve_fields_T, protocol.order
     B, kept = top, {}
     for k in order:  # the descending major loop, keeping the state at each reversal field
         for b in _steps(B, float(reversal[k]), film.max_step_T):
@@ -262,7 +326,7 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
                 for b in _steps(B, float(h), film.max_step_T):
                     m = relax(m, float(b))
                 B = float(h)
-            values.append(project(m))
+            values.append(relax.project(m))
             here[round(B, 9)] = m
             twin = above.get(round(B, 9))
             if twin is not None and float(np.abs(twin - m).max()) < film.same_state_tol:
@@ -270,14 +334,13 @@ def magnumnp_family(params: dict, reversal_fields_T, curve_fields_T, *, film: In
                 rest = fields[j + 1:]
                 higher_fields = np.asarray(curve_fields_T[higher], float)
                 values.extend(np.interp(rest, higher_fields, curves[higher]))
-                stats["points_copied"] += rest.size
+                relax.stats["points_copied"] += rest.size
                 break
         curves[k] = np.asarray(values)
         above = here
         if progress is not None:
             progress(done + 1, len(order))
-    stats["wall_s"] = time.perf_counter() - start
-    return SampleFamily(reversal, [np.asarray(f, float) for f in curve_fields_T], curves, stats)
+    return curves
 
 
 def _nodes(start: float, stop: float, step: float) -> list:
@@ -288,9 +351,10 @@ def _nodes(start: float, stop: float, step: float) -> list:
     return [k * step for k in range(math.ceil(start / step - eps) - 1, math.floor(stop / step + eps), -1)]
 
 
-def _lattice_sweep(film, m, top, reversal, curve_fields_T, order, relax, project, stats, progress):
+def _lattice_sweep(film: IndependentFilm, relax: _Relaxer, m, top: float, protocol: _SampleProtocol, progress) -> list:
     """The ramped protocol of the module docstring (``IndependentFilm.sweep_step_T``): per curve the
     moments at its fields."""
+    reversal, curve_fields_T, order, project = protocol.reversal, protocol.curve_fields_T, protocol.order, relax.project
     step = float(film.sweep_step_T)
     if not step > 0:
         raise ValueError(f"sweep_step_T must be > 0 (got {step!r})")
@@ -324,7 +388,7 @@ def _lattice_sweep(film, m, top, reversal, curve_fields_T, order, relax, project
             # from this node on the state is the higher curve's: so are the rest of the points
             rest = fields[joined:]
             values.extend(np.interp(rest, np.asarray(curve_fields_T[higher], float), curves[higher]))
-            stats["points_copied"] += rest.size
+            relax.stats["points_copied"] += rest.size
         curves[k] = np.asarray(values)
         above = here
         if progress is not None:
@@ -481,6 +545,6 @@ def write_measurement(path, family: SampleFamily, moment_Am2: float, instrument:
     raise ValueError(f"unknown format {fmt!r} (micromag0015 or lakeshore_csv)")
 
 
-__all__ = ["IndependentFilm", "InstrumentModel", "LOGNORMAL_SIGMA", "PIN_K_U", "SampleFamily", "average_families",
-           "independent_disorder", "independent_pins", "magnumnp_family", "pins_for_density",
+__all__ = ["IndependentFilm", "InstrumentModel", "LOGNORMAL_SIGMA", "PIN_K_U", "SampleFamily", "SamplePhysics",
+           "average_families", "independent_disorder", "independent_pins", "magnumnp_family", "pins_for_density",
            "measurement_protocol", "mix_phases", "record", "write_measurement"]
