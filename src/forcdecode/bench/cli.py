@@ -348,11 +348,11 @@ def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
 
 
 def _bench_learn(args, say) -> int:
-    from ..learn.ablation import run_head_ablation, summary_lines
+    from ..learn.ablation import HeadAblation, run_head_ablation, summary_lines
 
-    result = run_head_ablation(args.dataset, learning_config=args.learning_config, parameters=args.parameters,
-                               heads=args.heads, epochs=args.epochs, patience=args.patience, seed=args.seed,
-                               threads=args.threads, out=args.out, log=say)
+    ablation = HeadAblation(parameters=args.parameters, heads=args.heads, epochs=args.epochs, patience=args.patience,
+                            seed=args.seed, threads=args.threads)
+    result = run_head_ablation(args.dataset, ablation, learning_config=args.learning_config, out=args.out, log=say)
     say("")
     for line in summary_lines(result):
         say(line)

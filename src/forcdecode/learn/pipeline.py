@@ -47,7 +47,7 @@ from .data import PAPER_FIGURES, LearningData
 from .encoding import readout, readout_with_variance
 from .scoring import accuracy_with_intervals, binomial_band, fit_ms_only, knn_median, pearson
 from .splits import SPLITS, assign_splits, split_labels
-from .train import fit_alice, with_float32_default
+from .train import AliceSettings, fit_alice, with_float32_default
 from .uncertainty import (ConformalIntervals, coverage_and_width, error_quantile, gaussian_interval,
                           quantile_to_error, retention_curve, spearman)
 
@@ -64,9 +64,10 @@ def make_splits(sample_ids, seed: int, settings: dict) -> dict:
 
 
 def _fit(data, target, train, val, settings, seed, log=None):
-    return fit_alice(data.images, data.ms_norm, target, train, val, model=settings["model"], width=settings["width"],
-                     epochs=settings["epochs"], batch_size=settings["batch_size"], lr=settings["lr"],
-                     patience=settings["patience"], seed=seed, log=log)
+    training = AliceSettings(model=settings["model"], width=settings["width"], epochs=settings["epochs"],
+                             batch_size=settings["batch_size"], lr=settings["lr"], patience=settings["patience"],
+                             seed=seed)
+    return fit_alice(data.images, data.ms_norm, target, train, val, training, log=log)
 
 
 def scores(truth, prediction, baseline_value) -> dict:
