@@ -22,7 +22,7 @@ from ..core import io
 from ..core.errors import DatasetError
 from ..core.streams import stream_rng, stream_seed
 from .calibration import calibration_metrics
-from .posterior import _float32, fit_posterior, posterior_settings
+from .posterior import PosteriorFit, _float32, fit_posterior, posterior_settings
 from .splits import assign_splits
 
 CANDIDATES: tuple[dict, ...] = (
@@ -55,8 +55,9 @@ def tune_posterior(data, settings: dict | None, learning: dict | None, seed: int
         nlls, calibs, epochs, fit_s = [], [], [], 0.0
         for w in weight_seeds:
             started = time.perf_counter()
-            est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=trial, seed=seed + w,
-                                embedding="cnn", bounds=data.bounds, log=None)
+            est = fit_posterior(data.images, data.ms_norm, u, train, val,
+                                PosteriorFit(names=names, settings=trial, seed=seed + w, embedding="cnn",
+                                             bounds=data.bounds), log=None)
             fit_s += time.perf_counter() - started
             nlls.append(-float(np.mean(est.log_prob(u[val], data.images[val], data.ms_norm[val]))))
             epochs.append(int(est.best_epoch))
