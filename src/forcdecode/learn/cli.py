@@ -280,7 +280,7 @@ def _step_posterior_tune(args) -> int:
     cfg = read_config(args.config)
     from json import JSONDecodeError, loads
 
-    from .posterior_tune import CANDIDATES
+    from .posterior_tune import CANDIDATES, TuningPlan
 
     try:
         candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
@@ -288,9 +288,9 @@ def _step_posterior_tune(args) -> int:
         raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
     if not candidates or not all(isinstance(c, dict) for c in candidates):
         raise ConfigError(f"--candidates must be a non-empty JSON list of settings mappings, got {args.candidates}")
+    plan = TuningPlan(candidates=candidates, weight_seeds=tuple(range(max(1, args.weight_seeds))))
     result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
-                            cfg["seed"], candidates=candidates, out=args.out, log=_log,
-                            weight_seeds=tuple(range(max(1, args.weight_seeds))))
+                            cfg["seed"], plan, out=args.out, log=_log)
     for line in tuning_lines(result):
         print(line)
     return 0
@@ -298,14 +298,15 @@ def _step_posterior_tune(args) -> int:
 
 def _step_evaluate(args) -> int:
     """`forcdecode learn evaluate`."""
-    from .report import evaluate, markdown
+    from .report import TrainingDataset, evaluate, markdown
 
     from ..config import defaults
 
     cfg = read_config(args.config) if args.config else {}
     n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
-    metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
-                       dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models,
+    dataset = (TrainingDataset(args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models)
+               if args.dataset is not None else None)
+    metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve, dataset=dataset,
                        sealed=read_json(args.sealed, what="sealed figures") if args.sealed else None)
     print(markdown(metrics))
     return 0
