@@ -21,7 +21,7 @@ from . import engine, film_learning, films, prior_learning, realisations
 from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
                                   user_summary_lines)
 from .information_cli import bench_information
-from .ood import CASES, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
+from .ood import CASES, CaseFamilies, HeldOutFamilies, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -244,7 +244,8 @@ def _bench_information(args, say) -> int:
 def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
-    from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines, validation_plan
+    from .effects_independent import (SAMPLE_CURVES, CaseSettings, independent_confusion, plan, summary_lines,
+                                      validation_plan)
 
     curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
     if curves < 4:
@@ -278,9 +279,10 @@ def _bench_effects_independent(args, say) -> int:
                 f"{'' if row['correct'] else '  [wrong]'} ({row['case_s']:.0f} s)")
             bar.update()
 
-        result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
-                                       files_dir=out / "files", patches=args.patches, profiles=args.model_profiles,
-                                       sample_curves=curves, samples_dir=out / "samples", analysis=analysis)
+        settings = CaseSettings(patches=args.patches, profiles=args.model_profiles, sample_curves=curves,
+                                analysis=analysis)
+        result = independent_confusion(rows, settings, cache_dir=args.cache_dir, samples_dir=out / "samples",
+                                       files_dir=out / "files", out_jsonl=out / "cases.jsonl", progress=done)
     return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
 
 
@@ -649,8 +651,8 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
         curves = [h5["curves_mz"][k].astype(float) for k in chosen]
     sids = [int(data.sample_id[k]) for k in chosen]
     say(f"predictive check: calibrating on {len(chosen)} validation families ({args.predictive_budget} simulations each)")
-    results = predictive_statistics(est, cfg, data.images[chosen], curves, data.values["Ms"][chosen], sids, settings,
-                                    f"{args.ood_dir}/predictive/validation", say)
+    validation = CaseFamilies(data.images[chosen], curves, data.values["Ms"][chosen], sids)
+    results = predictive_statistics(est, cfg, validation, settings, f"{args.ood_dir}/predictive/validation", say)
     values = [predictive_statistic(r, args.predictive_budget) for r in results]
     reference = make_reference(values, budget=args.predictive_budget, round_size=args.round_size, prior=args.prior,
                                sample_ids=sids)
@@ -687,9 +689,10 @@ def _bench_ood(args, say) -> int:
     predictive = None
     if args.predictive_budget:
         predictive = _predictive_reference(args, stage, data, est, cfg, say)
-    result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
-                       cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say,
-                       dataset_images=data.images[chosen], predictive=predictive)
+    families = HeldOutFamilies(rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
+                               dataset_images=data.images[chosen])
+    result = bench_ood(est, cfg, families, cases=tuple(args.ood_cases or CASES), workers=args.workers,
+                       out_dir=args.ood_dir, say=say, predictive=predictive)
     if predictive is not None:
         result["predictive_reference"] = predictive["reference"]
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))

@@ -40,6 +40,7 @@ import resource
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -302,9 +303,22 @@ def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> No
         claim_path(path).unlink()
 
 
-def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stability: int, out_dir, say=print,
+@dataclass(frozen=True)
+class FiducialDesign:
+    """What is simulated around each fiducial: ``R`` disorder realisations per family, ``deltas`` the
+    relative steps δ of the central differences (fractions of the normalized parameter), and
+    ``stability`` the number of fiducials (the first ones) simulated at every δ; the others at the
+    first δ only."""
+
+    R: int
+    deltas: tuple
+    stability: int
+
+
+def run_fiducials(cfg: dict, film: str, fids: list[dict], design: FiducialDesign, out_dir, say=print,
                   stop_at: float | None = None, workers: int = 1) -> None:
-    """The fiducials' families in processes of their own, ``workers`` at a time. Each worker starts a
+    """The fiducials' families (``design``: realisations, steps δ) in processes of their own, ``workers``
+    at a time (``stop_at``: a time.time() after which no process starts). Each worker starts a
     process on the open fiducial with the fewest processes (the first in the list on a tie): one per
     fiducial while there are more fiducials than workers, then the workers a finished fiducial frees
     join the fiducials still running that have a family left unclaimed (a process ends when its fiducial
@@ -316,7 +330,7 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-
+    R, deltas, stability = design.R, design.deltas, design.stability
     out_dir = Path(out_dir)
     cfg_path = out_dir / "config.json"
     cfg_path.parent.mkdir(parents=True, exist_ok=True)
