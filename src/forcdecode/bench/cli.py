@@ -25,9 +25,22 @@ from .ood import CASES, CaseFamilies, HeldOutFamilies, bench_ood, carry_over, ca
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Every option of ``forcdecode bench``, one group of targets at a time (in --help order)."""
     parser.add_argument("target", choices=list(TARGETS), help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
+    _add_effects_arguments(parser)
+    _add_engine_arguments(parser)
+    _add_thickness_arguments(parser)
+    _add_films_arguments(parser)
+    _add_fit_arguments(parser)
+    _add_ood_arguments(parser)
+    _add_information_arguments(parser)
+    _add_learn_arguments(parser)
+
+
+def _add_effects_arguments(parser: argparse.ArgumentParser) -> None:
+    """effects: the independent-sample bench's options (``--independent`` and what it reads)."""
     parser.add_argument("--independent", action="store_true",
                         help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
                              "each run through `forcdecode loop` as a user runs it (needs the reference extra and "
@@ -75,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "bench.effects_independent.SAMPLE_CURVES)")
     parser.add_argument("--model-profiles", type=int, default=1,
                         help="effects --independent: disorder profiles averaged in each re-simulation of the model")
+
+
+def _add_engine_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--json`` (every target) and the engine bench's options (magnum.np peer, grid, timing window)."""
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
     parser.add_argument("--skip-256", action="store_true", help="skip the 256×256×2 grid")
@@ -82,6 +99,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+
+
+def _add_thickness_arguments(parser: argparse.ArgumentParser) -> None:
+    """thickness: the models' answer on films of other thicknesses (issue 60)."""
     thickness = parser.add_argument_group("thickness (the models' answer on films of other thicknesses, issue 60)")
     thickness.add_argument("--thickness-models", default=None,
                            help="thickness: the models decoded with (default: the shipped set, else results/models)")
@@ -92,6 +113,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            help="thickness: film thicknesses simulated (default 2 3 4 5 6 8)")
     thickness.add_argument("--thickness-out", default="results/bench/thickness",
                            help="thickness: rows.jsonl (resumable) and thickness.json")
+
+
+def _add_films_arguments(parser: argparse.ArgumentParser) -> None:
+    """films, film-learning, realisations, prior-learning: the runs compared and where they are."""
     films = parser.add_argument_group("films (the same Hamiltonians on the laptop film and larger ones)")
     films.add_argument("--config", default=None, help="films: base config (default: the shipped laptop config)")
     films.add_argument("--hamiltonians", type=int, default=20, help="films: screened dataset draws compared")
@@ -117,6 +142,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="realisations: summary.json and realisations.png")
     films.add_argument("--learning-out", default="results/bench/film_learning",
                        help="film-learning: summary.json and film_learning.png")
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    """fit: refinement by simulation on held-out test families."""
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
     fit.add_argument("--posterior", default="results/posterior/model.pt", help="fit: the amortized posterior")
     fit.add_argument("--families", type=int, default=5, help="fit: test families refined")
@@ -136,6 +165,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "(FIT_DIR/extension_reference.json, written by a --split validation run in the same box)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
+
+
+def _add_ood_arguments(parser: argparse.ArgumentParser) -> None:
+    """ood: the posterior's out-of-distribution and predictive checks."""
     ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
     ood.add_argument("--ood-cases", nargs="+", help="ood: cases (default: all; magnumnp needs the reference extra)")
     ood.add_argument("--ood-dir", default="results/bench/ood", help="ood: images per case (resumable) and summary.json")
@@ -147,6 +180,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "every case asked for)")
     ood.add_argument("--calibration-families", type=int, default=20,
                      help="ood: validation families the predictive check is calibrated on (>= 20 for alpha 0.05)")
+
+
+def _add_information_arguments(parser: argparse.ArgumentParser) -> None:
+    """information: the Fisher map of the FORC family."""
     info = parser.add_argument_group("information (Fisher map of the FORC family; --films FILM[:NxR], "
                                      "--config, --workers, --summarize-only shared with films)")
     info.add_argument("--fiducials", type=int, default=16, help="information: fiducial Hamiltonians per film")
@@ -159,6 +196,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.add_argument("--info-dir", default="results/bench/information", help="information: families, "
                       "fiducials.json, one JSON per fiducial, summary.json (resumable)")
     info.add_argument("--stop-at", default=None, help="information: start no fiducial process after this UTC time (HH:MM)")
+
+
+def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
+    """learn: the paper network against the laptop head (and prior-class's --dataset, --out)."""
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge); "
                        "prior-class: the families whose rates the prior-class rule is measured on (read only)")
