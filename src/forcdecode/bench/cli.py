@@ -12,16 +12,27 @@ from ..core.errors import ConfigError
 from ..core.io import read_json, write_json
 from ..core.parameters import NAMES, normalize
 from ..core.progress import counter, echo, progress
-from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic
+from ..infer.fit import Refinement, beyond_prior
+from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic, read_reference
 from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_function, parse_extension
 from ..learn.data import load_dataset
 from ..learn.shipped import resolve_models
 from ..learn.splits import assign_splits
 from . import engine, film_learning, films, prior_learning, realisations
-from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
-                                  user_summary_lines)
+from .effects import effects_confusion, n_cases
+from .effects import summary_lines as effects_lines
+from .effects_independent import (SAMPLE_CURVES, USER_LOOP_ARGS, CaseSettings, check_estimator, check_loop_args,
+                                  independent_confusion, load_cases, signature_lines, signature_validation,
+                                  user_confusion, user_summary_lines, validation_plan)
+from .effects_independent import plan as independent_plan
+from .effects_independent import summary_lines as independent_lines
+from .fit import choice_lines, fit_summary, reading_choice
+from .fit import summary_lines as fit_lines
 from .information_cli import bench_information
+from .laptop_cases import load_cases as load_laptop_cases
 from .ood import CASES, CaseFamilies, HeldOutFamilies, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
+from .prior_class import prior_class_bench
+from .prior_class import summary_lines as prior_class_lines
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -250,11 +261,9 @@ def _bench_protocols(args, say) -> int:
 def _bench_effects(args, say) -> int:
     if args.independent:
         return _bench_effects_independent(args, say)
-    from .effects import effects_confusion, n_cases, summary_lines
-
     with progress(total=n_cases(args.seeds), desc="effects", unit="cases") as bar:
         result = effects_confusion(seeds=range(args.seeds), progress=lambda row: bar.update())
-    for line in summary_lines(result):
+    for line in effects_lines(result):
         say(line)
     if args.json:
         print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
@@ -262,6 +271,7 @@ def _bench_effects(args, say) -> int:
 
 
 def _bench_thickness(args, say) -> int:
+    # loads torch: imported only when this target runs
     from .thickness import THICKNESSES_NM, run_study, summary_lines
 
     cfg = load_config(args.thickness_config or shipped_config("config"))
@@ -285,16 +295,11 @@ def _bench_information(args, say) -> int:
 def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
-    from .effects_independent import (SAMPLE_CURVES, CaseSettings, independent_confusion, plan, summary_lines,
-                                      validation_plan)
-
     curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
     if curves < 4:
         raise ConfigError(f"--sample-curves ({curves}) must be at least 4")
 
     if args.signatures:
-        from .effects_independent import signature_lines, signature_validation
-
         out = Path(args.effects_out) / "signatures"
         result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files", sample_curves=curves,
                                       samples_dir=Path(args.effects_out) / "samples",
@@ -305,7 +310,7 @@ def _bench_effects_independent(args, say) -> int:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     if not (args.oracle or args.validation):
         return _bench_effects_user(args, say)
-    rows = validation_plan() if args.validation else plan()
+    rows = validation_plan() if args.validation else independent_plan()
     analysis = {**({"cross_fit": True} if args.cross_fit else {}),
                 **({"evidence_suffices": False} if args.evidence_needs_bootstrap else {})}
     if args.cases:
@@ -324,7 +329,7 @@ def _bench_effects_independent(args, say) -> int:
                                 analysis=analysis)
         result = independent_confusion(rows, settings, cache_dir=args.cache_dir, samples_dir=out / "samples",
                                        files_dir=out / "files", out_jsonl=out / "cases.jsonl", progress=done)
-    return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
+    return _finish(out, result, independent_lines(result), args.json, say, omit="cases")
 
 
 def _bench_effects_user(args, say) -> int:
@@ -342,8 +347,6 @@ def _bench_effects_user(args, say) -> int:
     loop_args = tuple(USER_LOOP_ARGS if args.loop_args is None else shlex.split(args.loop_args))
     check_loop_args(loop_args)
     if args.case_set.startswith("laptop-"):
-        from .laptop_cases import load_cases as load_laptop_cases
-
         cases = load_laptop_cases(args.case_set.removeprefix("laptop-"))
     else:
         cases = load_cases(args.case_set)
@@ -391,6 +394,7 @@ def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
 
 
 def _bench_learn(args, say) -> int:
+    # loads torch: imported only when this target runs
     from ..learn.ablation import HeadAblation, run_head_ablation, summary_lines
 
     ablation = HeadAblation(parameters=args.parameters, heads=args.heads, epochs=args.epochs, patience=args.patience,
@@ -510,6 +514,7 @@ def _workflow_splits(stage: dict, data) -> dict:
 def _held_out_families(args):
     """(the workflow's learning.json, the dataset, the posterior, indices of the ``--split`` families)
     for the benches that run on held-out families of a trained posterior."""
+    # loads torch: imported only when this target runs
     from ..learn.posterior import PosteriorEstimator
 
     stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
@@ -540,8 +545,6 @@ def _bench_fit(args, say) -> int:
     extend = parse_extension(args.extend_prior, tuple(est.names))
     reference = None
     if args.extension_reference:
-        from ..infer.predictive_check import read_reference
-
         reference = read_reference(args.extension_reference, round_size=args.round_size, prior=args.prior,
                                    budget_run=budgets[-1], extend=extend, what="extension-check reference")
     observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
@@ -565,8 +568,7 @@ def _bench_fit(args, say) -> int:
             state_path = f"{args.fit_dir}/state_{sid}.npz"
             if (result is not None and extend and os.path.exists(state_path)
                     and "log_likelihood_ratio_by_budget" not in (result.get("beyond_prior") or {})):
-                from ..infer.fit import Refinement, beyond_prior  # a result from before Λ: from its saved particles
-
+                # a result from before Λ: from its saved particles
                 result["beyond_prior"] = beyond_prior(Refinement.load(state_path))
                 write_json(path, result)
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
@@ -590,15 +592,12 @@ def _bench_fit(args, say) -> int:
                     result["case"] = args.case
                 write_json(path, result)
             rows.append(result)
-    from .fit import fit_summary, summary_lines
 
     out = {"split": args.split, "method": args.method, "prior": args.prior, "case": args.case, "sample_ids": [int(data.sample_id[k]) for k in chosen],
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
-    for line in summary_lines(out):
+    for line in fit_lines(out):
         say(line)
     if args.method == "adjusted":  # the rule that chooses the answer's reading (on validation families)
-        from .fit import choice_lines, reading_choice
-
         out["reading_choice"] = reading_choice(rows, budgets[-1], np.random.default_rng(stage["seed"]))
         for line in choice_lines(out["reading_choice"]):
             say(line)
@@ -704,10 +703,8 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
 
 def _bench_prior_class(args, say) -> int:
     """Rates of the prior-class rule (``learn.prior_class``) on the families of --dataset (read only)."""
-    from .prior_class import prior_class_bench, summary_lines
-
     result = prior_class_bench(args.dataset)
-    for line in summary_lines(result):
+    for line in prior_class_lines(result):
         say(line)
     if args.out:
         write_json(args.out, result)

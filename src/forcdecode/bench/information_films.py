@@ -51,6 +51,7 @@ from ..core.parameters import denormalize, normalize
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..dataset.simulate import screen
+from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.protocol import quasistatic_family
 from ..forc.raster import rasterize_grid_family
 from ..micromag.build import build_film, slew_rate_options, sweep_options
@@ -241,8 +242,6 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
     rng = film_rng(cfg, film, sid, r)
     n_fields, B_max_T = fcfg["field"]["n_fields"], fcfg["field"]["B_max_T"]
     if spec["protocol"] == "llg":
-        from ..forc.adaptive import SlewRate, adaptive_family
-
         f, m0, _ = build_film(fcfg, params, pinning="slaved", rng=rng)
         fam = adaptive_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, settings=SlewRate(**slew_rate_options(fcfg)))
     else:
@@ -916,7 +915,6 @@ def figure(summary: dict, path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     fig = draw_figure(summary)
     with atomic_path(path) as tmp:

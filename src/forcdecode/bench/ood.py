@@ -36,6 +36,7 @@ from ..forc.raster import rasterize_grid_family
 from ..infer.predictive_check import check_figure, predictive_check
 from ..infer.refine import fit_one
 from ..reference.independent import IndependentFilm, magnumnp_family
+from ..reference.magnumnp_film import magnumnp_available
 
 CASES = ("control", "no_pinning", "pinning_beyond_prior", "grains_8nm", "magnumnp")
 DISORDER_KEY_OFFSET = 1_000_000
@@ -102,8 +103,6 @@ def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: 
     """Images (n, side, side) and grid families (n, n_fields, n_fields) of ``case`` for the Hamiltonians
     ``rows`` (SI dicts), new disorder per key."""
     if case == "magnumnp":
-        from ..reference.magnumnp_film import magnumnp_available
-
         if not magnumnp_available():
             raise ConfigError("the magnumnp case needs magnum.np (pip install -e .[reference])")
         jobs = [(cfg, {**r, "N_pin": 0}, int(k)) for r, k in zip(rows, keys)]

@@ -17,6 +17,7 @@ from ..core.parameters import k_eff, prior_class
 from ..core.streams import stream_rng
 from .combinations import alice_combination_metrics
 from .data import load_dataset
+from .sealed import attach_sealed
 
 FIGURE3_PANELS = ("A_ex", "N_pin", "K_u", "D")
 LABELS = {"N_pin": r"$N_\mathrm{pin}$", "A_ex": r"$A_\mathrm{ex}$", "K_u": r"$K_u$", "D": r"$D$",
@@ -286,7 +287,6 @@ def dataset_truth(dataset) -> tuple[dict, str]:
     (``core.parameters.prior_class`` of the stored config; absent: paper). No images are read."""
     import h5py
 
-
     with h5py.File(dataset, "r") as h5:
         columns = list(h5["parameters"].attrs["columns"])
         parameters = h5["parameters"][:]
@@ -384,8 +384,6 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
         metrics["by_regime"] = regime_metrics(predictions, dataset.path)
         metrics["prior_class"] = metrics["by_regime"]["prior_class"]
     if sealed is not None:
-        from .sealed import attach_sealed
-
         metrics = attach_sealed(metrics, sealed)
     if dataset is not None or sealed is not None:
         io.write_json(out_metrics, json.loads(json.dumps(metrics, default=float)))
