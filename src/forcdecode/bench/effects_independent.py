@@ -818,6 +818,7 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
     resolve_estimator(args)  # --estimator auto as the loop resolves it (and the posterior's default path)
     try:
         if args.estimator == "alice":
+            # loads torch: imported only when this runs
             from ..learn.predictor import load_models
 
             load_models(args.models)

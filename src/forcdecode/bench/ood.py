@@ -159,6 +159,7 @@ def bench_ood(est, cfg: dict, families: HeldOutFamilies, cases=CASES, workers: i
     and judged by the posterior-predictive check."""
     rows, sample_ids, ms_norm = families.rows, families.sample_ids, families.ms_norm
     dataset_images = families.dataset_images
+    # loads torch: imported only when this runs
     from ..learn.ood import ood_check
 
     unknown = [c for c in cases if c not in CASES]

@@ -302,6 +302,7 @@ def _step_evaluate(args) -> int:
 
 def _step_sealed(args) -> int:
     """`forcdecode learn sealed`."""
+    # loads torch: imported only when this runs
     from .predictor import load_models
 
     cfg = read_config(args.config)
@@ -364,6 +365,7 @@ def run_predict(args) -> int:
     the prior-class check (``learn.prior_class``): a file whose loop contradicts the class the model was
     trained on raises PriorClassError (exit 2) unless ``--force``; the class is printed (JSON:
     ``prior_class``, ``prior_check``)."""
+    # loads torch: imported only when this runs
     from .predictor import image_from_input, load_models, models_prior_class, predict_parameters, prediction_lines
 
     models_dir, models_line = resolve_models(args.models)
@@ -378,6 +380,7 @@ def run_predict(args) -> int:
         choice = choose_estimator(args.models, args.posterior)
         args.estimator = choice["estimator"]
     if args.estimator == "posterior":
+        # loads torch: imported only when this runs
         from .posterior import PosteriorEstimator, posterior_prediction
 
         estimator = PosteriorEstimator.load(args.posterior)

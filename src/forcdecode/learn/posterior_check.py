@@ -86,6 +86,7 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     metrics["pit_histogram"] = {name: np.histogram(np.asarray(metrics["ranks"][name]) / int(draws), bins=PIT_BINS,
                                                    range=(0.0, 1.0))[0].tolist() for name in names}
     metrics["coverage_binomial_band"] = {f"{int(round(a * 100))}": binomial_band(len(u), a) for a in levels}
+    # loads torch: imported only when this runs
     from .ood import ood_check
 
     flags = ood_check(est, data.images, data.ms_norm)
@@ -157,6 +158,7 @@ def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_dat
     ``fitted_on``, and ``previous`` (the record it replaces); ``beta`` holds the maps whose p lies below
     ``gate_alpha`` (default: the model's setting, else the schema's), ``beta_fitted`` all of them.
     Refused like ``fresh_calibration``."""
+    # loads torch: imported only when this runs
     from .posterior import gated_recalibration_record
 
     if int(draws) < 2:

@@ -258,6 +258,7 @@ def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 
         prediction_u[name], target_u[name] = other["prediction"].to_numpy(float), other["target"].to_numpy(float)
     shuffled_u = None
     if models is not None:
+        # loads torch: imported only when this runs
         from .pipeline import N_SHUFFLES
         from .predictor import ParameterModel
 
