@@ -12,6 +12,7 @@ import argparse
 import importlib
 import sys
 from ._runtime import limit_blas_threads, tune_allocator
+from .core.errors import ForcdecodeError
 
 # command name -> (module, one-line help)
 COMMANDS = {
@@ -51,7 +52,6 @@ def main(argv: list[str] | None = None) -> int:
                                                  description=COMMANDS[argv[0]][1])
         module.add_arguments(command_parser)
         args = command_parser.parse_args(argv[1:])
-        from .core.errors import ForcdecodeError
 
         try:
             return int(module.run(args) or 0)

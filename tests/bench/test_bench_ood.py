@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from forcdecode.bench.ood import CASES, bench_ood, carry_over, case_film, clopper_pearson, ood_lines
+from forcdecode.bench.ood import CASES, HeldOutFamilies, bench_ood, carry_over, case_film, clopper_pearson, ood_lines
 from forcdecode.core.errors import ConfigError
 from forcdecode.learn.posterior import PosteriorEstimator, train_posterior
 from forcdecode.learn.scoring import binomial_band
@@ -58,8 +58,9 @@ def test_flag_rates_of_known_families_from_the_stored_images(model, tmp_path):
     np.savez_compressed(tmp_path / "grains_8nm.npz", images=other)
     rows = [{"Ms": 8e5}] * 60
     # cfg None: a case without stored images would have to simulate, and fail
-    result = bench_ood(model, None, rows, range(60), fresh.ms_norm, cases=("control", "grains_8nm"),
-                       out_dir=tmp_path, say=lambda *_: None, dataset_images=fresh.images)
+    families = HeldOutFamilies(rows, range(60), fresh.ms_norm, dataset_images=fresh.images)
+    result = bench_ood(model, None, families, cases=("control", "grains_8nm"), out_dir=tmp_path,
+                       say=lambda *_: None)
     control, other_row = result["cases"]["control"], result["cases"]["grains_8nm"]
     assert control["flagged_fraction"] <= binomial_band(60, 0.05)[1], control
     assert other_row["flagged_fraction"] >= 0.8, other_row
@@ -70,15 +71,16 @@ def test_flag_rates_of_known_families_from_the_stored_images(model, tmp_path):
     assert control["median_grey_levels_from_dataset_family"] == 0.0
     assert other_row["median_grey_levels_from_dataset_family"] > 30
     with pytest.raises(ConfigError, match="holds 60 families, not the 10"):
-        bench_ood(model, None, rows[:10], range(10), fresh.ms_norm[:10], cases=("control",), out_dir=tmp_path)
+        bench_ood(model, None, HeldOutFamilies(rows[:10], range(10), fresh.ms_norm[:10]), cases=("control",),
+                  out_dir=tmp_path)
 
 
 def test_unknown_cases_and_models_without_reference_are_refused(model, tmp_path):
     with pytest.raises(ConfigError, match="unknown OOD case"):
-        bench_ood(model, None, [], [], [], cases=("tilted",), out_dir=tmp_path)
+        bench_ood(model, None, HeldOutFamilies([], [], []), cases=("tilted",), out_dir=tmp_path)
     bare = PosteriorEstimator(model.net, model.architecture, model.names, model.bounds)
     with pytest.raises(ConfigError, match="no OOD reference"):
-        bench_ood(bare, None, [], [], [], cases=CASES[:1], out_dir=tmp_path)
+        bench_ood(bare, None, HeldOutFamilies([], [], []), cases=CASES[:1], out_dir=tmp_path)
 
 
 def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
@@ -100,8 +102,8 @@ def test_the_predictive_check_per_case_reads_saved_refinements(model, tmp_path):
     reference = make_reference(np.linspace(0.4, 1.2, 20), budget=25, round_size=25, prior="draw", sample_ids=range(20))
     settings = {"budget": 25, "round_size": 25, "workers": 1, "seed": 0, "prior": "draw",
                 "fit_dir": str(tmp_path / "fits"), "reference": reference, "cases": ("pinning_beyond_prior",)}
-    result = bench_ood(model, None, [{"Ms": 8e5}] * 20, range(20), fresh.ms_norm, cases=("pinning_beyond_prior",),
-                       out_dir=tmp_path, say=lambda *_: None, predictive=settings)
+    result = bench_ood(model, None, HeldOutFamilies([{"Ms": 8e5}] * 20, range(20), fresh.ms_norm),
+                       cases=("pinning_beyond_prior",), out_dir=tmp_path, say=lambda *_: None, predictive=settings)
     row = result["cases"]["pinning_beyond_prior"]["predictive"]
     assert row["flagged"] == 15 and row["n"] == 20 and row["median_statistic"] == 5.0
     assert row["flagged_by_either"] >= 15 and row["p_values"][0] == pytest.approx(1 / 21)

@@ -56,15 +56,15 @@ def test_summary_of_the_joint_refit_uses_it_only_where_it_generalises():
 @pytest.mark.reference
 def test_one_control_case_end_to_end(tmp_path):
     pytest.importorskip("magnumnp")
-    from forcdecode.bench.effects_independent import run_case
+    from forcdecode.bench.effects_independent import CaseSettings, run_case
 
     # CI runs it: a small magnum.np film (20 × 20 cells of 2.5 nm, 8 grains; the bench's is 58 × 58) and
     # 16 curves, 2 null realisations (of 10) and 12 refit evaluations (of 24). The path is the bench's
     # own (sample, instrument file, reader, grid, refit, candidates); what the bench measures needs its
     # own film, so this checks the wiring and the refit's direction, not a rate
-    row = run_case({"case": "none", "hamiltonian": 0, "seed": 1}, tmp_path, cache_dir=tmp_path / "kernels",
-                   sample_curves=16, null_realisations=2, budget=12,
-                   sample_film={"nx": 20, "ny": 20, "cell_nm": 2.5, "n_grains": 8})
+    settings = CaseSettings(sample_curves=16, null_realisations=2, budget=12,
+                            sample_film={"nx": 20, "ny": 20, "cell_nm": 2.5, "n_grains": 8})
+    row = run_case({"case": "none", "hamiltonian": 0, "seed": 1}, tmp_path, settings, cache_dir=tmp_path / "kernels")
     # H0 (K_u = 2.6e5 J/m³, Q = 1.15) switches well inside ±1 T: the file saturates at both ends and is in
     # the domain (measured: 134 s on a loaded 2-core machine; held-out RMS 0.225 handed → 0.177 refitted)
     assert row["kind"] == "control" and row["in_domain"] is True, row.get("out_of_domain_reason")
@@ -148,9 +148,9 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_selection_options(tmp_path, mo
 
     ran = []
 
-    def fake_case(row, where, analysis=None, **kwargs):
-        ran.append(dict(analysis or {}))
-        return {**row, "kind": case_kind(row["case"]), "analysis": bench.selection_options(analysis),
+    def fake_case(row, where, settings, **kwargs):
+        ran.append(dict(settings.analysis or {}))
+        return {**row, "kind": case_kind(row["case"]), "analysis": bench.selection_options(settings.analysis),
                 "sample_curves": 48, "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}
 
     monkeypatch.setattr(bench, "run_case", fake_case)
@@ -160,14 +160,16 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_selection_options(tmp_path, mo
                                "verdict": "none", "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
     bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path)
     assert ran == []  # the default options: resumed
-    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path, analysis={"cross_fit": True})
+    bench.independent_confusion(rows, bench.CaseSettings(analysis={"cross_fit": True}), out_jsonl=out,
+                                files_dir=tmp_path)
     assert ran == [{"cross_fit": True}]
     # a row written before rows kept their options ran the rule of then (evidence needed the bootstrap)
     out.write_text(json.dumps({**rows[0], "kind": "control", "sample_curves": 48, "verdict": "none",
                                "chosen": "none", "correct": True, "heldout_ratio": 1.0}) + "\n")
     bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path)
     assert ran[-1] == {}
-    bench.independent_confusion(rows, out_jsonl=out, files_dir=tmp_path, analysis={"evidence_suffices": False})
+    bench.independent_confusion(rows, bench.CaseSettings(analysis={"evidence_suffices": False}), out_jsonl=out,
+                                files_dir=tmp_path)
     assert len(ran) == 2  # resumed: the legacy row is this rule's
 
 

@@ -166,7 +166,7 @@ def test_fiducial_processes_run_side_by_side_and_resume(tmp_path, monkeypatch):
     base = {"Ms": 5.0e5, "A_ex": 1.5e-11, "K_u": 3.5e5, "D": 5e-4, "N_pin": 10, "sigma_theta_deg": 2.0,
             "sigma_K": 0.05}
     fids = [{**base, "sample_id": 1, "regime": "domains"}, {**base, "K_u": 4.0e5, "sample_id": 2, "regime": "domains"}]
-    info.run_fiducials(cfg, "tiny", fids, 2, [0.1], 0, tmp_path, say=lambda *_: None, workers=2)
+    info.run_fiducials(cfg, "tiny", fids, info.FiducialDesign(2, [0.1], 0), tmp_path, say=lambda *_: None, workers=2)
     results = {sid: tmp_path / "tiny" / f"s{sid:05d}.json" for sid in (1, 2)}
     assert all(p.exists() for p in results.values())
     rows = [json.loads(line) for line in (tmp_path / "costs.jsonl").read_text().splitlines()]
@@ -177,7 +177,7 @@ def test_fiducial_processes_run_side_by_side_and_resume(tmp_path, monkeypatch):
     n_families = len(list((tmp_path / "tiny").rglob("*.npz")))
     assert n_families == 2 * 3 * 2  # fiducials x (centre, +delta, -delta) x R
     results[2].unlink()
-    info.run_fiducials(cfg, "tiny", fids, 2, [0.1], 0, tmp_path, say=lambda *_: None, workers=2)
+    info.run_fiducials(cfg, "tiny", fids, info.FiducialDesign(2, [0.1], 0), tmp_path, say=lambda *_: None, workers=2)
     again = json.loads(results[2].read_text())
     key = "R2_d0.1"
     assert again["channels"]["float"][key]["crb_single"] == first["channels"]["float"][key]["crb_single"]
@@ -203,8 +203,8 @@ def test_workers_beyond_the_fiducials_share_one_fiducial_and_give_its_single_pro
     stale = info.claim_path(info.family_path(shared, "tiny", 3, "c", 0))
     stale.parent.mkdir(parents=True)
     stale.touch()  # as a killed run leaves it
-    info.run_fiducials(cfg, "tiny", [fid], 3, [0.1], 0, shared, say=lambda *_: None, workers=2)
-    info.run_fiducials(cfg, "tiny", [fid], 3, [0.1], 0, alone, say=lambda *_: None, workers=1)
+    info.run_fiducials(cfg, "tiny", [fid], info.FiducialDesign(3, [0.1], 0), shared, say=lambda *_: None, workers=2)
+    info.run_fiducials(cfg, "tiny", [fid], info.FiducialDesign(3, [0.1], 0), alone, say=lambda *_: None, workers=1)
     rows = [json.loads(line) for line in (shared / "costs.jsonl").read_text().splitlines()]
     assert len(rows) == 2 and all(r["sample_id"] == 3 and r["exit"] == 0 for r in rows)
     families = sorted(p.name for p in (shared / "tiny" / "s00003").glob("*.npz"))

@@ -5,6 +5,7 @@ import numpy as np
 from forcdecode.learn.ablation import compare_heads, head_ratios
 from forcdecode.learn.models import build_network
 from forcdecode.learn.splits import assign_splits
+from forcdecode.learn.train import AliceSettings
 from synthetic_images import bar_images
 
 
@@ -13,7 +14,7 @@ def test_both_heads_learn_the_bar_and_the_ratios_follow():
     splits = assign_splits(np.arange(len(u)), 3, (0.7, 0.15, 0.0, 0.15))
     train, val, test = splits["train"], splits["validation"], splits["test"]
     rows = compare_heads(images, ms, {"bar": u}, {"train": train, "validation": val, "test": test},
-                         epochs=6, patience=6, batch_size=16, lr=1.0, width=32, seed=1)
+                         training=AliceSettings(epochs=6, patience=6, batch_size=16, lr=1.0, width=32, seed=1))
     # weights from the "ablation" stream of seed 1; 6 epochs leave the small head still learning: its
     # skill over config seeds 0, 1, 2 was 0.39, 0.59, 0.75 (paper head 0.71, 0.90, 0.74)
     assert [(row["parameter"], row["network"]) for row in rows] == [("bar", "small"), ("bar", "paper")]

@@ -14,8 +14,8 @@ from forcdecode.cli import main
 from forcdecode.core.errors import ConfigError, DatasetError, ModelFileError, OutOfDomainError
 from forcdecode.core.parameters import DEFAULT_BOUNDS, denormalize, normalize
 from forcdecode.learn.data import LearningData
-from forcdecode.learn.posterior import (PosteriorEstimator, fit_posterior, from_latent, posterior_settings, summarize,
-                                        posterior_prediction, to_latent, train_posterior)
+from forcdecode.learn.posterior import (PosteriorEstimator, PosteriorFit, fit_posterior, from_latent, posterior_settings,
+                                        summarize, posterior_prediction, to_latent, train_posterior)
 from forcdecode.learn.scoring import binomial_band
 from forcdecode.learn.splits import assign_splits
 
@@ -167,7 +167,8 @@ def test_bad_inputs_raise_typed_errors(stage, tmp_path):
         posterior_settings({"bogus": 1})
     u = np.stack([data.target("K_u"), data.target("D")], axis=1)
     with pytest.raises(DatasetError, match="inside"):
-        fit_posterior(data.images, data.ms_norm, u + 0.5, np.arange(10), np.arange(10, 20), names=("K_u", "D"))
+        fit_posterior(data.images, data.ms_norm, u + 0.5, np.arange(10), np.arange(10, 20),
+                      PosteriorFit(names=("K_u", "D")))
     with pytest.raises(DatasetError, match="at least"):
         train_posterior(bar_dataset(n=5), SETTINGS, LEARNING, SEED, tmp_path / "m.pt", tmp_path / "m.json",
                         tmp_path / "f.png", log=lambda *_: None)

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from forcdecode.learn.calibration import calibration_metrics
-from forcdecode.learn.posterior import PosteriorEstimator, fit_posterior
+from forcdecode.learn.posterior import PosteriorEstimator, PosteriorFit, fit_posterior
 from forcdecode.learn.scoring import binomial_band
 
 from test_posterior_gaussian import SIGMA, exact_mean, fit_gaussian_problem
@@ -86,8 +86,8 @@ def test_an_uninformed_coordinate_is_not_narrower_than_one_member():
     theta = rng.random((600, 2))
     x = np.stack([theta[:, 0] + SIGMA * rng.standard_normal(600), rng.standard_normal(600)], axis=1)
     train, val = np.arange(400), np.arange(400, 500)
-    est = fit_posterior(x, np.zeros(600), theta, train, val, names=("a", "b"), settings=SETTINGS, seed=3,
-                        embedding="mlp")
+    est = fit_posterior(x, np.zeros(600), theta, train, val,
+                        PosteriorFit(names=("a", "b"), settings=SETTINGS, seed=3, embedding="mlp"))
     test = np.arange(500, 600)
     mixture = est.sample(x[test], np.zeros(100), 300, seed=1)[..., 1]
     widths = [np.diff(np.quantile(PosteriorEstimator(net, est.architecture, est.names).sample(

@@ -12,7 +12,7 @@ import torch
 from scipy import stats
 
 from forcdecode.learn.calibration import calibration_metrics
-from forcdecode.learn.posterior import fit_posterior
+from forcdecode.learn.posterior import PosteriorFit, fit_posterior
 from forcdecode.learn.scoring import binomial_band
 
 SIGMA = 0.08
@@ -30,8 +30,8 @@ def fit_gaussian_problem(settings, n_train, n_val, n_test, data_seed, fit_seed):
     x = theta + SIGMA * rng.standard_normal(theta.shape)
     index = np.arange(len(theta))
     train, val, test = index[:n_train], index[n_train:n_train + n_val], index[n_train + n_val:]
-    est = fit_posterior(x, np.zeros(len(x)), theta, train, val, names=("a", "b"), settings=settings, seed=fit_seed,
-                        embedding="mlp")
+    est = fit_posterior(x, np.zeros(len(x)), theta, train, val,
+                        PosteriorFit(names=("a", "b"), settings=settings, seed=fit_seed, embedding="mlp"))
     return est, x[test], theta[test]
 
 

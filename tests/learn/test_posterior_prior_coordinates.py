@@ -15,7 +15,7 @@ import torch
 
 from forcdecode.core.parameters import normalize
 from forcdecode.dataset.params import draw_parameters, draw_prior_quantiles
-from forcdecode.learn.posterior import fit_posterior, from_coordinates, to_coordinates
+from forcdecode.learn.posterior import PosteriorFit, fit_posterior, from_coordinates, to_coordinates
 from forcdecode.learn.scoring import binomial_band
 
 N_TRAIN, N_VAL, N_TEST = 1200, 300, 300
@@ -38,8 +38,9 @@ def fitted(request):
     Ms, ms_norm, u, x = data()
     index = np.arange(len(u))
     train, val, test = index[:N_TRAIN], index[N_TRAIN:N_TRAIN + N_VAL], index[N_TRAIN + N_VAL:]
-    est = fit_posterior(x, ms_norm, u, train, val, names=NAMES, settings={**SETTINGS, "coordinates": request.param},
-                        seed=1, embedding="mlp")
+    est = fit_posterior(x, ms_norm, u, train, val,
+                        PosteriorFit(names=NAMES, settings={**SETTINGS, "coordinates": request.param}, seed=1,
+                                     embedding="mlp"))
     draws = est.sample(x[test], ms_norm[test], 400, seed=3)
     exact = np.array([draw_prior_quantiles("A_ex", m, [0.05, 0.5, 0.95]) for m in Ms[test]])
     return request.param, est, draws, exact, u[test]

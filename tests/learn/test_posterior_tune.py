@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from forcdecode.learn.posterior_tune import tune_posterior, tuning_lines
+from forcdecode.learn.posterior_tune import TuningPlan, tune_posterior, tuning_lines
 from forcdecode.learn.splits import assign_splits
 
 from test_posterior import LEARNING, SEED, SETTINGS, bar_dataset
@@ -20,7 +20,7 @@ CANDIDATES = ({"transforms": 2, "width": 16}, {"transforms": 1, "width": 1, "hid
 def tuned():
     torch.set_num_threads(1)
     data = bar_dataset(n=200)
-    return data, tune_posterior(data, QUICK, LEARNING, SEED, candidates=CANDIDATES, draws=200, log=lambda *_: None)
+    return data, tune_posterior(data, QUICK, LEARNING, SEED, TuningPlan(candidates=CANDIDATES, draws=200), log=lambda *_: None)
 
 
 def test_the_sound_candidate_wins_on_validation(tuned):
@@ -41,7 +41,8 @@ def test_test_and_calibration_targets_do_not_matter(tuned):
         values[name][hidden] = rng.permutation(values[name][hidden])
         values[name][hidden[:3]] = values[name][hidden[3:6]] * 1.01
     scrambled = dataclasses.replace(data, values=values)
-    again = tune_posterior(scrambled, QUICK, LEARNING, SEED, candidates=CANDIDATES, draws=200, log=lambda *_: None)
+    again = tune_posterior(scrambled, QUICK, LEARNING, SEED, TuningPlan(candidates=CANDIDATES, draws=200),
+                           log=lambda *_: None)
     for a, b in zip(result["rows"], again["rows"]):
         assert a["validation_nll"] == b["validation_nll"]
         assert a["validation_coverage_90"] == b["validation_coverage_90"]

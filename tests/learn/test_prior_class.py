@@ -107,16 +107,17 @@ def save_alice(path, name="K_u", prior_class="perpendicular", side=SIDE):
     from types import SimpleNamespace
 
     from forcdecode.learn.models import build_network
-    from forcdecode.learn.pipeline import save_model
+    from forcdecode.learn.pipeline import ErrorModel, save_model
     from forcdecode.learn.uncertainty import ConformalIntervals
 
     torch.manual_seed(0)
     nets = [SimpleNamespace(net=build_network("small", width=4, image_size=side)) for _ in range(2)]
     data = SimpleNamespace(images=np.zeros((1, side, side), np.uint8), bounds=dict(DEFAULT_BOUNDS),
                            config_hash="test", prior_class=prior_class)
-    save_model(path, name=name, alice=nets[0], bob=nets[1], settings={"model": "small", "width": 4, "readout": "parabola"},
-               data=data, validation_errors=[0.1, 0.2], conformal=ConformalIntervals((0.68, 0.9), {0.68: 1.0, 0.9: 2.0}, 1e-4),
-               metrics={})
+    errors = ErrorModel(bob=nets[1], validation_errors=[0.1, 0.2],
+                        conformal=ConformalIntervals((0.68, 0.9), {0.68: 1.0, 0.9: 2.0}, 1e-4))
+    save_model(path, name=name, alice=nets[0], error_model=errors,
+               settings={"model": "small", "width": 4, "readout": "parabola"}, data=data, metrics={})
 
 
 def test_a_model_file_records_its_class_and_an_old_one_reads_as_paper(tmp_path):

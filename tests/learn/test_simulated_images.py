@@ -14,7 +14,7 @@ import torch
 from forcdecode.core.parameters import DEFAULT_BOUNDS, normalize
 from forcdecode.learn.scoring import accuracy_with_intervals, fit_ms_only, knn_median
 from forcdecode.learn.splits import assign_splits
-from forcdecode.learn.train import fit_alice
+from forcdecode.learn.train import AliceSettings, fit_alice
 
 FIXTURE = Path(__file__).with_name("data") / "laptop_forc_32px.npz"
 
@@ -27,8 +27,8 @@ def test_alice_learns_K_u_from_simulated_forc_images_beyond_ms():
     u = normalize("K_u", data["K_u"], DEFAULT_BOUNDS)
     splits = assign_splits(sample_id, 20261122, (0.6, 0.2, 0.0, 0.2))
     train, val, test = splits["train"], splits["validation"], splits["test"]
-    alice = fit_alice(images, ms, u, train, val, model="small", width=32, epochs=80, batch_size=8, lr=1.0,
-                      patience=15, seed=4)
+    alice = fit_alice(images, ms, u, train, val, AliceSettings(model="small", width=32, epochs=80, batch_size=8,
+                                                               lr=1.0, patience=15, seed=4))
     prediction = alice.predict(images[test], ms[test])
     k = fit_ms_only(ms[train], u[train], ms[val], u[val])
     ms_only = knn_median(ms[train], u[train], ms[test], k)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from forcdecode.learn.splits import assign_splits
-from forcdecode.learn.train import fit_alice
+from forcdecode.learn.train import AliceSettings, fit_alice
 from synthetic_images import bar_images
 
 
@@ -18,7 +18,8 @@ def _three_way(n, seed):
 def trained():
     images, ms, u = bar_images()
     train, val, test = _three_way(len(u), 0)
-    alice = fit_alice(images, ms, u, train, val, width=32, epochs=12, batch_size=32, lr=1.0, patience=4, seed=0)
+    alice = fit_alice(images, ms, u, train, val,
+                      AliceSettings(width=32, epochs=12, batch_size=32, lr=1.0, patience=4, seed=0))
     return alice, images, ms, u, test
 
 
@@ -39,8 +40,8 @@ def test_best_epoch_is_the_lowest_validation_loss(trained):
 def test_training_is_deterministic():
     images, ms, u = bar_images(120, 1)
     train, val, _ = _three_way(len(u), 1)
-    a = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
-    b = fit_alice(images, ms, u, train, val, width=8, epochs=2, seed=5)
+    a = fit_alice(images, ms, u, train, val, AliceSettings(width=8, epochs=2, seed=5))
+    b = fit_alice(images, ms, u, train, val, AliceSettings(width=8, epochs=2, seed=5))
     np.testing.assert_array_equal(a.outputs(images[:10], ms[:10]), b.outputs(images[:10], ms[:10]))
 
 

@@ -12,22 +12,46 @@ from ..core.errors import ConfigError
 from ..core.io import read_json, write_json
 from ..core.parameters import NAMES, normalize
 from ..core.progress import counter, echo, progress
-from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic
+from ..infer.fit import Refinement, beyond_prior
+from ..infer.predictive_check import check_figure, make_reference, predictive_check, predictive_statistic, read_reference
 from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_function, parse_extension
 from ..learn.data import load_dataset
 from ..learn.shipped import resolve_models
 from ..learn.splits import assign_splits
 from . import engine, film_learning, films, prior_learning, realisations
-from .effects_independent import (USER_LOOP_ARGS, check_estimator, check_loop_args, load_cases, user_confusion,
-                                  user_summary_lines)
+from .effects import effects_confusion, n_cases
+from .effects import summary_lines as effects_lines
+from .effects_independent import (SAMPLE_CURVES, USER_LOOP_ARGS, CaseSettings, check_estimator, check_loop_args,
+                                  independent_confusion, load_cases, signature_lines, signature_validation,
+                                  user_confusion, user_summary_lines, validation_plan)
+from .effects_independent import plan as independent_plan
+from .effects_independent import summary_lines as independent_lines
+from .fit import choice_lines, fit_summary, reading_choice
+from .fit import summary_lines as fit_lines
 from .information_cli import bench_information
-from .ood import CASES, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
+from .laptop_cases import load_cases as load_laptop_cases
+from .ood import CASES, CaseFamilies, HeldOutFamilies, bench_ood, carry_over, case_film, ood_lines, predictive_statistics
+from .prior_class import prior_class_bench
+from .prior_class import summary_lines as prior_class_lines
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Every option of ``forcdecode bench``, one group of targets at a time (in --help order)."""
     parser.add_argument("target", choices=list(TARGETS), help="what to benchmark")
     parser.add_argument("--samples", type=int, default=3, help="protocols: samples compared")
     parser.add_argument("--seeds", type=int, default=3, help="effects: noise seeds per effect and size")
+    _add_effects_arguments(parser)
+    _add_engine_arguments(parser)
+    _add_thickness_arguments(parser)
+    _add_films_arguments(parser)
+    _add_fit_arguments(parser)
+    _add_ood_arguments(parser)
+    _add_information_arguments(parser)
+    _add_learn_arguments(parser)
+
+
+def _add_effects_arguments(parser: argparse.ArgumentParser) -> None:
+    """effects: the independent-sample bench's options (``--independent`` and what it reads)."""
     parser.add_argument("--independent", action="store_true",
                         help="effects: samples made by magnum.np (another grid and disorder) in instrument files, "
                              "each run through `forcdecode loop` as a user runs it (needs the reference extra and "
@@ -75,6 +99,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "bench.effects_independent.SAMPLE_CURVES)")
     parser.add_argument("--model-profiles", type=int, default=1,
                         help="effects --independent: disorder profiles averaged in each re-simulation of the model")
+
+
+def _add_engine_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--json`` (every target) and the engine bench's options (magnum.np peer, grid, timing window)."""
     parser.add_argument("--json", action="store_true", help="end with one JSON line (always printed last)")
     parser.add_argument("--skip-magnumnp", action="store_true", help="do not run the magnum.np peer")
     parser.add_argument("--skip-256", action="store_true", help="skip the 256×256×2 grid")
@@ -82,6 +110,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+
+
+def _add_thickness_arguments(parser: argparse.ArgumentParser) -> None:
+    """thickness: the models' answer on films of other thicknesses (issue 60)."""
     thickness = parser.add_argument_group("thickness (the models' answer on films of other thicknesses, issue 60)")
     thickness.add_argument("--thickness-models", default=None,
                            help="thickness: the models decoded with (default: the shipped set, else results/models)")
@@ -92,6 +124,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            help="thickness: film thicknesses simulated (default 2 3 4 5 6 8)")
     thickness.add_argument("--thickness-out", default="results/bench/thickness",
                            help="thickness: rows.jsonl (resumable) and thickness.json")
+
+
+def _add_films_arguments(parser: argparse.ArgumentParser) -> None:
+    """films, film-learning, realisations, prior-learning: the runs compared and where they are."""
     films = parser.add_argument_group("films (the same Hamiltonians on the laptop film and larger ones)")
     films.add_argument("--config", default=None, help="films: base config (default: the shipped laptop config)")
     films.add_argument("--hamiltonians", type=int, default=20, help="films: screened dataset draws compared")
@@ -117,6 +153,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="realisations: summary.json and realisations.png")
     films.add_argument("--learning-out", default="results/bench/film_learning",
                        help="film-learning: summary.json and film_learning.png")
+
+
+def _add_fit_arguments(parser: argparse.ArgumentParser) -> None:
+    """fit: refinement by simulation on held-out test families."""
     fit = parser.add_argument_group("fit (refinement by simulation on held-out test families)")
     fit.add_argument("--posterior", default="results/posterior/model.pt", help="fit: the amortized posterior")
     fit.add_argument("--families", type=int, default=5, help="fit: test families refined")
@@ -136,6 +176,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           "(FIT_DIR/extension_reference.json, written by a --split validation run in the same box)")
     fit.add_argument("--split", choices=["validation", "test"], default="test",
                      help="fit: the families refined (choose settings on validation; report on test)")
+
+
+def _add_ood_arguments(parser: argparse.ArgumentParser) -> None:
+    """ood: the posterior's out-of-distribution and predictive checks."""
     ood = parser.add_argument_group("ood (the posterior's out-of-distribution check on films made to be in and out)")
     ood.add_argument("--ood-cases", nargs="+", help="ood: cases (default: all; magnumnp needs the reference extra)")
     ood.add_argument("--ood-dir", default="results/bench/ood", help="ood: images per case (resumable) and summary.json")
@@ -147,6 +191,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      "every case asked for)")
     ood.add_argument("--calibration-families", type=int, default=20,
                      help="ood: validation families the predictive check is calibrated on (>= 20 for alpha 0.05)")
+
+
+def _add_information_arguments(parser: argparse.ArgumentParser) -> None:
+    """information: the Fisher map of the FORC family."""
     info = parser.add_argument_group("information (Fisher map of the FORC family; --films FILM[:NxR], "
                                      "--config, --workers, --summarize-only shared with films)")
     info.add_argument("--fiducials", type=int, default=16, help="information: fiducial Hamiltonians per film")
@@ -159,6 +207,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     info.add_argument("--info-dir", default="results/bench/information", help="information: families, "
                       "fiducials.json, one JSON per fiducial, summary.json (resumable)")
     info.add_argument("--stop-at", default=None, help="information: start no fiducial process after this UTC time (HH:MM)")
+
+
+def _add_learn_arguments(parser: argparse.ArgumentParser) -> None:
+    """learn: the paper network against the laptop head (and prior-class's --dataset, --out)."""
     learn = parser.add_argument_group("learn (paper network vs laptop head, same split and optimizer)")
     learn.add_argument("--dataset", default="results/dataset.h5", help="merged dataset (forcdecode dataset merge); "
                        "prior-class: the families whose rates the prior-class rule is measured on (read only)")
@@ -209,11 +261,9 @@ def _bench_protocols(args, say) -> int:
 def _bench_effects(args, say) -> int:
     if args.independent:
         return _bench_effects_independent(args, say)
-    from .effects import effects_confusion, n_cases, summary_lines
-
     with progress(total=n_cases(args.seeds), desc="effects", unit="cases") as bar:
         result = effects_confusion(seeds=range(args.seeds), progress=lambda row: bar.update())
-    for line in summary_lines(result):
+    for line in effects_lines(result):
         say(line)
     if args.json:
         print(json.dumps({k: v for k, v in result.items() if k != "cases"}))
@@ -221,6 +271,7 @@ def _bench_effects(args, say) -> int:
 
 
 def _bench_thickness(args, say) -> int:
+    # loads torch: imported only when this target runs
     from .thickness import THICKNESSES_NM, run_study, summary_lines
 
     cfg = load_config(args.thickness_config or shipped_config("config"))
@@ -244,15 +295,11 @@ def _bench_information(args, say) -> int:
 def _bench_effects_independent(args, say) -> int:
     from pathlib import Path
 
-    from .effects_independent import SAMPLE_CURVES, independent_confusion, plan, summary_lines, validation_plan
-
     curves = SAMPLE_CURVES if args.sample_curves is None else args.sample_curves
     if curves < 4:
         raise ConfigError(f"--sample-curves ({curves}) must be at least 4")
 
     if args.signatures:
-        from .effects_independent import signature_lines, signature_validation
-
         out = Path(args.effects_out) / "signatures"
         result = signature_validation(cache_dir=args.cache_dir, out_dir=out / "files", sample_curves=curves,
                                       samples_dir=Path(args.effects_out) / "samples",
@@ -263,7 +310,7 @@ def _bench_effects_independent(args, say) -> int:
         raise ConfigError(f"--patches ({args.patches}) and --model-profiles ({args.model_profiles}) must be at least 1")
     if not (args.oracle or args.validation):
         return _bench_effects_user(args, say)
-    rows = validation_plan() if args.validation else plan()
+    rows = validation_plan() if args.validation else independent_plan()
     analysis = {**({"cross_fit": True} if args.cross_fit else {}),
                 **({"evidence_suffices": False} if args.evidence_needs_bootstrap else {})}
     if args.cases:
@@ -278,10 +325,11 @@ def _bench_effects_independent(args, say) -> int:
                 f"{'' if row['correct'] else '  [wrong]'} ({row['case_s']:.0f} s)")
             bar.update()
 
-        result = independent_confusion(rows, cache_dir=args.cache_dir, progress=done, out_jsonl=out / "cases.jsonl",
-                                       files_dir=out / "files", patches=args.patches, profiles=args.model_profiles,
-                                       sample_curves=curves, samples_dir=out / "samples", analysis=analysis)
-    return _finish(out, result, summary_lines(result), args.json, say, omit="cases")
+        settings = CaseSettings(patches=args.patches, profiles=args.model_profiles, sample_curves=curves,
+                                analysis=analysis)
+        result = independent_confusion(rows, settings, cache_dir=args.cache_dir, samples_dir=out / "samples",
+                                       files_dir=out / "files", out_jsonl=out / "cases.jsonl", progress=done)
+    return _finish(out, result, independent_lines(result), args.json, say, omit="cases")
 
 
 def _bench_effects_user(args, say) -> int:
@@ -299,8 +347,6 @@ def _bench_effects_user(args, say) -> int:
     loop_args = tuple(USER_LOOP_ARGS if args.loop_args is None else shlex.split(args.loop_args))
     check_loop_args(loop_args)
     if args.case_set.startswith("laptop-"):
-        from .laptop_cases import load_cases as load_laptop_cases
-
         cases = load_laptop_cases(args.case_set.removeprefix("laptop-"))
     else:
         cases = load_cases(args.case_set)
@@ -348,11 +394,12 @@ def _finish(out, result: dict, lines, as_json: bool, say, omit: str) -> int:
 
 
 def _bench_learn(args, say) -> int:
-    from ..learn.ablation import run_head_ablation, summary_lines
+    # loads torch: imported only when this target runs
+    from ..learn.ablation import HeadAblation, run_head_ablation, summary_lines
 
-    result = run_head_ablation(args.dataset, learning_config=args.learning_config, parameters=args.parameters,
-                               heads=args.heads, epochs=args.epochs, patience=args.patience, seed=args.seed,
-                               threads=args.threads, out=args.out, log=say)
+    ablation = HeadAblation(parameters=args.parameters, heads=args.heads, epochs=args.epochs, patience=args.patience,
+                            seed=args.seed, threads=args.threads)
+    result = run_head_ablation(args.dataset, ablation, learning_config=args.learning_config, out=args.out, log=say)
     say("")
     for line in summary_lines(result):
         say(line)
@@ -467,6 +514,7 @@ def _workflow_splits(stage: dict, data) -> dict:
 def _held_out_families(args):
     """(the workflow's learning.json, the dataset, the posterior, indices of the ``--split`` families)
     for the benches that run on held-out families of a trained posterior."""
+    # loads torch: imported only when this target runs
     from ..learn.posterior import PosteriorEstimator
 
     stage = read_json(args.learning_config or f"{os.path.dirname(args.dataset)}/learning.json", what="learning config")
@@ -497,8 +545,6 @@ def _bench_fit(args, say) -> int:
     extend = parse_extension(args.extend_prior, tuple(est.names))
     reference = None
     if args.extension_reference:
-        from ..infer.predictive_check import read_reference
-
         reference = read_reference(args.extension_reference, round_size=args.round_size, prior=args.prior,
                                    budget_run=budgets[-1], extend=extend, what="extension-check reference")
     observations = _case_observations(args, cfg, data, held_out, chosen) if args.case else None
@@ -522,8 +568,7 @@ def _bench_fit(args, say) -> int:
             state_path = f"{args.fit_dir}/state_{sid}.npz"
             if (result is not None and extend and os.path.exists(state_path)
                     and "log_likelihood_ratio_by_budget" not in (result.get("beyond_prior") or {})):
-                from ..infer.fit import Refinement, beyond_prior  # a result from before Λ: from its saved particles
-
+                # a result from before Λ: from its saved particles
                 result["beyond_prior"] = beyond_prior(Refinement.load(state_path))
                 write_json(path, result)
             if result is None or any(str(b) not in result["refined_by_budget"] for b in budgets):
@@ -547,15 +592,12 @@ def _bench_fit(args, say) -> int:
                     result["case"] = args.case
                 write_json(path, result)
             rows.append(result)
-    from .fit import fit_summary, summary_lines
 
     out = {"split": args.split, "method": args.method, "prior": args.prior, "case": args.case, "sample_ids": [int(data.sample_id[k]) for k in chosen],
            **fit_summary(rows, budgets, data.bounds, np.random.default_rng(stage["seed"]))}
-    for line in summary_lines(out):
+    for line in fit_lines(out):
         say(line)
     if args.method == "adjusted":  # the rule that chooses the answer's reading (on validation families)
-        from .fit import choice_lines, reading_choice
-
         out["reading_choice"] = reading_choice(rows, budgets[-1], np.random.default_rng(stage["seed"]))
         for line in choice_lines(out["reading_choice"]):
             say(line)
@@ -649,8 +691,8 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
         curves = [h5["curves_mz"][k].astype(float) for k in chosen]
     sids = [int(data.sample_id[k]) for k in chosen]
     say(f"predictive check: calibrating on {len(chosen)} validation families ({args.predictive_budget} simulations each)")
-    results = predictive_statistics(est, cfg, data.images[chosen], curves, data.values["Ms"][chosen], sids, settings,
-                                    f"{args.ood_dir}/predictive/validation", say)
+    validation = CaseFamilies(data.images[chosen], curves, data.values["Ms"][chosen], sids)
+    results = predictive_statistics(est, cfg, validation, settings, f"{args.ood_dir}/predictive/validation", say)
     values = [predictive_statistic(r, args.predictive_budget) for r in results]
     reference = make_reference(values, budget=args.predictive_budget, round_size=args.round_size, prior=args.prior,
                                sample_ids=sids)
@@ -661,10 +703,8 @@ def _predictive_reference(args, stage, data, est, cfg, say) -> dict:
 
 def _bench_prior_class(args, say) -> int:
     """Rates of the prior-class rule (``learn.prior_class``) on the families of --dataset (read only)."""
-    from .prior_class import prior_class_bench, summary_lines
-
     result = prior_class_bench(args.dataset)
-    for line in summary_lines(result):
+    for line in prior_class_lines(result):
         say(line)
     if args.out:
         write_json(args.out, result)
@@ -687,9 +727,10 @@ def _bench_ood(args, say) -> int:
     predictive = None
     if args.predictive_budget:
         predictive = _predictive_reference(args, stage, data, est, cfg, say)
-    result = bench_ood(est, cfg, rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
-                       cases=tuple(args.ood_cases or CASES), workers=args.workers, out_dir=args.ood_dir, say=say,
-                       dataset_images=data.images[chosen], predictive=predictive)
+    families = HeldOutFamilies(rows, [int(data.sample_id[k]) for k in chosen], data.ms_norm[chosen],
+                               dataset_images=data.images[chosen])
+    result = bench_ood(est, cfg, families, cases=tuple(args.ood_cases or CASES), workers=args.workers,
+                       out_dir=args.ood_dir, say=say, predictive=predictive)
     if predictive is not None:
         result["predictive_reference"] = predictive["reference"]
     result.update(split=args.split, sample_ids=[int(data.sample_id[k]) for k in chosen], posterior=str(args.posterior))

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import tempfile
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -223,20 +223,41 @@ def plan(hamiltonians=(0,), control_hamiltonians=(0, 1), control_seeds=(1, 2), c
     return rows
 
 
-def run_case(row: dict, work_dir, cache_dir=None, budget: int = 24, noise: float = 0.002,
-             null_realisations: int | None = None, patches: int = 1, profiles: int = 1,
-             sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None,
-             sample_film: dict | None = None) -> dict:
+@dataclass(frozen=True)
+class CaseSettings:
+    """How every independent case is run.
+
+    - ``budget``: evaluations of the Hamiltonian refit;
+    - ``noise``: the instrument's noise σ, a fraction of the saturation moment;
+    - ``null_realisations``: null realisations of the selection (None: ``NULL_REALISATIONS``);
+    - ``patches``: magnum.np patches averaged in the sample;
+    - ``profiles``: disorder profiles averaged in every re-simulation of the model (the realisation
+      floor falls as 1/√n on each side);
+    - ``sample_curves``: FORCs in the instrument file;
+    - ``analysis``: options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g.
+      ``cross_fit``, ``evidence_suffices``), kept in the row; None: the defaults;
+    - ``sample_film``: keys of ``SAMPLE`` replaced (a smaller magnum.np film for a test of the wiring)."""
+
+    budget: int = 24
+    noise: float = 0.002
+    null_realisations: int | None = None
+    patches: int = 1
+    profiles: int = 1
+    sample_curves: int = SAMPLE_CURVES
+    analysis: dict | None = None
+    sample_film: dict | None = None
+
+
+def run_case(row: dict, work_dir, settings: CaseSettings = CaseSettings(), *, cache_dir=None,
+             samples_dir=None) -> dict:
     """One case end to end: magnum.np sample, instrument file, read back, put on the grid by the
     measured rule, Hamiltonian refitted, candidates judged. ``row``: {"case", "hamiltonian", "seed"}
     and, for a case apart from ``CASES`` (``VALIDATION_CASES``), its "physics" and "instrument";
-    ``patches``: magnum.np patches averaged in
-    the sample; ``profiles``: disorder profiles averaged in every re-simulation of the model (the
-    realisation floor falls as 1/√n on each side); ``sample_curves``: FORCs in the file;
-    ``samples_dir``: where magnum.np samples are kept and reused (``stored_sample``); ``analysis``:
-    options of the selection passed to ``loop.refit.analyse_with_refit`` (e.g. ``cross_fit``,
-    ``evidence_suffices``), kept in the row; ``sample_film``: keys of ``SAMPLE`` replaced for this case (a
-    smaller magnum.np film for a test of the wiring). Returns the JSON-ready row."""
+    ``settings``: how the case is run (:class:`CaseSettings`); ``samples_dir``: where magnum.np samples
+    are kept and reused (``stored_sample``). Returns the JSON-ready row."""
+    budget, noise, null_realisations = settings.budget, settings.noise, settings.null_realisations
+    patches, profiles, sample_curves = settings.patches, settings.profiles, settings.sample_curves
+    analysis, sample_film = settings.analysis, settings.sample_film
     name, h, seed = row["case"], row["hamiltonian"], row["seed"]
     physics, settings = (row["physics"], row["instrument"]) if "physics" in row else CASES[name]
     analysis = selection_options(analysis)
@@ -333,15 +354,15 @@ def _row_key(row: dict) -> tuple:
             json.dumps([row.get("physics"), row.get("instrument")], sort_keys=True))
 
 
-def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=None, done=None,
-                          out_jsonl=None, files_dir=None, patches: int = 1, profiles: int = 1,
-                          sample_curves: int = SAMPLE_CURVES, samples_dir=None, analysis: dict | None = None) -> dict:
-    """Run the planned cases (``done``: rows already run are kept; ``out_jsonl``: each finished case is
-    appended there and the ones already in it are not run again, so a killed run resumes; ``files_dir``:
-    the instrument files are kept there, one per case, for ``forcdecode loop``; ``samples_dir``: the
-    magnum.np samples, shared by cases that differ by the instrument only);
-    returns {"cases", "confusion", "correct_fraction", "false_attribution_controls",
+def independent_confusion(rows=None, settings: CaseSettings = CaseSettings(), *, cache_dir=None, samples_dir=None,
+                          files_dir=None, done=None, out_jsonl=None, progress=None) -> dict:
+    """Run the planned cases with ``settings`` (:class:`CaseSettings`; ``done``: rows already run are
+    kept; ``out_jsonl``: each finished case is appended there and the ones already in it are not run
+    again, so a killed run resumes; ``files_dir``: the instrument files are kept there, one per case, for
+    ``forcdecode loop``; ``samples_dir``: the magnum.np samples, shared by cases that differ by the
+    instrument only); returns {"cases", "confusion", "correct_fraction", "false_attribution_controls",
     "false_attribution_outside_library", "median_heldout_reduction", "n_cases", "wall_s"}."""
+    sample_curves, analysis = settings.sample_curves, settings.analysis
     rows = plan() if rows is None else rows
     finished = list(done or [])
     if out_jsonl is not None and Path(out_jsonl).exists():
@@ -359,9 +380,7 @@ def independent_confusion(rows=None, cache_dir=None, budget: int = 24, progress=
         for row in rows:
             if _row_key(row) in seen:
                 continue
-            finished.append(run_case(row, where, cache_dir=cache_dir, budget=budget, patches=patches,
-                                     profiles=profiles, sample_curves=sample_curves, samples_dir=samples_dir,
-                                     analysis=analysis))
+            finished.append(run_case(row, where, settings, cache_dir=cache_dir, samples_dir=samples_dir))
             if out_jsonl is not None:
                 Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
                 with open(out_jsonl, "a") as f:
@@ -802,6 +821,7 @@ def check_estimator(loop_args, fallback: str | None = None) -> str:
     resolve_estimator(args)  # --estimator auto as the loop resolves it (and the posterior's default path)
     try:
         if args.estimator == "alice":
+            # loads torch: imported only when this runs
             from ..learn.predictor import load_models
 
             load_models(args.models)

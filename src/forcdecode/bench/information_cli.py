@@ -70,7 +70,8 @@ def bench_information(args, say) -> int:
             write_json(fid_file, fiducials)
             say(f"wrote {fid_file}: mass {fiducials['screened_mass']}, allotted {fiducials['allotted']}")
         for film, n, R in plan:
-            info.run_fiducials(cfg, film, info.film_fiducials(film, fiducials["fiducials"])[:n], R, args.delta, args.stability_fiducials, out,
+            design = info.FiducialDesign(R, args.delta, args.stability_fiducials)
+            info.run_fiducials(cfg, film, info.film_fiducials(film, fiducials["fiducials"])[:n], design, out,
                                say=say, stop_at=_stop_time(args.stop_at), workers=args.workers)
     if args.summarize_only:
         info.reanalyse(out, say=say)

@@ -40,6 +40,7 @@ import resource
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +51,7 @@ from ..core.parameters import denormalize, normalize
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..dataset.simulate import screen
+from ..forc.adaptive import SlewRate, adaptive_family
 from ..forc.protocol import quasistatic_family
 from ..forc.raster import rasterize_grid_family
 from ..micromag.build import build_film, slew_rate_options, sweep_options
@@ -240,8 +242,6 @@ def simulate_family(cfg: dict, film: str, params: dict, sid: int, r: int) -> dic
     rng = film_rng(cfg, film, sid, r)
     n_fields, B_max_T = fcfg["field"]["n_fields"], fcfg["field"]["B_max_T"]
     if spec["protocol"] == "llg":
-        from ..forc.adaptive import SlewRate, adaptive_family
-
         f, m0, _ = build_film(fcfg, params, pinning="slaved", rng=rng)
         fam = adaptive_family(f, m0, n_fields=n_fields, B_max_T=B_max_T, settings=SlewRate(**slew_rate_options(fcfg)))
     else:
@@ -302,9 +302,22 @@ def run_fiducial(cfg: dict, film: str, fid: dict, R: int, deltas, out_dir) -> No
         claim_path(path).unlink()
 
 
-def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stability: int, out_dir, say=print,
+@dataclass(frozen=True)
+class FiducialDesign:
+    """What is simulated around each fiducial: ``R`` disorder realisations per family, ``deltas`` the
+    relative steps δ of the central differences (fractions of the normalized parameter), and
+    ``stability`` the number of fiducials (the first ones) simulated at every δ; the others at the
+    first δ only."""
+
+    R: int
+    deltas: tuple
+    stability: int
+
+
+def run_fiducials(cfg: dict, film: str, fids: list[dict], design: FiducialDesign, out_dir, say=print,
                   stop_at: float | None = None, workers: int = 1) -> None:
-    """The fiducials' families in processes of their own, ``workers`` at a time. Each worker starts a
+    """The fiducials' families (``design``: realisations, steps δ) in processes of their own, ``workers``
+    at a time (``stop_at``: a time.time() after which no process starts). Each worker starts a
     process on the open fiducial with the fewest processes (the first in the list on a tie): one per
     fiducial while there are more fiducials than workers, then the workers a finished fiducial frees
     join the fiducials still running that have a family left unclaimed (a process ends when its fiducial
@@ -316,7 +329,7 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], R: int, deltas, stabil
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-
+    R, deltas, stability = design.R, design.deltas, design.stability
     out_dir = Path(out_dir)
     cfg_path = out_dir / "config.json"
     cfg_path.parent.mkdir(parents=True, exist_ok=True)
@@ -902,7 +915,6 @@ def figure(summary: dict, path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     fig = draw_figure(summary)
     with atomic_path(path) as tmp:

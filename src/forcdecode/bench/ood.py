@@ -23,6 +23,7 @@ median combined p-value. Images and p-values per case are kept in ``out_dir`` (r
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ from ..forc.raster import rasterize_grid_family
 from ..infer.predictive_check import check_figure, predictive_check
 from ..infer.refine import fit_one
 from ..reference.independent import IndependentFilm, magnumnp_family
+from ..reference.magnumnp_film import magnumnp_available
 
 CASES = ("control", "no_pinning", "pinning_beyond_prior", "grains_8nm", "magnumnp")
 DISORDER_KEY_OFFSET = 1_000_000
@@ -101,8 +103,6 @@ def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: 
     """Images (n, side, side) and grid families (n, n_fields, n_fields) of ``case`` for the Hamiltonians
     ``rows`` (SI dicts), new disorder per key."""
     if case == "magnumnp":
-        from ..reference.magnumnp_film import magnumnp_available
-
         if not magnumnp_available():
             raise ConfigError("the magnumnp case needs magnum.np (pip install -e .[reference])")
         jobs = [(cfg, {**r, "N_pin": 0}, int(k)) for r, k in zip(rows, keys)]
@@ -123,16 +123,43 @@ def make_case(case: str, cfg: dict, rows: list[dict], keys: list[int], workers: 
     return np.stack([d[0] for d in done]), np.stack([d[1] for d in done])
 
 
-def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES, workers: int = 1,
-              out_dir=None, say=print, dataset_images=None, predictive: dict | None = None) -> dict:
-    """Flag rate of the OOD check per case (module docstring); ``rows`` the held-out Hamiltonians (SI,
-    with Ms), ``ms_norm`` their normalized M_s. With ``dataset_images`` (the dataset's own images of
-    the same Hamiltonians, another disorder realisation) each case also reports how far its images
-    lie from them (mean |Δ| in grey levels): for ``control`` that is the realisation floor, and a case
-    whose images differ by no more than the floor cannot be told from an in-prior film by any check
-    of the image. With ``predictive`` (budget, round_size, workers, seed, prior, fit_dir and the
-    validation ``reference`` of ``infer.predictive_check``; ``cases``: those it runs on, empty for all)
-    every family is also refined and judged by the posterior-predictive check."""
+@dataclass(frozen=True)
+class HeldOutFamilies:
+    """The held-out families a bench case re-makes: ``rows`` their Hamiltonians (SI dicts, with Ms in
+    A/m), ``sample_ids`` their ids (the disorder keys of the new realisations), ``ms_norm`` their
+    normalized M_s, and ``dataset_images`` the dataset's own images of them (another disorder
+    realisation, uint8 (n, side, side)) or None."""
+
+    rows: list
+    sample_ids: object
+    ms_norm: object
+    dataset_images: object = None
+
+
+@dataclass(frozen=True)
+class CaseFamilies:
+    """One case's families for the predictive check: ``images`` (n, side, side) uint8, ``curves`` their
+    grid families (n, n_fields, n_fields; moment / M_s), ``Ms`` their saturation magnetisations (A/m)
+    and ``keys`` their disorder keys (the sample ids)."""
+
+    images: object
+    curves: object
+    Ms: object
+    keys: object
+
+
+def bench_ood(est, cfg: dict, families: HeldOutFamilies, cases=CASES, workers: int = 1, out_dir=None, say=print,
+              predictive: dict | None = None) -> dict:
+    """Flag rate of the OOD check per case (module docstring) on the held-out ``families``. With their
+    ``dataset_images`` each case also reports how far its images lie from them (mean |Δ| in grey
+    levels): for ``control`` that is the realisation floor, and a case whose images differ by no more
+    than the floor cannot be told from an in-prior film by any check of the image. With ``predictive``
+    (budget, round_size, workers, seed, prior, fit_dir and the validation ``reference`` of
+    ``infer.predictive_check``; ``cases``: those it runs on, empty for all) every family is also refined
+    and judged by the posterior-predictive check."""
+    rows, sample_ids, ms_norm = families.rows, families.sample_ids, families.ms_norm
+    dataset_images = families.dataset_images
+    # loads torch: imported only when this runs
     from ..learn.ood import ood_check
 
     unknown = [c for c in cases if c not in CASES]
@@ -178,9 +205,9 @@ def bench_ood(est, cfg: dict, rows: list[dict], sample_ids, ms_norm, cases=CASES
             row["median_grey_levels_from_dataset_family"] = float(np.median(diff))
         say(f"ood {case}: {flagged}/{len(checks)} flagged [{low:.2f}, {high:.2f}], median p {np.median(p):.3f}")
         if use_predictive:
-            row["predictive"] = predictive_case(est, cfg, images, curves, [r["Ms"] for r in rows], list(sample_ids),
-                                                predictive, Path(predictive["fit_dir"]) / case, say,
-                                                ood_flags=[r["out_of_distribution"] for r in checks])
+            case_families = CaseFamilies(images, curves, [r["Ms"] for r in rows], list(sample_ids))
+            row["predictive"] = predictive_case(est, cfg, case_families, predictive, Path(predictive["fit_dir"]) / case,
+                                                say, ood_flags=[r["out_of_distribution"] for r in checks])
         out["cases"][case] = row
     return out
 
@@ -203,9 +230,10 @@ def carry_over(previous: dict | None, result: dict) -> dict:
     return result
 
 
-def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: dict, fit_dir, say=print) -> list[dict]:
-    """Refine each family for ``settings["budget"]`` simulations (``infer.refine.fit_one``; one
+def predictive_statistics(est, cfg: dict, families: CaseFamilies, settings: dict, fit_dir, say=print) -> list[dict]:
+    """Refine each of ``families`` for ``settings["budget"]`` simulations (``infer.refine.fit_one``; one
     fit.json and state per family in ``fit_dir``, resumable) and return the fit results."""
+    images, curves, Ms, keys = families.images, families.curves, families.Ms, families.keys
     fit_dir = Path(fit_dir)
     fit_dir.mkdir(parents=True, exist_ok=True)
     results = []
@@ -224,10 +252,11 @@ def predictive_statistics(est, cfg: dict, images, curves, Ms, keys, settings: di
     return results
 
 
-def predictive_case(est, cfg, images, curves, Ms, keys, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
-    """The predictive check on one case's families against ``settings["reference"]`` (validation), with
-    its figure (``fit_dir``/predictive_check.png)."""
-    results = predictive_statistics(est, cfg, images, curves, Ms, keys, settings, fit_dir, say)
+def predictive_case(est, cfg, families: CaseFamilies, settings: dict, fit_dir, say=print, ood_flags=None) -> dict:
+    """The predictive check on one case's ``families`` against ``settings["reference"]`` (validation),
+    with its figure (``fit_dir``/predictive_check.png)."""
+    keys = families.keys
+    results = predictive_statistics(est, cfg, families, settings, fit_dir, say)
     checks = [predictive_check(r, settings["reference"]) for r in results]
     flagged = [c["misspecified"] for c in checks]
     either = flagged if ood_flags is None else [a or b for a, b in zip(flagged, ood_flags)]
@@ -271,6 +300,6 @@ def ood_lines(result: dict) -> list[str]:
     return lines
 
 
-__all__ = ["CASES", "bench_ood", "case_film", "clopper_pearson", "make_case", "ood_lines", "predictive_case",
+__all__ = ["CASES", "CaseFamilies", "HeldOutFamilies", "bench_ood", "case_film", "clopper_pearson", "make_case", "ood_lines", "predictive_case",
            "predictive_statistics"]
 

@@ -20,6 +20,7 @@ import numpy as np
 from ..core.errors import InputFileError
 from ..core.io import read_config
 from ..core.parameters import dmi_ratio, k_eff, prior_class, quality_factor
+from ..dataset.merge import config_hash, physics_config
 from ..learn.prior_class import (OBSERVABLE, PERPENDICULAR_MAX_EXIT_FIELD_T, PERPENDICULAR_MIN_REMANENCE,
                                  loop_remanence, saturation_exit_field)
 
@@ -80,8 +81,6 @@ def read_families(dataset) -> dict:
     import h5py
 
     if Path(dataset).is_dir():
-        from ..dataset.merge import config_hash, physics_config
-
         sample_id, table, images, cfg = _run_directory(dataset)
         values = {k: table[k].to_numpy(float) for k in ("K_u", "Ms", "A_ex", "D")}
         digest = config_hash(physics_config(cfg))

@@ -169,6 +169,7 @@ def cross_reading(run_a, run_b, seed: int = 0) -> dict:
     situation of a user whose decoder was trained on single realisations. Reported only (not part of
     the decision). Per parameter: the four MAEs and, for A's network, the paired difference (mean
     images − own images) with a 90 % bootstrap interval over the shared ids."""
+    # loads torch: imported only when this runs
     from ..learn.predictor import ParameterModel
 
     runs = {"A": Path(run_a), "B": Path(run_b)}

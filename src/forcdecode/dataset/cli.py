@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import argparse
 from ..core.errors import ConfigError
-from ..core.io import read_config
+from ..core.io import read_config, read_json
 from ..core.progress import say
 from . import stages
+from .figures import figure1
+from .merge import merge, merge_runs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,13 +66,9 @@ def _log(text: str) -> None:
 
 def run(args) -> int:
     if args.step == "figure1":
-        from .figures import figure1
-
         figure1(args.dataset, args.out)
         return 0
     if args.step == "merge" and args.runs:
-        from .merge import merge_runs
-
         merge_runs(args.runs, args.h5, args.parquet, log=_log)
         return 0
     if args.step == "merge" and not (args.config and args.params and args.screens):
@@ -85,10 +83,6 @@ def run(args) -> int:
     elif args.step == "simulate":
         stages.simulate_stage(cfg, args.params, args.screen, args.chunk, args.out, log=_log, part=args.part)
     elif args.step == "merge":
-        from .merge import merge
-
-        from ..core.io import read_json
-
         families = list(args.families)
         for listing in args.family_lists:
             families += read_json(listing, what="family list")["families"]

@@ -19,9 +19,11 @@ Defaults (learning rate, batch size, width, epochs, patience) are the schema's l
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from ..config import defaults
 from ..core.errors import ConfigError, InputFileError
@@ -29,17 +31,18 @@ from ..core.io import read_config, write_json
 from ..core.parameters import TARGETS
 from ..core.streams import stream_seed
 from .data import load_dataset
-from .pipeline import scores
-from .train import fit_alice
+from .pipeline import make_splits, scores
+from .train import AliceSettings, fit_alice
 
 HEADS = ("small", "paper")
 
 
-def compare_heads(images, ms_norm, targets: dict, splits: dict, *, heads=HEADS, epochs: int | None = None,
-                  patience: int | None = None, batch_size: int | None = None, lr: float | None = None,
-                  width: int | None = None, seed: int = 1, log=None) -> list[dict]:
+def compare_heads(images, ms_norm, targets: dict, splits: dict, *, heads=HEADS,
+                  training: AliceSettings = AliceSettings(seed=1), log=None) -> list[dict]:
     """Train every head on every target (name → normalized u ∈ [0, 1]); one row per (target, head).
-    Settings left None take the schema's learning defaults (resolved by ``fit_alice``)."""
+    ``training``: the settings shared by every network (its ``model`` is replaced by each head, its
+    ``seed`` is the root of the ``ablation`` stream that seeds each parameter's networks); settings left
+    None take the schema's learning defaults (resolved by ``fit_alice``)."""
     train, val, test = (np.asarray(splits[k]) for k in ("train", "validation", "test"))
     rows = []
     for name, u in targets.items():
@@ -48,9 +51,8 @@ def compare_heads(images, ms_norm, targets: dict, splits: dict, *, heads=HEADS, 
             if log is not None:
                 log(f"{name}: training the {head} network ({len(train)} train / {len(val)} validation samples)")
             started = time.perf_counter()
-            alice = fit_alice(images, ms_norm, u, train, val, model=head, width=width, epochs=epochs,
-                              patience=patience, batch_size=batch_size, lr=lr,
-                              seed=stream_seed(seed, "ablation", name),
+            network = replace(training, model=head, seed=stream_seed(training.seed, "ablation", name))
+            alice = fit_alice(images, ms_norm, u, train, val, network,
                               log=None if log is None else (lambda text, n=name, h=head: log(f"{n} [{h}] {text}")))
             wall = time.perf_counter() - started
             prior = float(np.median(u[train]))
@@ -87,16 +89,29 @@ def head_ratios(rows: list[dict], numerator: str = "paper", denominator: str = "
     return ratios
 
 
-def run_head_ablation(dataset, *, learning_config=None, parameters=("K_u", "D"), heads=HEADS, epochs: int = 40,
-                      patience: int = 10, seed: int = 1, threads: int = 2, out=None, log=None) -> dict:
+@dataclass(frozen=True)
+class HeadAblation:
+    """What the head ablation trains: ``parameters`` (names of ``core.parameters.TARGETS``), ``heads``
+    (``learn.models`` heads), ``epochs`` (the most passes over the training split), ``patience`` (epochs
+    without a lower validation loss before stopping), ``seed`` (root of the ``ablation`` random stream
+    of the networks' weights) and ``threads`` (torch CPU threads)."""
+
+    parameters: tuple = ("K_u", "D")
+    heads: tuple = HEADS
+    epochs: int = 40
+    patience: int = 10
+    seed: int = 1
+    threads: int = 2
+
+
+def run_head_ablation(dataset, ablation: HeadAblation = HeadAblation(), *, learning_config=None, out=None,
+                      log=None) -> dict:
     """The ablation on the workflow's dataset: the split and the learning settings of its
-    ``learning.json`` (default: beside the dataset), both heads per parameter, ``threads`` torch
+    ``learning.json`` (default: beside the dataset), both heads per parameter, ``ablation.threads`` torch
     threads; writes ``out`` (JSON, atomically) if given and returns {"dataset", "n_families",
     "threads", "settings", "rows", "ratios"}."""
-    import torch
-
-    from .pipeline import make_splits
-
+    parameters, heads, epochs, patience = ablation.parameters, ablation.heads, ablation.epochs, ablation.patience
+    seed, threads = ablation.seed, ablation.threads
     unknown = sorted(set(parameters) - set(TARGETS))
     if unknown:
         raise ConfigError(f"unknown parameter(s) {unknown}; choose from {list(TARGETS)}")
@@ -113,9 +128,10 @@ def run_head_ablation(dataset, *, learning_config=None, parameters=("K_u", "D"),
         log(f"{dataset}: {len(data)} families; split train {len(splits['train'])} / validation "
             f"{len(splits['validation'])} / test {len(splits['test'])}; Adadelta lr {settings['lr']}, batch "
             f"{settings['batch_size']}, {epochs} epochs (patience {patience}); {threads} torch threads")
+    training = AliceSettings(width=settings["width"], epochs=epochs, batch_size=settings["batch_size"],
+                             lr=settings["lr"], patience=patience, seed=seed)
     rows = compare_heads(data.images, data.ms_norm, {name: data.target(name) for name in parameters}, splits,
-                         heads=heads, epochs=epochs, patience=patience, batch_size=settings["batch_size"],
-                         lr=settings["lr"], width=settings["width"], seed=seed, log=log)
+                         heads=heads, training=training, log=log)
     result = {"dataset": str(dataset), "n_families": len(data), "threads": threads,
               "settings": {"epochs": epochs, "patience": patience, "lr": settings["lr"],
                            "batch_size": settings["batch_size"], "width": settings["width"],

@@ -317,13 +317,14 @@ def per_file_identification(result: dict, bounds: dict, n_draws: int = 4000, see
 
 
 # ---------------------------------------------------------------- the posterior
-def posterior_identification(draws, u, names, ms_norm, bounds, train, val, seed: int, n_boot: int) -> dict:
+def posterior_identification(draws, u, names, ms_norm, bounds, splits: dict, seed: int, n_boot: int) -> dict:
     """The posterior's ``identification`` block (saved in its model file's metadata): per parameter and per
     computable combination the record (``identification_record``) of the median of its draws on the
     validation families. ``draws`` (n_val, n_draws, len(names)) are the validation families' draws, ``u``
-    (n, len(names)) every family's truths, ``ms_norm`` every family's normalized M_s."""
+    (n, len(names)) every family's truths, ``ms_norm`` every family's normalized M_s, ``splits`` the
+    split indices (its ``train`` and ``validation`` are read)."""
     draws, u, ms_norm = np.asarray(draws, float), np.asarray(u, float), np.asarray(ms_norm, float)
-    train, val = np.asarray(train), np.asarray(val)
+    train, val = np.asarray(splits["train"]), np.asarray(splits["validation"])
     parameters = {}
     for j, name in enumerate(names):
         parameters[name] = identification_record(u[val, j], np.median(draws[:, :, j], axis=1), u[train, j],

@@ -26,11 +26,21 @@ import json
 import sys
 import time
 
+from ..config import defaults
 from ..core.errors import ConfigError
 from ..core.io import read_config, read_json, write_json
-from .estimator_choice import add_estimator_arguments, default_posterior_path
+from ..core.parameters import TARGETS
+from .answer import alice_answer
+from .compare import compare_estimators, comparison_markdown
+from .data import load_dataset
+from .estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
+from .posterior_check import (apply_recalibration, check_lines, fresh_calibration, fresh_recalibration,
+                              recalibration_lines, split_coverage, split_coverage_lines, write_check)
 from .prior_class import check_prior_class
+from .report import TrainingDataset, evaluate, markdown
+from .sealed import alice_sealed_metrics, attach_sealed, sealed_lines
 from .shipped import check_thickness, models_thickness_nm, resolve_models
+from .splits import assign_splits
 
 
 def _log(text: str) -> None:
@@ -131,8 +141,6 @@ def _step_train(args) -> int:
     """`forcdecode learn train`."""
     import torch  # heavy: only the steps that train or sample load it
 
-    from ..core.parameters import TARGETS
-    from .data import load_dataset
     from .pipeline import train_parameter
 
     torch.set_num_threads(max(1, args.threads))
@@ -152,7 +160,6 @@ def _step_posterior(args) -> int:
 
     from pathlib import Path
 
-    from .data import load_dataset
     from .posterior import train_posterior
 
     torch.set_num_threads(max(1, args.threads))
@@ -173,9 +180,7 @@ def _step_posterior_check(args) -> int:
     """`forcdecode learn posterior-check`."""
     import torch  # heavy: only the steps that train or sample load it
 
-    from .data import load_dataset
     from .posterior import PosteriorEstimator
-    from .posterior_check import check_lines, fresh_calibration, write_check
 
     torch.set_num_threads(max(1, args.threads))
     est = PosteriorEstimator.load(args.posterior)
@@ -184,8 +189,6 @@ def _step_posterior_check(args) -> int:
     levels = (est.metadata.get("settings") or {}).get("levels")  # None: the posterior section's default
     learning, split_seed = None, None
     if args.config:
-        from ..config import defaults
-
         cfg = read_config(args.config)
         learning, split_seed = {**defaults("learning"), **(cfg.get("learning") or {})}, int(cfg["seed"])
     metrics = fresh_calibration(est, load_dataset(args.dataset), seed=seed, draws=args.draws, levels=levels,
@@ -200,10 +203,7 @@ def _step_posterior_splits(args) -> int:
     """`forcdecode learn posterior-splits`."""
     import torch  # heavy: only the steps that train or sample load it
 
-    from ..config import defaults
-    from .data import load_dataset
     from .posterior import PosteriorEstimator
-    from .posterior_check import split_coverage, split_coverage_lines
 
     torch.set_num_threads(max(1, args.threads))
     est = PosteriorEstimator.load(args.posterior)
@@ -223,12 +223,7 @@ def _step_posterior_recalibrate(args) -> int:
     """`forcdecode learn posterior-recalibrate`."""
     import torch  # heavy: only the steps that train or sample load it
 
-    from ..config import defaults
-    from .data import load_dataset
     from .posterior import PosteriorEstimator
-    from .posterior_check import (apply_recalibration, check_lines, fresh_calibration, fresh_recalibration,
-                                  recalibration_lines)
-    from .splits import assign_splits
 
     torch.set_num_threads(max(1, args.threads))
     est = PosteriorEstimator.load(args.posterior)
@@ -262,8 +257,6 @@ def _step_posterior_recalibrate(args) -> int:
 
 def _step_compare(args) -> int:
     """`forcdecode learn compare`."""
-    from .compare import compare_estimators, comparison_markdown
-
     for line in comparison_markdown(compare_estimators(args.metrics, args.posterior, out=args.out)):
         print(line)
     return 0
@@ -273,14 +266,13 @@ def _step_posterior_tune(args) -> int:
     """`forcdecode learn posterior-tune`."""
     import torch  # heavy: only the steps that train or sample load it
 
-    from .data import load_dataset
     from .posterior_tune import tune_posterior, tuning_lines
 
     torch.set_num_threads(max(1, args.threads))
     cfg = read_config(args.config)
     from json import JSONDecodeError, loads
 
-    from .posterior_tune import CANDIDATES
+    from .posterior_tune import CANDIDATES, TuningPlan
 
     try:
         candidates = CANDIDATES if args.candidates is None else tuple(loads(args.candidates))
@@ -288,9 +280,9 @@ def _step_posterior_tune(args) -> int:
         raise ConfigError(f"--candidates is not a JSON list of settings: {error}") from None
     if not candidates or not all(isinstance(c, dict) for c in candidates):
         raise ConfigError(f"--candidates must be a non-empty JSON list of settings mappings, got {args.candidates}")
+    plan = TuningPlan(candidates=candidates, weight_seeds=tuple(range(max(1, args.weight_seeds))))
     result = tune_posterior(load_dataset(args.dataset), dict(cfg.get("posterior") or {}), cfg.get("learning", {}),
-                            cfg["seed"], candidates=candidates, out=args.out, log=_log,
-                            weight_seeds=tuple(range(max(1, args.weight_seeds))))
+                            cfg["seed"], plan, out=args.out, log=_log)
     for line in tuning_lines(result):
         print(line)
     return 0
@@ -298,14 +290,11 @@ def _step_posterior_tune(args) -> int:
 
 def _step_evaluate(args) -> int:
     """`forcdecode learn evaluate`."""
-    from .report import evaluate, markdown
-
-    from ..config import defaults
-
     cfg = read_config(args.config) if args.config else {}
     n_boot = int({**defaults("learning"), **(cfg.get("learning") or {})}["bootstrap"])
-    metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve,
-                       dataset=args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models,
+    dataset = (TrainingDataset(args.dataset, seed=int(cfg.get("seed", 0)), n_boot=n_boot, models=args.models)
+               if args.dataset is not None else None)
+    metrics = evaluate(args.metrics, args.predictions, args.out, args.figures, args.learning_curve, dataset=dataset,
                        sealed=read_json(args.sealed, what="sealed figures") if args.sealed else None)
     print(markdown(metrics))
     return 0
@@ -313,10 +302,8 @@ def _step_evaluate(args) -> int:
 
 def _step_sealed(args) -> int:
     """`forcdecode learn sealed`."""
-    from ..config import defaults
-    from .data import load_dataset
+    # loads torch: imported only when this runs
     from .predictor import load_models
-    from .sealed import alice_sealed_metrics, sealed_lines
 
     cfg = read_config(args.config)
     settings = {**defaults("learning"), **(cfg.get("learning") or {})}
@@ -330,8 +317,6 @@ def _step_sealed(args) -> int:
 
 def _step_attach_sealed(args) -> int:
     """`forcdecode learn attach-sealed`."""
-    from .sealed import attach_sealed
-
     write_json(args.out, attach_sealed(read_json(args.metrics, what="metrics"),
                                        read_json(args.sealed, what="sealed figures")))
     return 0
@@ -380,6 +365,7 @@ def run_predict(args) -> int:
     the prior-class check (``learn.prior_class``): a file whose loop contradicts the class the model was
     trained on raises PriorClassError (exit 2) unless ``--force``; the class is printed (JSON:
     ``prior_class``, ``prior_check``)."""
+    # loads torch: imported only when this runs
     from .predictor import image_from_input, load_models, models_prior_class, predict_parameters, prediction_lines
 
     models_dir, models_line = resolve_models(args.models)
@@ -391,11 +377,10 @@ def run_predict(args) -> int:
     args.posterior = args.posterior or default_posterior_path(args.models)
     choice = None
     if args.estimator == "auto":
-        from .estimator_choice import choose_estimator
-
         choice = choose_estimator(args.models, args.posterior)
         args.estimator = choice["estimator"]
     if args.estimator == "posterior":
+        # loads torch: imported only when this runs
         from .posterior import PosteriorEstimator, posterior_prediction
 
         estimator = PosteriorEstimator.load(args.posterior)
@@ -409,7 +394,6 @@ def run_predict(args) -> int:
         size = next(iter(models.values())).image_size
         image, note = image_from_input(args.input, size, args.sample_id, args.B_max_T, args.force)
         check = check_prior_class(trained_on, image, force=args.force, source=args.input, B_max_T=args.B_max_T)
-        from .answer import alice_answer
 
         result = alice_answer(models, predict_parameters(models, image, args.ms_kA_m * 1e3), args.draws, args.seed)
     result["prior_class"], result["prior_check"] = trained_on, check

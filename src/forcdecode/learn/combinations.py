@@ -27,6 +27,9 @@ table (``core.parameters.COMBINATIONS``: σ_w, δ_w, D/D_c, Q) scored like the s
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..core import io
@@ -114,16 +117,44 @@ def accuracy_block(truth, median, ms_norm, reference_u, shuffled_median, covered
     return out
 
 
-def posterior_combination_metrics(samples, truth_u, names, ms_norm, bounds, *, train_u, train_ms_norm, val_u,
-                                  val_ms_norm, rng_of, levels, shuffled=None, n_boot: int = 2000) -> dict:
+@dataclass(frozen=True)
+class ReferenceFamilies:
+    """The families whose truths normalize the combinations and fit the trivial baselines:
+    ``train_u`` (n_train, len(names)) and ``val_u`` (n_val, len(names)) the training and validation
+    families' normalized truths (u in [0, 1]), ``train_ms_norm`` (n_train,) and ``val_ms_norm`` (n_val,)
+    their normalized M_s. The normalization range and the prior come from train; the M_s-only
+    neighbour count is chosen on validation."""
+
+    train_u: np.ndarray
+    train_ms_norm: np.ndarray
+    val_u: np.ndarray
+    val_ms_norm: np.ndarray
+
+
+@dataclass(frozen=True)
+class CombinationScoring:
+    """How the combinations' metrics are scored: ``rng_of(*keys)`` a fresh generator per purpose,
+    ``levels`` the central credible-interval levels (fractions in (0, 1)) and ``n_boot`` the bootstrap
+    resamples behind each figure's 90 % interval."""
+
+    rng_of: Callable
+    levels: Sequence[float]
+    n_boot: int = 2000
+
+
+def posterior_combination_metrics(samples, truth_u, names, ms_norm, bounds, *, reference: ReferenceFamilies,
+                                  scoring: CombinationScoring, shuffled=None) -> dict:
     """The combinations' metrics of posterior draws on the test families.
 
     ``samples`` (n_test, n_draws, len(names)) normalized draws; ``truth_u`` (n_test, len(names)) their
-    truths; ``ms_norm`` the test families' normalized M_s; ``train_u``/``val_u`` with ``*_ms_norm``: the
-    training and validation families' truths (normalization range, prior and M_s-only baselines);
-    ``shuffled``: draws of the test images permuted among the test families (M_s kept), or None;
-    ``rng_of(*keys)``: a fresh generator per purpose. Returns name -> metrics (see the module) and the
-    normalization ranges, or {} where no combination is computable."""
+    truths; ``ms_norm`` the test families' normalized M_s; ``reference``: the training and validation
+    families' truths (normalization range, prior and M_s-only baselines); ``shuffled``: draws of the
+    test images permuted among the test families (M_s kept), or None; ``scoring``: the generators,
+    levels and bootstrap size. Returns name -> metrics (see the module) and the normalization ranges,
+    or {} where no combination is computable."""
+    train_u, train_ms_norm = reference.train_u, reference.train_ms_norm
+    val_u, val_ms_norm = reference.val_u, reference.val_ms_norm
+    rng_of, levels, n_boot = scoring.rng_of, scoring.levels, scoring.n_boot
     combinations = available(names)
     if not combinations:
         return {}

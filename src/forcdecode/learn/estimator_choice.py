@@ -63,6 +63,7 @@ def default_posterior_path(models_dir) -> str:
 def choose_estimator(models_dir, posterior_path) -> dict:
     """The default estimator for the model files in ``models_dir`` and the posterior at
     ``posterior_path`` (``choose``); a missing posterior file means Alice."""
+    # loads torch: imported only when this runs
     from .predictor import load_models
 
     has_posterior = posterior_path is not None and Path(posterior_path).exists()
@@ -74,6 +75,7 @@ def choose_estimator(models_dir, posterior_path) -> dict:
         return {"rule": RULE, "estimator": "posterior", "basis": f"no Alice model files in {models_dir}"}
     posterior = None
     if has_posterior:
+        # loads torch: imported only when this runs
         from .posterior import PosteriorEstimator
 
         posterior = posterior_validation_mae(PosteriorEstimator.load(posterior_path).metadata)

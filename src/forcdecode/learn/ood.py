@@ -45,6 +45,7 @@ import torch
 
 from ..config import defaults
 from ..core.errors import ModelFileError
+from ..core.io import write_json
 from .splits import assign_splits
 
 K_NEIGHBOURS = 5
@@ -274,7 +275,6 @@ def training_image_reference(models_dir, dataset=None, config_hashes=None, log=N
     the models' config hashes), too few families."""
     import h5py
 
-
     models_dir = Path(models_dir)
     path = Path(dataset) if dataset is not None else models_dir.parent / "dataset.h5"
     if not path.exists():
@@ -319,8 +319,6 @@ def training_image_reference(models_dir, dataset=None, config_hashes=None, log=N
     reference["splits_from"], reference["dataset"] = source, str(path)
     note = f"fitted on {len(train)} training images of {path}, held out on {len(held_out)} (splits: {source})"
     try:
-        from ..core.io import write_json
-
         write_json(cache, {"key": key, "reference": reference})
         note += f"; cached in {cache}"
     except OSError as error:  # a read-only model directory: computed again next time

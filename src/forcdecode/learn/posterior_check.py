@@ -18,6 +18,8 @@ training dataset).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..config import defaults
@@ -25,7 +27,7 @@ from ..core import io
 from ..core.errors import ConfigError, DatasetError
 from ..core.streams import stream_rng, stream_seed
 from .calibration import calibration_figure, marginal_coverage, probability_integral_transform, recalibrated_calibration
-from .combinations import available, posterior_combination_metrics
+from .combinations import CombinationScoring, ReferenceFamilies, available, posterior_combination_metrics
 from .scoring import binomial_band
 from .splits import SPLITS, assign_splits
 
@@ -84,6 +86,7 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     metrics["pit_histogram"] = {name: np.histogram(np.asarray(metrics["ranks"][name]) / int(draws), bins=PIT_BINS,
                                                    range=(0.0, 1.0))[0].tolist() for name in names}
     metrics["coverage_binomial_band"] = {f"{int(round(a * 100))}": binomial_band(len(u), a) for a in levels}
+    # loads torch: imported only when this runs
     from .ood import ood_check
 
     flags = ood_check(est, data.images, data.ms_norm)
@@ -93,8 +96,8 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
         metrics["ood_false_alarm_fraction"] = float(np.mean([r["out_of_distribution"] for r in flags]))
         metrics["ood_alpha"] = est.metadata.get("ood", {}).get("alpha")
     if training_data is not None and learning is not None and split_seed is not None:
-        metrics["combinations"] = fresh_combinations(est, data, samples, u, training_data, learning, seed=seed,
-                                                     split_seed=split_seed, levels=levels,
+        training = TrainingReference(training_data, learning, split_seed)
+        metrics["combinations"] = fresh_combinations(est, data, samples, u, training, seed=seed, levels=levels,
                                                      n_boot=int(learning.get("bootstrap", 2000)))
     ids = np.asarray(data.sample_id, dtype=np.int64)
     metrics.update({"reported_on": "fresh families (never seen by the posterior)", "n_fresh": int(len(u)),
@@ -103,28 +106,41 @@ def fresh_calibration(est, data, *, seed: int, draws: int = 1000, levels=None, t
     return metrics
 
 
-def fresh_combinations(est, data, samples, u, training_data, learning: dict, *, seed: int, split_seed: int, levels,
+@dataclass(frozen=True)
+class TrainingReference:
+    """The training run a fresh check is scored against: ``data`` (its ``LearningData``), ``learning``
+    (its learning section: ``split``, ``protocol``) and ``split_seed`` (the config seed that split it)."""
+
+    data: object
+    learning: dict
+    split_seed: int
+
+
+def fresh_combinations(est, data, samples, u, training: TrainingReference, *, seed: int, levels,
                        n_boot: int = 2000) -> dict:
     """The derived combinations (sigma_w, delta_w, D/D_c, Q: ``core.parameters.COMBINATIONS``) of the
     posterior's draws on the fresh families, scored as ``train_posterior`` scores them on test
     (``learn.combinations.posterior_combination_metrics``: coverage, SBC, MAE, skill over the prior,
     M_s-only and images-shuffled baselines with bootstrap intervals). Normalization and trivial baselines
-    come from ``training_data``'s train and validation splits (hash of (seed, sample id), ``learning``'s
-    split); the images-shuffled draws permute the fresh images among the fresh families."""
+    come from the training run's train and validation splits (hash of (split seed, sample id), its
+    ``learning`` split); the images-shuffled draws permute the fresh images among the fresh families."""
 
     names = tuple(est.names)
     if not available(names):
         return {}
-    splits = assign_splits(training_data.sample_id, int(split_seed), learning["split"], learning["protocol"])
+    training_data, learning = training.data, training.learning
+    splits = assign_splits(training_data.sample_id, int(training.split_seed), learning["split"], learning["protocol"])
     train, val = splits["train"], splits["validation"]
     train_u = np.stack([training_data.target(n) for n in names], axis=1)
     permuted = stream_rng(seed, "posterior", "fresh_shuffle").permutation(len(u))
     shuffled = est.sample(data.images[permuted], data.ms_norm, samples.shape[1],
                           seed=stream_seed(seed, "posterior", "fresh_shuffled_draws"), recalibrated=False)
-    return posterior_combination_metrics(
-        samples, u, names, data.ms_norm, data.bounds, train_u=train_u[train], train_ms_norm=training_data.ms_norm[train],
-        val_u=train_u[val], val_ms_norm=training_data.ms_norm[val], shuffled=shuffled, levels=levels, n_boot=n_boot,
-        rng_of=lambda *keys: stream_rng(seed, "posterior", "fresh_combinations", *keys))
+    reference = ReferenceFamilies(train_u=train_u[train], train_ms_norm=training_data.ms_norm[train],
+                                  val_u=train_u[val], val_ms_norm=training_data.ms_norm[val])
+    scoring = CombinationScoring(rng_of=lambda *keys: stream_rng(seed, "posterior", "fresh_combinations", *keys),
+                                 levels=levels, n_boot=n_boot)
+    return posterior_combination_metrics(samples, u, names, data.ms_norm, data.bounds, reference=reference,
+                                         scoring=scoring, shuffled=shuffled)
 
 
 def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_data=None,
@@ -142,6 +158,7 @@ def fresh_recalibration(est, data, *, seed: int, draws: int = 1000, training_dat
     ``fitted_on``, and ``previous`` (the record it replaces); ``beta`` holds the maps whose p lies below
     ``gate_alpha`` (default: the model's setting, else the schema's), ``beta_fitted`` all of them.
     Refused like ``fresh_calibration``."""
+    # loads torch: imported only when this runs
     from .posterior import gated_recalibration_record
 
     if int(draws) < 2:

@@ -13,6 +13,8 @@ differences below ~0.1 nat per family are noise; the table says so by listing th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import time
 
 import numpy as np
@@ -22,7 +24,7 @@ from ..core import io
 from ..core.errors import DatasetError
 from ..core.streams import stream_rng, stream_seed
 from .calibration import calibration_metrics
-from .posterior import _float32, fit_posterior, posterior_settings
+from .posterior import PosteriorFit, _float32, fit_posterior, posterior_settings
 from .splits import assign_splits
 
 CANDIDATES: tuple[dict, ...] = (
@@ -36,11 +38,24 @@ CANDIDATES: tuple[dict, ...] = (
 """The architectures compared by default (each over the config's posterior settings)."""
 
 
+@dataclass(frozen=True)
+class TuningPlan:
+    """What the tuning compares: ``candidates`` (partial posterior-settings mappings, each over the
+    config's ``posterior`` section), ``draws`` (posterior draws per validation family for the coverage
+    check) and ``weight_seeds`` (offsets added to the config seed: one fit per candidate and offset,
+    the NLL averaged over them)."""
+
+    candidates: tuple = CANDIDATES
+    draws: int = 500
+    weight_seeds: tuple = (0,)
+
+
 @_float32
-def tune_posterior(data, settings: dict | None, learning: dict | None, seed: int, candidates=CANDIDATES,
-                   draws: int = 500, out=None, log=print, weight_seeds=(0,)) -> dict:
-    """Fit every candidate on train, score it on validation; returns (and writes to ``out``) the table
-    and the chosen candidate's settings."""
+def tune_posterior(data, settings: dict | None, learning: dict | None, seed: int, plan: TuningPlan = TuningPlan(), *,
+                   out=None, log=print) -> dict:
+    """Fit every candidate of ``plan`` on train, score it on validation; returns (and writes to ``out``)
+    the table and the chosen candidate's settings."""
+    candidates, draws, weight_seeds = plan.candidates, plan.draws, plan.weight_seeds
     base = posterior_settings(settings)
     learning = {**defaults("learning"), **(learning or {})}
     names = tuple(base["parameters"])
@@ -55,8 +70,9 @@ def tune_posterior(data, settings: dict | None, learning: dict | None, seed: int
         nlls, calibs, epochs, fit_s = [], [], [], 0.0
         for w in weight_seeds:
             started = time.perf_counter()
-            est = fit_posterior(data.images, data.ms_norm, u, train, val, names=names, settings=trial, seed=seed + w,
-                                embedding="cnn", bounds=data.bounds, log=None)
+            est = fit_posterior(data.images, data.ms_norm, u, train, val,
+                                PosteriorFit(names=names, settings=trial, seed=seed + w, embedding="cnn",
+                                             bounds=data.bounds), log=None)
             fit_s += time.perf_counter() - started
             nlls.append(-float(np.mean(est.log_prob(u[val], data.images[val], data.ms_norm[val]))))
             epochs.append(int(est.best_epoch))
@@ -93,4 +109,4 @@ def tuning_lines(result: dict) -> list[str]:
     return lines
 
 
-__all__ = ["CANDIDATES", "tune_posterior", "tuning_lines"]
+__all__ = ["CANDIDATES", "TuningPlan", "tune_posterior", "tuning_lines"]

@@ -6,6 +6,7 @@ error–retention curves and the uncertainty baselines (Bob, v̂, MC dropout, se
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from ..core.parameters import k_eff, prior_class
 from ..core.streams import stream_rng
 from .combinations import alice_combination_metrics
 from .data import load_dataset
+from .sealed import attach_sealed
 
 FIGURE3_PANELS = ("A_ex", "N_pin", "K_u", "D")
 LABELS = {"N_pin": r"$N_\mathrm{pin}$", "A_ex": r"$A_\mathrm{ex}$", "K_u": r"$K_u$", "D": r"$D$",
@@ -256,6 +258,7 @@ def alice_combinations(predictions: dict, dataset, seed: int = 0, n_boot: int = 
         prediction_u[name], target_u[name] = other["prediction"].to_numpy(float), other["target"].to_numpy(float)
     shuffled_u = None
     if models is not None:
+        # loads torch: imported only when this runs
         from .pipeline import N_SHUFFLES
         from .predictor import ParameterModel
 
@@ -284,7 +287,6 @@ def dataset_truth(dataset) -> tuple[dict, str]:
     """sample id -> true K_eff (J/m³) of the families of ``dataset`` (dataset.h5), and its prior class
     (``core.parameters.prior_class`` of the stored config; absent: paper). No images are read."""
     import h5py
-
 
     with h5py.File(dataset, "r") as h5:
         columns = list(h5["parameters"].attrs["columns"])
@@ -348,14 +350,27 @@ def regime_markdown(by_regime: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None, dataset=None,
-             seed: int = 0, n_boot: int = 2000, models=None, sealed: dict | None = None) -> dict:
-    """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset.h5 Alice was
-    trained on) metrics.json also holds the derived combinations of Alice's predictions (with ``models``,
-    the directory of the model files, their images-shuffled baseline too), the figures per regime of the
-    true K_eff (``by_regime``, :func:`regime_metrics`) and the dataset's ``prior_class``; with ``sealed``
-    (the frozen networks' figures on the sealed set, ``learn.sealed``) they sit beside the test split's as
-    ``sealed``."""
+@dataclass(frozen=True)
+class TrainingDataset:
+    """The dataset Alice was trained on, for the figures that need it: ``path`` (its dataset.h5),
+    ``seed`` (the config seed: root of the combinations' bootstrap stream), ``n_boot`` (bootstrap
+    resamples behind each 90 % interval) and ``models`` (the directory of the ``<parameter>.pt`` files,
+    for the images-shuffled baseline; None: without it)."""
+
+    path: object
+    seed: int = 0
+    n_boot: int = 2000
+    models: object = None
+
+
+def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learning_curve=None,
+             dataset: TrainingDataset | None = None, sealed: dict | None = None) -> dict:
+    """metrics.json, learning_curve.json and the figures; with ``dataset`` (the dataset Alice was
+    trained on) metrics.json also holds the derived combinations of Alice's predictions (with
+    ``dataset.models``, the directory of the model files, their images-shuffled baseline too), the figures
+    per regime of the true K_eff (``by_regime``, :func:`regime_metrics`) and the dataset's ``prior_class``;
+    with ``sealed`` (the frozen networks' figures on the sealed set, ``learn.sealed``) they sit beside the
+    test split's as ``sealed``."""
     figure_dir = Path(figure_dir)
     figure_dir.mkdir(parents=True, exist_ok=True)
     metrics = aggregate(metric_paths, out_metrics)
@@ -365,12 +380,11 @@ def evaluate(metric_paths, prediction_paths, out_metrics, figure_dir, out_learni
         name = Path(path).stem.replace("_predictions", "")
         predictions[name] = pd.read_parquet(path)
     if dataset is not None:
-        metrics["combinations"] = alice_combinations(predictions, dataset, seed, n_boot, models)
-        metrics["by_regime"] = regime_metrics(predictions, dataset)
+        metrics["combinations"] = alice_combinations(predictions, dataset.path, dataset.seed, dataset.n_boot,
+                                                     dataset.models)
+        metrics["by_regime"] = regime_metrics(predictions, dataset.path)
         metrics["prior_class"] = metrics["by_regime"]["prior_class"]
     if sealed is not None:
-        from .sealed import attach_sealed
-
         metrics = attach_sealed(metrics, sealed)
     if dataset is not None or sealed is not None:
         io.write_json(out_metrics, json.loads(json.dumps(metrics, default=float)))

@@ -104,6 +104,7 @@ def alice_sealed_metrics(models: dict, training: LearningData, sealed: LearningD
     derived combinations of their predictions (plug-in, as for the test split; normalization and
     baselines from the training dataset's train and validation splits). ``models``: name ->
     ``ParameterModel``; ``settings``: the learning section (its split and protocol)."""
+    # loads torch: imported only when this runs
     from .pipeline import N_SHUFFLES, make_splits
 
     check_disjoint(training, sealed)

@@ -37,6 +37,7 @@ from ..core.errors import ConfigError, ModelFileError
 from ..core.io import atomic_path, read_json, write_json
 from ..core.parameters import normalize
 from ..dataset.merge import config_hash, physics_config
+from .data import load_dataset
 
 SHIPPED = Path(__file__).resolve().parents[1] / "shipped" / "laptop"
 MANIFEST = "manifest.json"
@@ -149,7 +150,7 @@ def precision_effect(trained_dir, shipped_dir, dataset_path, count: int = PRECIS
     the prediction (normalized units, prior width = 1) and the change of its MAE against the truth, over the
     first ``count`` families of the networks' dataset (float32 models in ``trained_dir``, shipped ones in
     ``shipped_dir``)."""
-    from .data import load_dataset
+    # loads torch: imported only when this runs
     from .predictor import load_models
 
     data = load_dataset(dataset_path)
@@ -170,6 +171,7 @@ def precision_effect(trained_dir, shipped_dir, dataset_path, count: int = PRECIS
 def ship(results="results", out=SHIPPED, half: bool = HALF_PRECISION, root=None) -> dict:
     """Write the shipped set from a finished main job in ``results`` (models, the training-data check's
     reference, the posterior, the manifest). Returns the manifest."""
+    # loads torch: imported only when this runs
     from .ood import IMAGE_REFERENCE_FILE, training_image_reference
     from .predictor import load_models, models_prior_class
 

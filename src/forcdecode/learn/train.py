@@ -7,7 +7,7 @@ take the schema's learning defaults (``forcdecode.config.defaults("learning")``)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import functools
 import time
@@ -73,18 +73,43 @@ def with_float32_default(function):
     return wrapper
 
 
-def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, *, model: str | None = None, width: int | None = None,
-              epochs: int | None = None, batch_size: int | None = None, lr: float | None = None,
-              patience: int | None = None, seed: int = 0, dropout: float = 0.5, log=None) -> Alice:
+@dataclass(frozen=True)
+class AliceSettings:
+    """How one Alice network is built and trained; fields left None take the schema's learning defaults
+    (``forcdecode.config.defaults("learning")``, resolved by :meth:`resolved`).
+
+    - ``model``: the network's dense head, ``"small"`` or ``"paper"`` (``learn.models``);
+    - ``width``: units of the small head's hidden dense layer;
+    - ``epochs``: the most passes over the training indices;
+    - ``batch_size``: samples per optimizer step;
+    - ``lr``: Adadelta's learning rate (dimensionless; the paper's is 0.01);
+    - ``patience``: epochs without a lower validation loss before training stops;
+    - ``seed``: seed of the weights (``torch.manual_seed``) and of the batch order;
+    - ``dropout``: dropout probability of the dense block (0–1)."""
+
+    model: str | None = None
+    width: int | None = None
+    epochs: int | None = None
+    batch_size: int | None = None
+    lr: float | None = None
+    patience: int | None = None
+    seed: int = 0
+    dropout: float = 0.5
+
+    def resolved(self) -> AliceSettings:
+        """These settings with every None replaced by the schema's learning default."""
+        learning = defaults("learning")
+        return replace(self, **{name: learning[name] for name in ("model", "width", "epochs", "batch_size", "lr",
+                                                                  "patience") if getattr(self, name) is None})
+
+
+def fit_alice(images, ms_norm, target_norm, train_idx, val_idx, settings: AliceSettings = AliceSettings(), *,
+              log=None) -> Alice:
     """Adadelta (ρ 0.9, no weight decay; the paper's lr is 0.01), MSE on the 11 raw outputs against
     the encoding; keeps the weights of the epoch with the lowest validation loss."""
-    learning = defaults("learning")
-    model = learning["model"] if model is None else model
-    width = learning["width"] if width is None else width
-    epochs = learning["epochs"] if epochs is None else epochs
-    batch_size = learning["batch_size"] if batch_size is None else batch_size
-    lr = learning["lr"] if lr is None else lr
-    patience = learning["patience"] if patience is None else patience
+    settings = settings.resolved()
+    model, width, epochs, batch_size = settings.model, settings.width, settings.epochs, settings.batch_size
+    lr, patience, seed, dropout = settings.lr, settings.patience, settings.seed, settings.dropout
     if len(train_idx) == 0 or len(val_idx) == 0:
         raise ValueError(f"training needs non-empty train and validation sets (got {len(train_idx)} and {len(val_idx)})")
     torch.manual_seed(seed)

@@ -14,6 +14,7 @@ in ``header["n_points_status_not_good"]``; a calibration segment of several poin
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -52,8 +53,54 @@ def _unit_in_brackets(name: str) -> str:
     return match.group(1) if match else ""
 
 
+@dataclass(frozen=True)
+class _Columns:
+    """Where the values are in a data row: ``names`` (the column line's names), the positions of the
+    field, moment, time-stamp (None: no such column) and status columns, the units of the field and
+    moment columns (normalized spellings: ``units.FIELD_TO_T``, ``units.MOMENT_TO_AM2``) and
+    ``numeric``, the positions parsed as numbers (step, iteration, segment, field, moment[, time])."""
+
+    names: list
+    field: int
+    moment: int
+    time: int | None
+    status: list
+    field_unit: str
+    moment_unit: str
+    numeric: list
+
+
 def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
                        allow_incomplete: bool = False) -> ForcMeasurement:
+    """The measurement of a Lake Shore 8600 CSV (module docstring): header, column line, data rows,
+    segments; a ``ForcFormatError`` naming the line where the file departs from the format."""
+    header, columns, column_line = _read_header(path, lines)
+    layout = _column_layout(path, columns, column_line)
+    rows, not_good = _read_rows(path, lines, column_line, layout)
+    if not ends_with_newline and not allow_incomplete:
+        raise ForcFormatError(path, "last line has no line end: file truncated", len(lines))
+    header["n_points_status_not_good"] = not_good
+    line_numbers, table = _checked_table(path, rows)
+    segment = table[:, 2]
+    field_T = table[:, 3] * FIELD_TO_T[layout.field_unit]
+    moment_Am2 = table[:, 4] * MOMENT_TO_AM2[layout.moment_unit]
+    time_s = table[:, 5] if layout.time is not None else None
+    check_plausible(path, field_T, moment_Am2, f"field in {layout.field_unit}, moment in {layout.moment_unit}",
+                    line_numbers)
+    _check_time_stamps(path, time_s, line_numbers)
+    n_header, complete = _completeness(path, header, segment, time_s, line_numbers, column_line, allow_incomplete)
+    curves, calibration = _segments(segment, field_T, moment_Am2, time_s, line_numbers)
+    return ForcMeasurement(
+        curves=curves, calibration=calibration, format="lakeshore8600-csv",
+        units="cgs" if layout.field_unit == "Oe" else "SI",
+        units_declared=f"{columns[layout.field]}; {columns[layout.moment]}", source=path, header=header,
+        drift_percent=drift_percent(calibration), drift_corrected=False, n_curves_header=n_header,
+        complete=complete and (n_header is None or n_header == len(curves)))
+
+
+def _read_header(path: Path, lines: list[str]) -> tuple[dict, list, int]:
+    """The header's ``Key: value`` pairs up to the column line; returns (header, column names, 1-based
+    number of the column line)."""
     header: dict = {}
     index = 0
     columns = None
@@ -79,7 +126,11 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     if columns is None:
         raise ForcFormatError(path, "expected the column line 'Step,Iteration,Segment,...', "
                               "found none", len(lines))
-    column_line = index  # 1-based number of the column line
+    return header, columns, index
+
+
+def _column_layout(path: Path, columns: list, column_line: int) -> _Columns:
+    """The positions and units of the columns read (field and moment required, with units in brackets)."""
 
     def find(pattern: str, required: bool = True) -> int | None:
         for position, name in enumerate(columns):
@@ -104,10 +155,16 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
     numeric = [i_step, i_iteration, i_segment, i_field, i_moment]
     if i_time is not None:
         numeric.append(i_time)
+    return _Columns(columns, i_field, i_moment, i_time, i_status, field_unit, moment_unit, numeric)
 
+
+def _read_rows(path: Path, lines: list[str], first: int, layout: _Columns) -> tuple[list, int]:
+    """The data rows from line index ``first`` on: [(1-based line number, numeric values)], and the
+    number of rows whose status columns are not GOOD."""
+    columns = layout.names
     rows = []
     not_good = 0
-    for index in range(index, len(lines)):
+    for index in range(first, len(lines)):
         raw = lines[index]
         if not raw.strip():
             continue
@@ -119,22 +176,24 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
             raise ForcFormatError(path, f"expected {len(columns)} comma-separated values, found "
                                   f"{len(cells)}: {shorten(raw)}", index + 1)
         values = []
-        for position in numeric:
+        for position in layout.numeric:
             value = parse_number(cells[position])
             if value is None:
                 raise ForcFormatError(path, f"expected a number in column {columns[position]!r}, "
                                       f"found {cells[position]!r}", index + 1)
             values.append(value)
-        if any(cells[position].strip() != "GOOD" for position in i_status):
+        if any(cells[position].strip() != "GOOD" for position in layout.status):
             not_good += 1
         rows.append((index + 1, values))
     if not rows:
         raise ForcFormatError(path, "expected data rows after the column line, found none",
                               len(lines))
-    if not ends_with_newline and not allow_incomplete:
-        raise ForcFormatError(path, "last line has no line end: file truncated", len(lines))
-    header["n_points_status_not_good"] = not_good
+    return rows, not_good
 
+
+def _checked_table(path: Path, rows: list) -> tuple[np.ndarray, np.ndarray]:
+    """(line numbers, table of the numeric columns) of one (Step, Iteration) data set whose segment
+    numbers run 0, 1, 2, ... in steps of 0 or 1."""
     line_numbers = np.array([line for line, _ in rows])
     table = np.array([values for _, values in rows], dtype=float)
     if np.unique(table[:, :2], axis=0).shape[0] != 1:
@@ -150,20 +209,27 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
         raise ForcFormatError(path, f"expected segment {int(segment[bad - 1])} or "
                               f"{int(segment[bad - 1]) + 1}, found {segment[bad]:g}",
                               int(line_numbers[bad]))
-    field_T = table[:, 3] * FIELD_TO_T[field_unit]
-    moment_Am2 = table[:, 4] * MOMENT_TO_AM2[moment_unit]
-    time_s = table[:, 5] if i_time is not None else None
-    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}",
-                    line_numbers)
-    if time_s is not None:
-        if not np.all(np.isfinite(time_s)):
-            bad = int(np.flatnonzero(~np.isfinite(time_s))[0])
-            raise ForcFormatError(path, "expected a finite time stamp", int(line_numbers[bad]))
-        if np.any(np.diff(time_s) < 0):
-            bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
-            raise ForcFormatError(path, "expected increasing time stamps, found one going back",
-                                  int(line_numbers[bad]))
+    return line_numbers, table
 
+
+def _check_time_stamps(path: Path, time_s, line_numbers) -> None:
+    """Time stamps (s), where the file has them, finite and not decreasing."""
+    if time_s is None:
+        return
+    if not np.all(np.isfinite(time_s)):
+        bad = int(np.flatnonzero(~np.isfinite(time_s))[0])
+        raise ForcFormatError(path, "expected a finite time stamp", int(line_numbers[bad]))
+    if np.any(np.diff(time_s) < 0):
+        bad = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 1
+        raise ForcFormatError(path, "expected increasing time stamps, found one going back",
+                              int(line_numbers[bad]))
+
+
+def _completeness(path: Path, header: dict, segment, time_s, line_numbers, column_line: int,
+                  allow_incomplete: bool) -> tuple[int | None, bool]:
+    """(``Number of FORCs`` of the header, whether the file is complete): the segments must be twice the
+    FORCs, and the last time stamp (s) must reach FINISH TIME - START TIME less half a sampling
+    interval; a ``ForcFormatError`` where not, unless ``allow_incomplete``."""
     n_header = header_int(header, ("Number of FORCs",))
     n_segments = int(segment[-1]) + 1
     complete = True
@@ -190,7 +256,12 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
                         path, f"last time stamp {time_s[-1]:g} s is before FINISH TIME - START "
                         f"TIME = {elapsed:g} s: truncated", int(line_numbers[-1]))
                 complete = False
+    return n_header, complete
 
+
+def _segments(segment, field_T, moment_Am2, time_s, line_numbers) -> tuple[list, list]:
+    """(curves, calibration points): even segments are calibration points (a segment of several points
+    averaged; the last one dropped where its curve is not in the file), odd ones the curves."""
     boundaries = np.flatnonzero(np.diff(segment)) + 1
     starts = np.r_[0, boundaries]
     stops = np.r_[boundaries, len(segment)]
@@ -208,9 +279,4 @@ def read_lakeshore_csv(path: Path, lines: list[str], ends_with_newline: bool, *,
                 reversal_field_T=float(field_T[start]), field_T=field_T[start:stop].copy(),
                 moment_Am2=moment_Am2[start:stop].copy(),
                 time_s=None if time_s is None else time_s[start:stop].copy()))
-    return ForcMeasurement(
-        curves=curves, calibration=calibration, format="lakeshore8600-csv",
-        units="cgs" if field_unit == "Oe" else "SI",
-        units_declared=f"{columns[i_field]}; {columns[i_moment]}", source=path, header=header,
-        drift_percent=drift_percent(calibration), drift_corrected=False, n_curves_header=n_header,
-        complete=complete and (n_header is None or n_header == len(curves)))
+    return curves, calibration

@@ -23,6 +23,7 @@ header only.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -296,9 +297,9 @@ def read_micromag(path: Path, lines: list[str], *, allow_incomplete: bool = Fals
     if header.preamble:
         header_values["Preamble"] = header.preamble
     if kind == "irregular":
-        curves, calibration, n_header = _assemble_irregular(
-            path, header, blocks, field_T, moment_Am2, curve, calibration_point, header_values,
-            complete, last_line)
+        rows = _DataRows(field_T, moment_Am2, curve, calibration_point)
+        curves, calibration, n_header = _assemble_irregular(path, header, blocks, rows, header_values, complete,
+                                                            last_line)
     else:
         curves, calibration, n_header = _assemble_regular(
             path, header, blocks, curve, calibration_point, complete, allow_incomplete, last_line)
@@ -353,9 +354,20 @@ def _segment_kind(initial: float, final: float) -> str:
     return "up" if final > initial else "down"
 
 
-def _assemble_irregular(path, header, blocks, field_T, moment_Am2, curve, calibration_point,
-                        header_values, complete, last_line):
-    """Curves of a 'Multiple segments' file, following its segment table.
+@dataclass(frozen=True)
+class _DataRows:
+    """A file's data rows in SI: ``field_T`` (T) and ``moment_Am2`` (A m²) per row, ``curve(start, stop)``
+    the curve of rows [start, stop) and ``calibration_point(row)`` the calibration point of one row."""
+
+    field_T: np.ndarray
+    moment_Am2: np.ndarray
+    curve: Callable[[int, int], ForcCurve]
+    calibration_point: Callable[[int], CalibrationPoint]
+
+
+def _assemble_irregular(path, header, blocks, rows: _DataRows, header_values, complete, last_line):
+    """Curves of a 'Multiple segments' file, following its segment table (``header_values`` gains a
+    ``trailing_segment``, if any).
 
     Pattern per curve: hold at HCal (1 point: calibration), sweep down (no data), hold at the
     reversal field (1 point: first point of the curve), rising segments (their points, start and
@@ -363,6 +375,7 @@ def _assemble_irregular(path, header, blocks, field_T, moment_Am2, curve, calibr
     A final falling segment with data after the last curve is kept in the header as
     ``trailing_segment``.
     """
+    field_T, moment_Am2, curve, calibration_point = rows.field_T, rows.moment_Am2, rows.curve, rows.calibration_point
     table = header.table
     if not table:
         raise ForcFormatError(path, "expected a segment table in the SCRIPT block of a "

@@ -59,6 +59,39 @@ def _find_columns(path: Path, columns: list[str], line: int):
 
 def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
             allow_incomplete: bool = False) -> ForcMeasurement:
+    """The measurement of a Quantum Design ``.DAT`` file (module docstring): header, column line, data
+    rows, curves cut at the field reversals; a ``ForcFormatError`` naming the line where it departs
+    from the format."""
+    header, index = _read_header(path, lines)
+    column_line = index + 1
+    columns = [name.strip() for name in _cells(path, lines, index)]
+    i_field, i_moment, i_time, i_temperature = _find_columns(path, columns, column_line)
+    field_unit, moment_unit = _column_units(path, columns[i_field], columns[i_moment], column_line)
+    wanted = [i_field, i_moment] + [i for i in (i_time, i_temperature) if i is not None]
+    values, line_numbers, skipped = _read_rows(path, lines, index + 1, columns, wanted)
+    if not ends_with_newline and not allow_incomplete:
+        raise ForcFormatError(path, "last line has no line end: file truncated", len(lines))
+    header["n_rows_skipped"] = skipped
+    table = np.array(values, dtype=float)
+    field_T = table[:, 0] * FIELD_TO_T[field_unit]
+    moment_Am2 = table[:, 1] * MOMENT_TO_AM2[moment_unit]
+    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}",
+                    line_numbers)
+    time_s, temperature_K = _time_and_temperature(path, table, i_time is not None, i_temperature is not None,
+                                                  line_numbers)
+    curves, calibration = _curves(path, (field_T, moment_Am2, time_s, temperature_K), line_numbers)
+    return ForcMeasurement(
+        curves=curves, calibration=calibration, format="qd-dat",
+        units="cgs" if field_unit == "Oe" else "SI",
+        units_declared=f"{columns[i_field]}; {columns[i_moment]}", source=path, header=header,
+        drift_percent=drift_percent(calibration), drift_corrected=False, n_curves_header=None,
+        complete=True)
+
+
+def _read_header(path: Path, lines: list[str]) -> tuple[dict, int]:
+    """The ``[Header]`` block's entries (``INFO,value,NAME`` as NAME → value; a repeated key → a list)
+    and the index of the column line (the line after ``[Data]``, or the first line of a file without
+    a header)."""
     header: dict = {}
     index = 0
     if lines[0].strip() == "[Header]":
@@ -82,28 +115,39 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
         index += 1
     if index >= len(lines):
         raise ForcFormatError(path, "expected the column line after '[Data]'", len(lines))
-    column_line = index + 1
-    def cells_of(number: int) -> list[str]:
-        try:
-            return next(csv.reader([lines[number]]), [])
-        except csv.Error as error:
-            raise ForcFormatError(path, f"expected a CSV row, found unreadable text ({error})",
-                                  number + 1) from None
+    return header, index
 
-    columns = [name.strip() for name in cells_of(index)]
-    i_field, i_moment, i_time, i_temperature = _find_columns(path, columns, column_line)
-    field_unit = normalize_field_unit(_FIELD_RE.fullmatch(columns[i_field]).group(1))
+
+def _cells(path: Path, lines: list[str], number: int) -> list[str]:
+    """The CSV cells of line index ``number``."""
+    try:
+        return next(csv.reader([lines[number]]), [])
+    except csv.Error as error:
+        raise ForcFormatError(path, f"expected a CSV row, found unreadable text ({error})",
+                              number + 1) from None
+
+
+def _column_units(path: Path, field_name: str, moment_name: str, column_line: int) -> tuple[str, str]:
+    """The (field, moment) units of the columns named ``field_name`` and ``moment_name``, normalized."""
+    field_unit = normalize_field_unit(_FIELD_RE.fullmatch(field_name).group(1))
     moment_unit = normalize_moment_unit(
-        re.fullmatch(r".*\(([^)]*)\)", columns[i_moment]).group(1))
+        re.fullmatch(r".*\(([^)]*)\)", moment_name).group(1))
     if field_unit is None or moment_unit is None:
-        raise ForcFormatError(path, f"cannot tell the units of {columns[i_field]!r} and "
-                              f"{columns[i_moment]!r} (expected Oe or T, emu or A m2)",
+        raise ForcFormatError(path, f"cannot tell the units of {field_name!r} and "
+                              f"{moment_name!r} (expected Oe or T, emu or A m2)",
                               column_line)
-    wanted = [i_field, i_moment] + [i for i in (i_time, i_temperature) if i is not None]
+    return field_unit, moment_unit
+
+
+def _read_rows(path: Path, lines: list[str], first: int, columns: list[str], wanted: list[int]) -> tuple:
+    """The values of the ``wanted`` columns (field, moment, [time], [temperature]) of every data row from
+    line index ``first`` on (an empty cell: NaN); returns (values, 1-based line numbers, number of rows
+    skipped for an empty field or moment)."""
+    i_field, i_moment = wanted[0], wanted[1]
     values, line_numbers = [], []
     skipped = 0
-    for number in range(index + 1, len(lines)):
-        cells = cells_of(number)
+    for number in range(first, len(lines)):
+        cells = _cells(path, lines, number)
         line = number + 1
         if not cells or not any(cell.strip() for cell in cells):
             continue
@@ -126,17 +170,16 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
     if len(values) < 2:
         raise ForcFormatError(path, "expected data rows after the column line, found "
                               f"{len(values)}", len(lines))
-    if not ends_with_newline and not allow_incomplete:
-        raise ForcFormatError(path, "last line has no line end: file truncated", len(lines))
-    header["n_rows_skipped"] = skipped
-    table = np.array(values, dtype=float)
-    field_T = table[:, 0] * FIELD_TO_T[field_unit]
-    moment_Am2 = table[:, 1] * MOMENT_TO_AM2[moment_unit]
-    check_plausible(path, field_T, moment_Am2, f"field in {field_unit}, moment in {moment_unit}",
-                    line_numbers)
+    return values, line_numbers, skipped
+
+
+def _time_and_temperature(path: Path, table: np.ndarray, has_time: bool, has_temperature: bool,
+                          line_numbers: list[int]) -> tuple:
+    """(time (s, from the first row), temperature (K)) from the table's columns after field and moment;
+    None for a column the file lacks or that has an empty cell."""
     column = 2
     time_s = temperature_K = None
-    if i_time is not None:
+    if has_time:
         time_s = table[:, column]
         column += 1
         if np.all(np.isfinite(time_s)):
@@ -147,11 +190,17 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
                                       "back", line_numbers[bad])
         else:
             time_s = None
-    if i_temperature is not None:
+    if has_temperature:
         temperature_K = table[:, column]
         if not np.all(np.isfinite(temperature_K)):
             temperature_K = None
+    return time_s, temperature_K
 
+
+def _curves(path: Path, series: tuple, line_numbers: list[int]) -> tuple[list, list]:
+    """(curves, calibration points) cut from the field history (``segment_by_reversals``); ``series`` is
+    (field (T), moment (A m²), time (s) or None, temperature (K) or None) per row."""
+    field_T, moment_Am2, time_s, temperature_K = series
     curve_runs, calibration_rows = segment_by_reversals(path, field_T, line_numbers)
     curves, calibration = [], []
     for (start, stop), cal_row in zip(curve_runs, calibration_rows):
@@ -164,12 +213,7 @@ def read_qd(path: Path, lines: list[str], ends_with_newline: bool, *,
             calibration.append(CalibrationPoint(
                 float(field_T[cal_row]), float(moment_Am2[cal_row]),
                 None if time_s is None else float(time_s[cal_row]), line=line_numbers[cal_row]))
-    return ForcMeasurement(
-        curves=curves, calibration=calibration, format="qd-dat",
-        units="cgs" if field_unit == "Oe" else "SI",
-        units_declared=f"{columns[i_field]}; {columns[i_moment]}", source=path, header=header,
-        drift_percent=drift_percent(calibration), drift_corrected=False, n_curves_header=None,
-        complete=True)
+    return curves, calibration
 
 
 def segment_by_reversals(path: Path, field_T: np.ndarray, line_numbers: list[int]

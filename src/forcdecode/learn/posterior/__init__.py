@@ -43,10 +43,10 @@ from .estimator import RECALIBRATION_REFERENCE_DRAWS, PosteriorEstimator, poster
 from .file_format import FORMAT
 from .flow import (BOUNDED_SUPPORT, EMBEDDINGS, SQUEEZE, SUMMARIES, ConvEmbedding, MLPEmbedding, PosteriorNet, _float32,
                    from_coordinates, from_latent, posterior_settings, to_coordinates, to_latent)
-from .training import fit_posterior, train_posterior
+from .training import PosteriorFit, fit_posterior, train_posterior
 
 __all__ = ["FORMAT", "BOUNDED_SUPPORT", "posterior_settings", "to_latent", "from_latent", "PosteriorNet",
-           "PosteriorEstimator", "fit_posterior", "gated_recalibration_record", "fit_held_out_recalibration",
+           "PosteriorEstimator", "PosteriorFit", "fit_posterior", "gated_recalibration_record", "fit_held_out_recalibration",
            "recalibration_families", "recalibration_holdout",
            "summarize", "posterior_prediction",
            "split_diagnostics", "train_posterior"]

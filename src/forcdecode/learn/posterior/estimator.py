@@ -18,6 +18,7 @@ from ..answer import posterior_flags
 from ..calibration import recalibrate_draws, widen
 from ..combinations import summarize_draws
 from ..models import image_tensor
+from ..ood import ood_check
 from .file_format import read_estimator, save_estimator
 from .flow import SQUEEZE, PosteriorNet, _float32, from_coordinates, from_latent, to_coordinates, to_latent
 
@@ -229,7 +230,6 @@ def posterior_prediction(est: PosteriorEstimator, image_uint8, Ms_A_per_m: float
     before the flag)."""
 
     ms_norm = float(normalize("Ms", Ms_A_per_m, est.bounds))
-    from ..ood import ood_check
 
     draws = est.sample(np.asarray(image_uint8)[None], [ms_norm], n_draws, seed=stream_seed(seed, "posterior", "predict"))[0]
     summary = summarize(draws, est.names, est.bounds)
