@@ -831,90 +831,128 @@ def _prior_lines(report) -> list[str]:
     return lines + [""]
 
 
-def _markdown(path, report, analysis) -> str:
-    lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report)]
+def _posterior_lines(prediction) -> list[str]:
+    """The joint posterior's draws in Markdown: the pairwise correlations (normalized parameters) and the
+    conformalized 90 % intervals where the prediction carries them."""
+    lines = []
+    corr = prediction["posterior_correlation"]
+    lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
+              "Pairwise correlations of the draws (normalized parameters):", "",
+              "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
+    for name, row in zip(corr["names"], corr["matrix"]):
+        lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
+    conformal = {n: e["interval_90_conformal"] for n, e in prediction.items()
+                 if isinstance(e, dict) and "interval_90_conformal" in e}
+    if conformal:
+        lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
+                  "families like the training data): " + "; ".join(
+                      f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
+    return lines
+
+
+def _refined_lines(refined) -> list[str]:
+    """The refinement by simulation in Markdown: its table (amortized and refined medians, 68/90 % intervals),
+    what it found beyond the prior's bound and its predictive check."""
+    lines = ["", f"Refined by {refined['budget']} simulations of this film (`loop.fit`; effective sample size "
+             f"{refined['ess']:.1f}{'' if refined['reached_full_likelihood'] else '; tempered, not the full posterior'}). "
+             "The residual below is that of the refined medians:", "",
+             "| parameter | amortized median (normalized) | refined median | refined 68 % | refined 90 % |",
+             "|---|---|---|---|---|"]
+    for name, row in refined["parameters"].items():
+        lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
+                     f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
+    if refined.get("beyond_prior"):
+        lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
+    check = refined.get("predictive_check")
+    if check:
+        extension = check.get("check") == "extension"
+        lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
+                        else "**Misspecified: ") if check["misspecified"] else
+                       ("Extension check: " if extension else "Posterior-predictive check: "))
+                  + check["verdict"] + (".**" if check["misspecified"] else "."), "",
+                  "![the check against its validation reference](predictive_check.png)"]
+    return lines
+
+
+def _prediction_lines(report) -> list[str]:
+    """The decoded Hamiltonian in Markdown: M_s, the answer table, the posterior's correlations, the
+    refinement and the M_s sweep (empty without a prediction)."""
     prediction = report.get("prediction")
-    if prediction:
-        typed = Prediction.from_dict(prediction)
-        lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
-                  *answer_table(typed, markdown=True), *basis_lines(typed, markdown=True)]
-        if prediction.get("estimator") == "posterior":
-            corr = prediction["posterior_correlation"]
-            lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
-                      "Pairwise correlations of the draws (normalized parameters):", "",
-                      "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
-            for name, row in zip(corr["names"], corr["matrix"]):
-                lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
-            conformal = {n: e["interval_90_conformal"] for n, e in prediction.items()
-                         if isinstance(e, dict) and "interval_90_conformal" in e}
-            if conformal:
-                lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
-                          "families like the training data): " + "; ".join(
-                              f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
-        refined = report.get("refined")
-        if refined:
-            lines += ["", f"Refined by {refined['budget']} simulations of this film (`loop.fit`; effective sample size "
-                      f"{refined['ess']:.1f}{'' if refined['reached_full_likelihood'] else '; tempered, not the full posterior'}). "
-                      "The residual below is that of the refined medians:", "",
-                      "| parameter | amortized median (normalized) | refined median | refined 68 % | refined 90 % |",
-                      "|---|---|---|---|---|"]
-            for name, row in refined["parameters"].items():
-                lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
-                             f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
-            if refined.get("beyond_prior"):
-                lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
-            check = refined.get("predictive_check")
-            if check:
-                extension = check.get("check") == "extension"
-                lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
-                                else "**Misspecified: ") if check["misspecified"] else
-                               ("Extension check: " if extension else "Posterior-predictive check: "))
-                          + check["verdict"] + (".**" if check["misspecified"] else "."), "",
-                          "![the check against its validation reference](predictive_check.png)"]
-        if len(report.get("Ms_sweep", [])) > 1:
-            lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
-    lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "
-              f"{report['observation_rms']:.4f}.", ""]
+    if not prediction:
+        return []
+    typed = Prediction.from_dict(prediction)
+    lines = [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
+             *answer_table(typed, markdown=True), *basis_lines(typed, markdown=True)]
+    if prediction.get("estimator") == "posterior":
+        lines += _posterior_lines(prediction)
+    refined = report.get("refined")
+    if refined:
+        lines += _refined_lines(refined)
+    if len(report.get("Ms_sweep", [])) > 1:
+        lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
+    return lines
+
+
+def _measured_points_lines(report) -> list[str]:
+    """The residual at the measured points (the file's own protocol re-simulated, A·m²) in Markdown."""
     points = report.get("measured_points")
-    if points:
-        lines += [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
-                  f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
-                  f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
-                  f"({points['normalization']}).", ""]
+    if not points:
+        return []
+    return [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
+            f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
+            f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
+            f"({points['normalization']}).", ""]
+
+
+def _hamiltonian_lines(report, analysis) -> list[str]:
+    """The refitted Hamiltonian in Markdown: prediction, refitted without and with the effect, and the joint
+    refit's held-out error (empty without a refit)."""
     hamiltonian = report.get("hamiltonian")
-    if hamiltonian:
-        refit = report["refit"]
-        lines += [f"Hamiltonian refitted around the prediction ({', '.join(refit['names'])}; {refit['evaluations']} "
-                  f"re-simulations): training MSE {refit['training_mse_prediction']:.4g} → {refit['training_mse_refit']:.4g}.", "",
-                  "| parameter | prediction | refitted without the effect | refitted with the effect |", "|---|---|---|---|"]
-        with_effect = (hamiltonian.get("refit_with_effect") or {}).get("params", {})
-        for name in refit["names"]:
-            lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
-                         f"{with_effect.get(name, float('nan')):.4g} |")
-        lines.append("")
-        joint = hamiltonian.get("refit_with_effect") or {}
-        if "heldout_rms" in joint:
-            lines += [f"Hamiltonian and effect refitted together: held-out RMS {joint['heldout_rms']:.4f} (the effect on "
-                      f"the Hamiltonian refitted without it: {analysis['heldout_rms_after']:.4f})"
-                      + ("." if joint.get("generalises", True) else
-                         " — the joint refit does not generalise to the held-out curves, so its Hamiltonian and effect "
-                         "size are not used; the effect is read on the Hamiltonian refitted without it."), ""]
+    if not hamiltonian:
+        return []
+    refit = report["refit"]
+    lines = [f"Hamiltonian refitted around the prediction ({', '.join(refit['names'])}; {refit['evaluations']} "
+             f"re-simulations): training MSE {refit['training_mse_prediction']:.4g} → {refit['training_mse_refit']:.4g}.", "",
+             "| parameter | prediction | refitted without the effect | refitted with the effect |", "|---|---|---|---|"]
+    with_effect = (hamiltonian.get("refit_with_effect") or {}).get("params", {})
+    for name in refit["names"]:
+        lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
+                     f"{with_effect.get(name, float('nan')):.4g} |")
+    lines.append("")
+    joint = hamiltonian.get("refit_with_effect") or {}
+    if "heldout_rms" in joint:
+        lines += [f"Hamiltonian and effect refitted together: held-out RMS {joint['heldout_rms']:.4f} (the effect on "
+                  f"the Hamiltonian refitted without it: {analysis['heldout_rms_after']:.4f})"
+                  + ("." if joint.get("generalises", True) else
+                     " — the joint refit does not generalise to the held-out curves, so its Hamiltonian and effect "
+                     "size are not used; the effect is read on the Hamiltonian refitted without it."), ""]
+    return lines
+
+
+def _fixed_point_lines(report) -> list[str]:
+    """The fixed-point iteration in Markdown (empty without one)."""
     fixed = report.get("fixed_point")
-    if fixed:
-        steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"
-                                                             for n in report["refit"]["names"])
-                          for it in fixed["iterations"])
-        lines += [f"Fixed point of (Hamiltonian, measured-side effect), predicted again from the family with the effect "
-                  f"removed: {'converged' if fixed['converged'] else 'NOT converged'} after {fixed['n_iterations']} "
-                  f"iteration(s) (tolerance {100 * fixed['tolerance']:.0f} %; per iteration effect, prediction → "
-                  f"refitted: {steps}).", ""]
-    lines += [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
-              f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
-              f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
-              f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
-              f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
-              "| candidate | held-out RMS | relative gain | gain on effect-free films (floor) | beats the floor | accepted |",
-              "|---|---|---|---|---|---|"]
+    if not fixed:
+        return []
+    steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"
+                                                         for n in report["refit"]["names"])
+                      for it in fixed["iterations"])
+    return [f"Fixed point of (Hamiltonian, measured-side effect), predicted again from the family with the effect "
+            f"removed: {'converged' if fixed['converged'] else 'NOT converged'} after {fixed['n_iterations']} "
+            f"iteration(s) (tolerance {100 * fixed['tolerance']:.0f} %; per iteration effect, prediction → "
+            f"refitted: {steps}).", ""]
+
+
+def _verdict_lines(report, analysis) -> list[str]:
+    """The verdict, the chosen effect, the held-out errors and the candidates' table in Markdown, with the
+    realisation floor's explanation where it was drawn."""
+    lines = [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
+             f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
+             f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
+             f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
+             f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
+             "| candidate | held-out RMS | relative gain | gain on effect-free films (floor) | beats the floor | accepted |",
+             "|---|---|---|---|---|---|"]
     for name, c in sorted(analysis["candidates"].items(), key=lambda kv: kv[1]["heldout_rms"]):
         null = c.get("null_gain")
         floor = "—" if null is None else f"{null['relative']:.2f}"
@@ -928,6 +966,13 @@ def _markdown(path, report, analysis) -> str:
                   "relatively and in mean-square error (`loop.patches`, `physics_effects.null_gains`). Field-shift "
                   "and drift candidates with model-free evidence are judged by that evidence (their floor is printed, "
                   "not applied)."]
+    return lines
+
+
+def _evidence_lines(report, analysis) -> list[str]:
+    """The patches averaged by the file, the model-free evidence (field shift, drift) and the residual's
+    structure in Markdown (each where it was computed)."""
+    lines = []
     patches = report.get("patches")
     if patches:
         consistent = ", ".join(map(str, patches["consistent"])) or "none of 1–8"
@@ -961,6 +1006,17 @@ def _markdown(path, report, analysis) -> str:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
                   f"{structure['runs_z']:.1f}, lag-1 z {structure['lag1_z']:.1f} (noise σ {structure['noise_sigma']:.3g}, "
                   f"{structure['noise_source']}); rule: {structure['rule']}."]
+    return lines
+
+
+def _markdown(path, report, analysis) -> str:
+    """report.md: the domain, the prior class and training-data checks, the decoded Hamiltonian, the
+    residual, the refit, the verdict and its evidence, the figures."""
+    lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report), *_prediction_lines(report)]
+    lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "
+              f"{report['observation_rms']:.4f}.", ""]
+    lines += [*_measured_points_lines(report), *_hamiltonian_lines(report, analysis), *_fixed_point_lines(report),
+              *_verdict_lines(report, analysis), *_evidence_lines(report, analysis)]
     lines += ["", "![families](families.png)", "", "![residual](residual.png)", "",
               "FORC diagrams (measured, re-simulated, difference; one colour scale): `diagrams.png` (in report.html).", ""]
     return "\n".join(lines)
