@@ -17,6 +17,7 @@ from ..config import film_thickness_nm, load_config as load, shipped_config, wit
 from ..core.io import read_json, write_json
 from ..infer.refine import METHODS
 from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
+from ..learn.prior_class import prior_class_line
 from ..learn.shipped import check_thickness, resolve_models
 from .measured_loop import _json_ready, close_loop_on_file
 from .physics_effects import NULL_REALISATIONS
@@ -166,12 +167,10 @@ def run(args) -> int:
         print(json.dumps(_json_ready(report), indent=2))
         return 0
     if report.get("prior_class"):
-        from ..learn.prior_class import prior_class_line
-
         print(prior_class_line(report["prior_class"], report.get("prior_check")))
     prediction = report.get("prediction")
     if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
-        from ..learn.predictor import prediction_lines
+        from ..learn.predictor import prediction_lines  # local: the predictor imports torch
 
         ms = report.get("Ms_chosen_A_per_m", prediction.get("Ms"))
         swept = report.get("Ms_source") == "swept"

@@ -27,18 +27,21 @@ from ..core.streams import stream_rng
 from ..forc.raster import measurement_on_grid
 from ..forc.simulate import protocol_name
 from ..infer.posterior_predictive import draws_as_hamiltonians
-from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function, parse_extension
+from ..infer.predictive_check import check_figure, predictive_check, read_reference
+from ..infer.refine import DEFAULT_PRIOR, RefineRun, beyond_prior_lines, family_key, fit_function, parse_extension
 from ..infer.resimulate import observation_error, resimulate_measured, resimulate_with_spread
+from ..learn.answer import alice_answer
 from ..learn.prediction import Prediction, answer_table, basis_lines
 from ..learn.prior_class import check_prior_class, prior_class_line
 from ..measured import read_forc
-from .fixed_point import image_of_family
+from .fixed_point import image_of_family, predict_correct_iterate
 from .patches import (POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, null_films, rasterized_singles,
                       single_realisations)
 from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
                               physics_candidate_families)
-from .refit import measured_saturation, realisation_floor
+from .refit import RefitSettings, analyse_with_refit, measured_saturation, realisation_floor
 from .report_page import diagrams_figure, write_report_page
+from .signatures import drift_evidence_of, field_shift_of, measured_point_arrays
 from .structure import null_structure_floor
 
 
@@ -69,7 +72,7 @@ def _hamiltonian_of(prediction: dict) -> dict:
 def family_predictor(models, Ms_A_per_m: float):
     """family → Hamiltonian (SI): the prediction path of ``predict_and_sweep`` at one M_s applied to
     the networks' image of a grid family (``loop.fixed_point.image_of_family``)."""
-    from ..learn.predictor import predict_parameters
+    from ..learn.predictor import predict_parameters  # local: the predictor imports torch
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     return lambda family: _hamiltonian_of(predict(image_of_family(family), Ms_A_per_m))
@@ -80,7 +83,7 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     prediction such as the posterior's), re-simulate it, keep the M_s whose family is closest to
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
-    from ..learn.predictor import predict_parameters
+    from ..learn.predictor import predict_parameters  # local: the predictor imports torch
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
@@ -96,20 +99,21 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     return best, rows
 
 
-def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
-            method: str = "pmc", extend=None):
-    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``infer.fit``):
-    medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
-    the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
-    ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
-    ``method``: "pmc" (``refine.fit_one``) or "adjusted" (``refine.fit_adjusted``: no tempering, no
-    particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
+def _refine(cfg, est, m: Measurement, Ms, path, s: LoopSettings, setup: RefineSetup, log):
+    """(report entry, Hamiltonian SI) of the refined posterior of the measured family ``m.family`` at M_s
+    ``Ms`` (A/m; ``infer.fit``, ``s.refine_budget`` simulations in rounds of ``s.refine_round_size`` on
+    ``s.refine_workers`` processes): medians and 68/90 % intervals per parameter (normalized and SI),
+    effective sample size, whether the tempering reached the full likelihood; with ``setup.reference`` (a
+    dict of ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
+    ``s.refine_method``: "pmc" (``refine.fit_one``) or "adjusted" (``refine.fit_adjusted``: no tempering, no
+    particles' observation RMS). ``setup.extend`` ({name: factor}, pmc only): the refinement's box reaches
     beyond the prior's bound (``refine.parse_extension``); the entry then carries ``beyond_prior``
     (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
+    budget, method, extend, predictive_reference = s.refine_budget, s.refine_method, setup.extend, setup.reference
     key = family_key(f"{Path(path).name}:refine")
-    result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                                  seed=int(cfg.get("seed", 0)), key=key, log=log, prior=DEFAULT_PRIOR,
-                                  extend=extend)
+    run = RefineRun(budget=budget, round_size=s.refine_round_size, workers=s.refine_workers,
+                    seed=int(cfg.get("seed", 0)), key=key, prior=DEFAULT_PRIOR, extend=extend)
+    result = fit_function(method)(cfg, est, m.image, m.family, Ms, run, log=log)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
@@ -133,8 +137,6 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         for line in beyond_prior_lines(result["beyond_prior"]):
             log(line)
     if predictive_reference is not None:
-        from ..infer.predictive_check import predictive_check
-
         entry["predictive_check"] = predictive_check(result, predictive_reference)
         log(f"{entry['predictive_check'].get('check', 'predictive')} check: {entry['predictive_check']['verdict']}")
     return entry, params
@@ -318,13 +320,15 @@ class Estimate:
 @dataclass
 class Residual:
     """The observation error of the re-simulation, and the model-free evidence the candidates need: the
-    noise (m units), the field-shift and drift evidence, the measured points for the saturation test."""
+    noise (m units), the field-shift and drift evidence, the measured points for the saturation test; and
+    the re-simulated grid family (n × n, m normalized) the residual is of."""
 
     error: dict
     noise: float | None
     shift: dict | None
     drift: dict | None
     points: object
+    resim: np.ndarray | None = None
 
 
 @dataclass
@@ -375,8 +379,6 @@ def check_options(s: LoopSettings) -> RefineSetup:
     if predictive_reference is not None:
         if not refine_budget:
             raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
-        from ..infer.predictive_check import read_reference
-
         reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
                                    budget_run=refine_budget, extend=extend)
     if fixed_point and s.params is not None:
@@ -422,7 +424,7 @@ OOD_SWEPT_NOTE = "M_s unknown: the most favourable p over the sweep"
 def posterior_ood(est, image, ms_values) -> dict:
     """The posterior's training-data check (``learn.ood.ood_check``): at the given M_s alone (one value),
     or, M_s unknown (several), at each M_s of the sweep keeping the most favourable p, and saying so."""
-    from ..learn.ood import ood_check
+    from ..learn.ood import ood_check  # local: the check imports torch
 
     checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
     if not checks[0].get("available"):
@@ -445,7 +447,7 @@ def alice_ood(models_dir, models, image, dataset=None, log=_progress) -> dict:
     """Alice's training-data check: the image-only conformal check (``learn.ood.image_ood_check``) against
     the train split of the networks' own dataset (``training_image_reference``); M_s plays no part. Not
     available, with the reason, when that dataset cannot be found or is another configuration's."""
-    from ..learn.ood import image_ood_check, training_image_reference
+    from ..learn.ood import image_ood_check, training_image_reference  # local: the check imports torch
 
     check = "image only (no posterior)"
     hashes = ([str(m.payload["config_hash"]) for m in models.values()
@@ -501,7 +503,7 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
     ms_values = list(s.ms_values_A_per_m if s.ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
     est = None
     if s.estimator == "posterior":
-        from ..learn.posterior import PosteriorEstimator, posterior_prediction
+        from ..learn.posterior import PosteriorEstimator, posterior_prediction  # local: imports torch
 
         est = PosteriorEstimator.load(s.posterior_path)
         prior_check(report, est.prior_class, m, s, out, path, log)
@@ -509,7 +511,7 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
         models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
         trained = "The posterior was trained on"
     elif s.estimator == "alice":
-        from ..learn.predictor import load_models, models_prior_class
+        from ..learn.predictor import load_models, models_prior_class  # local: imports torch
 
         models = load_models(s.models_dir)
         prior_check(report, models_prior_class(models), m, s, out, path, log)
@@ -531,8 +533,6 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
         result.predictor = family_predictor(models, best["Ms"])
     prediction = best["prediction"]
     if s.estimator == "alice":  # the posterior's prediction carries its flags and combinations already
-        from ..learn.answer import alice_answer
-
         prediction = alice_answer(models, prediction, seed=int(cfg.get("seed", 0)))
     report.update(parameters=result.params, prediction=prediction, Ms_chosen_A_per_m=best["Ms"],
                   Ms_source="given" if len(ms_values) == 1 else "swept",
@@ -540,16 +540,11 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
     if best["n_profiles"] == profiles:
         result.resim, result.spread = best["family"], best["spread"]
     if s.refine_budget:
-        report["refined"], result.params = _refine(cfg, est, m.image, m.family, best["Ms"], path, s.refine_budget,
-                                                   s.refine_round_size, s.refine_workers, log, setup.reference,
-                                                   method=s.refine_method,
-                                                   extend=setup.extend)
+        report["refined"], result.params = _refine(cfg, est, m, best["Ms"], path, s, setup, log)
         report["parameters"] = result.params
         result.resim = None  # re-simulate the refined Hamiltonian
         check = report["refined"].get("predictive_check")
         if check is not None:  # where this film lies among the reference's validation families
-            from ..infer.predictive_check import check_figure
-
             check_figure(out / "predictive_check.png", setup.reference, {Path(str(path)).name: check},
                          title=f"{check['check']} check")
     return result
@@ -574,8 +569,6 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
     # the saturated end points drift?
     shift = drift = None
     if noise:
-        from .signatures import drift_evidence_of, field_shift_of
-
         shift = field_shift_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         report["field_shift"], report["drift_evidence"] = shift, drift
@@ -583,10 +576,8 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
     # film is saturated; the measured protocol is re-simulated quasi-statically only)
     points = None
     if protocol_name(cfg) == "quasistatic" and moment_saturation > 0:
-        from .signatures import measured_point_arrays
-
         points = measured_point_arrays(data, moment_saturation, domain.moment_offset_Am2)
-    return Residual(error, noise, shift, drift, points)
+    return Residual(error, noise, shift, drift, points, resim)
 
 
 def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
@@ -644,10 +635,12 @@ def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r:
     return FileFloor(floor.patches, floor.pool, null, [(film - resim) ** 2 for film in films], residuals)
 
 
-def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
-                   r: Residual, candidates: dict, floor: FileFloor) -> Judgement:
-    """The residual traced to an effect against the re-simulation (``analyse_residual``), every candidate
-    judged against its realisation floor at the file's patch number."""
+def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, spread, r: Residual, candidates: dict,
+                   floor: FileFloor) -> Judgement:
+    """The residual traced to an effect against the re-simulation ``r.resim`` of ``params`` (``analyse_residual``),
+    every candidate judged against its realisation floor at the file's patch number; ``spread``: the variance of
+    m between the re-simulation's profiles."""
+    resim = r.resim
     saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
     # the disorder floor of the structure test: the re-simulation's profile spread pooled with the null
     # films' (P-patch films against the re-simulation: their tails, where every profile happened to agree)
@@ -671,8 +664,6 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
 
     data, fields, refit = m.data, m.fields, s.refit
     if s.fixed_point:
-        from .fixed_point import predict_correct_iterate
-
         analysis = predict_correct_iterate(cfg, e.predictor, m.family, fields, names=tuple(refit),
                                            budget=s.refit_budget, noise_sigma=r.noise, every_k=s.every_k,
                                            n_profiles=s.sweep_profiles, physics=s.physics, log=log,
@@ -682,19 +673,14 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
     else:
-        from .refit import analyse_with_refit
-
-        analysis = analyse_with_refit(cfg, e.params, m.family, fields, names=tuple(refit), every_k=s.every_k,
-                                      null_realisations=s.null_realisations,
-                                      null_patches=floor.patches.floor_patches,
-                                      measured_patches=floor.patches.floor_patches,
-                                      n_profiles=s.sweep_profiles, budget=s.refit_budget, physics=s.physics,
-                                      noise_sigma=r.noise, field_shift=r.shift, drift=r.drift,
-                                      moment_tolerance=s.moment_tolerance, measured_points=r.points,
-                                      shift_protocol=((data.reversal_fields_T,
-                                                       [c.field_T for c in data.curves])
-                                                      if r.shift is not None and protocol_name(cfg) == "quasistatic"
-                                                      else None),
+        shift_protocol = ((data.reversal_fields_T, [c.field_T for c in data.curves])
+                          if r.shift is not None and protocol_name(cfg) == "quasistatic" else None)
+        settings = RefitSettings(names=tuple(refit), every_k=s.every_k, null_realisations=s.null_realisations,
+                                 null_patches=floor.patches.floor_patches, n_profiles=s.sweep_profiles,
+                                 budget=s.refit_budget, physics=s.physics, noise_sigma=r.noise, field_shift=r.shift,
+                                 drift=r.drift, measured_points=r.points, shift_protocol=shift_protocol)
+        analysis = analyse_with_refit(cfg, e.params, m.family, fields, settings,
+                                      measured_patches=floor.patches.floor_patches, moment_tolerance=s.moment_tolerance,
                                       progress=counter("Hamiltonian refit", "re-simulations"))
     final_params = analysis["hamiltonian"]["refit_without_effect"]
     report["hamiltonian"] = analysis["hamiltonian"]
@@ -704,12 +690,12 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
     return Judgement(analysis, final_params)
 
 
-def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r: Residual,
-                 j: Judgement, report: dict) -> dict:
+def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, r: Residual, j: Judgement,
+                 report: dict) -> dict:
     """The analysed file's report: its entries, the residual at the measured points (the file's own
-    protocol re-simulated), the figures, report.json, report.md and report.html."""
-
-    analysis, fields, family = j.analysis, m.fields, m.family
+    protocol re-simulated), the figures (against the re-simulation ``r.resim``), report.json, report.md and
+    report.html."""
+    analysis, fields, family, resim = j.analysis, m.fields, m.family, r.resim
     error = r.error
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
@@ -762,8 +748,8 @@ def close_loop_on_file(path, out, cfg: dict, settings: "LoopSettings | None" = N
     else:  # candidates, the realisation floor, judge
         candidates = physics_candidates(cfg, s, hamiltonian.params)
         floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
-        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, resim, spread, residual, candidates, floor)
-    return write_report(out, path, cfg, s, measurement, resim, residual, judgement, report)  # report
+        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, spread, residual, candidates, floor)
+    return write_report(out, path, cfg, s, measurement, residual, judgement, report)  # report
 
 
 def _markdown_domain(path, report) -> str:
