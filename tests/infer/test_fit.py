@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import norm
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.infer.fit import _log_jacobian, _logit, refine
+from forcdecode.infer.fit import Refinement, RefinementOptions, _log_jacobian, _logit, refine
 
 K = np.arange(1, 21)
 SIGMA = 0.05
@@ -55,8 +55,9 @@ def run(seed, budget=200, bias=0.6, **options):
     truth = rng.uniform(0.2, 0.8, 2)
     observed = forward(truth)[0] + SIGMA * rng.normal(size=(20, 1))
     draws, logpdf = proposal(truth, rng, bias=bias)
-    result = refine(observed, forward, draws, logpdf, SIGMA**2, budget, 25, rng, ("a", "b"), checkpoints=(50, 100),
-                    **options)
+    state = Refinement(observed, draws, SIGMA**2, budget, 25, rng, ("a", "b"),
+                       RefinementOptions(checkpoints=(50, 100), **options))
+    result = refine(state, forward, logpdf)
     return truth, observed, draws, result
 
 
@@ -162,7 +163,7 @@ def test_a_state_saved_and_loaded_between_rounds_continues_exactly(tmp_path):
     rng.uniform(0.2, 0.8, 2), rng.normal(size=(20, 1))
     draws2, logpdf = proposal(truth, rng)
     assert np.array_equal(draws, draws2)
-    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), checkpoints=(50, 100))
+    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), RefinementOptions(checkpoints=(50, 100)))
     state.context = {"note": "kept"}
     path = tmp_path / "state.npz"
     while not state.done:
@@ -189,7 +190,7 @@ def test_a_saved_run_extended_to_a_larger_budget_equals_the_longer_run(tmp_path)
     rng = np.random.default_rng(7)
     rng.uniform(0.2, 0.8, 2), rng.normal(size=(20, 1))
     _, logpdf = proposal(truth, rng)
-    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), checkpoints=(50, 100))
+    state = Refinement(observed, draws, SIGMA**2, 100, 25, rng, ("a", "b"), RefinementOptions(checkpoints=(50, 100)))
     path = tmp_path / "state.npz"
     for budget in (100, 200):
         state.extend(budget)
@@ -236,8 +237,8 @@ def run_crn(seed, variance_rule, budget=200, realisations=4):
         sigma2, nu = difference_variance(floor)
     else:  # the former rule: one realisation's variance
         sigma2, nu = effective_observations(floor)
-    result = refine(observed, lambda u: forward(u) + eps[0], draws, logpdf, sigma2, budget, 25, rng, ("a", "b"),
-                    n_effective=nu)
+    result = refine(Refinement(observed, draws, sigma2, budget, 25, rng, ("a", "b"), RefinementOptions(n_effective=nu)),
+                    lambda u: forward(u) + eps[0], logpdf)
     return truth, result
 
 
@@ -275,7 +276,8 @@ def test_observation_rms_of_the_refined_particles_reaches_the_floor():
         eps = SIGMA * rng.normal(size=(5, 20, 1))
         draws, logpdf = proposal(truth, rng)
         sigma2, nu = difference_variance(forward(np.median(draws, axis=0))[0][None] + eps[:4])
-        state = Refinement(forward(truth)[0] + eps[4], draws, sigma2, 200, 25, rng, ("a", "b"), n_effective=nu)
+        state = Refinement(forward(truth)[0] + eps[4], draws, sigma2, 200, 25, rng, ("a", "b"),
+                           RefinementOptions(n_effective=nu))
         while not state.done:
             take = state.propose()
             state.update(take, forward(take) + eps[0], logpdf(take))
@@ -300,7 +302,8 @@ def test_a_non_uniform_prior_gives_the_exact_posterior_with_that_prior():
         truth = rng.uniform(0.2, 0.8, 2)
         observed = forward(truth)[0] + SIGMA * rng.normal(size=(20, 1))
         draws, logpdf = proposal(truth, rng)
-        result = refine(observed, forward, draws, logpdf, SIGMA**2, 400, 25, rng, ("a", "b"), prior_logpdf=log_prior)
+        result = refine(Refinement(observed, draws, SIGMA**2, 400, 25, rng, ("a", "b")), forward, logpdf,
+                        prior_logpdf=log_prior)
         refined = np.array([result["summary"]["parameters"][n]["median"] for n in ("a", "b")])
         exact, flat = grid_posterior(observed, log_prior), grid_posterior(observed)
         print(seed, refined, exact, flat)

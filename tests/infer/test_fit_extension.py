@@ -9,8 +9,8 @@ import pytest
 from scipy.stats import norm
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.infer.fit import (Refinement, _log_jacobian, _logit, beyond_prior, log_likelihood_ratio, widen_draws,
-                                 widened_logpdf)
+from forcdecode.infer.fit import (Refinement, RefinementOptions, _log_jacobian, _logit, beyond_prior,
+                                 log_likelihood_ratio, widen_draws, widened_logpdf)
 from forcdecode.infer.predictive_check import EXTENSION_STATISTIC, make_reference, predictive_check
 
 from test_fit import SIGMA, forward
@@ -55,7 +55,8 @@ def extended_run(seed, b_truth=None, budget=200, path=None, widen=True):
     draws, logpdf = inbox_proposal(truth, rng)
     if widen:  # what `forcdecode fit --extend-prior` does
         draws, logpdf = widen_draws(draws, SCALE, rng), widened_logpdf(logpdf, SCALE)
-    state = Refinement(observed, draws, SIGMA**2, budget, 25, rng, ("a", "b"), checkpoints=(100,), scale=SCALE)
+    state = Refinement(observed, draws, SIGMA**2, budget, 25, rng, ("a", "b"),
+                       RefinementOptions(checkpoints=(100,), scale=SCALE))
     while not state.done:
         take = state.propose()
         assert np.all(take >= 0) and np.all(take <= SCALE)
@@ -140,7 +141,8 @@ def test_the_scale_is_checked_and_a_box_run_reports_nothing_beyond():
     draws = np.full((10, 2), 0.5)
     for bad in ([1.0], [0.5, 1.0], [1.0, np.inf]):
         with pytest.raises(ConfigError, match="one factor >= 1"):
-            Refinement(np.zeros((20, 1)), draws, 1.0, 50, 25, np.random.default_rng(0), ("a", "b"), scale=bad)
+            Refinement(np.zeros((20, 1)), draws, 1.0, 50, 25, np.random.default_rng(0), ("a", "b"),
+                       RefinementOptions(scale=bad))
     state = Refinement(np.zeros((20, 1)), draws, 1.0, 50, 25, np.random.default_rng(0), ("a", "b"))
     assert not state.extended and beyond_prior(state) == {}
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from forcdecode.core.errors import ConfigError
-from forcdecode.infer.fit import Refinement, difference_variance, observation_rms
+from forcdecode.infer.fit import Refinement, RefinementOptions, difference_variance, observation_rms
 from forcdecode.infer.predictive_check import check_flag_threshold, make_reference, predictive_check, predictive_p_value
 
 from test_fit import K, SIGMA, forward, proposal
@@ -30,7 +30,7 @@ def family_result(seed: int, kind: str = "in") -> dict:
         observed = observed + 0.15 * (-1.0) ** K[:, None]
     draws, logpdf = proposal(np.clip(truth, 0, 1), rng)
     sigma2, nu = difference_variance(forward(np.median(draws, axis=0))[0][None] + eps[:4])
-    state = Refinement(observed, draws, sigma2, BUDGET, 25, rng, ("a", "b"), n_effective=nu)
+    state = Refinement(observed, draws, sigma2, BUDGET, 25, rng, ("a", "b"), RefinementOptions(n_effective=nu))
     while not state.done:
         take = state.propose()
         state.update(take, forward(take) + eps[0], logpdf(take))

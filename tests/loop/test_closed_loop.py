@@ -147,11 +147,11 @@ def test_llg_protocol_runs_the_adaptive_family_with_slaved_pinning(cfg, monkeypa
 def test_bad_input_raises_typed_errors(cfg, medians, input_family, tmp_path):
     truths = pd.DataFrame([TRUTH], index=[SAMPLE])
     with pytest.raises(DatasetError, match="no test sample"):
-        simulated.closed_loop(cfg, _table(TRUTH).iloc[:0], {SAMPLE: input_family}, truths, medians, 5)
+        simulated.closed_loop(cfg, _table(TRUTH).iloc[:0], {SAMPLE: input_family}, truths, medians, max_samples=5)
     with pytest.raises(DatasetError, match="shape"):
-        simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family[:-1]}, truths, medians, 5)
+        simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family[:-1]}, truths, medians, max_samples=5)
     with pytest.raises(DatasetError, match="no input family"):
-        simulated.closed_loop(cfg, _table(TRUTH), {}, truths, medians, 5)
+        simulated.closed_loop(cfg, _table(TRUTH), {}, truths, medians, max_samples=5)
     values = pd.DataFrame([TRUTH, TRUTH], index=[1, 2])
     path = tmp_path / "K_u_predictions.parquet"
     pd.DataFrame({"sample_id": [1, 2], "split": ["train", "validation"], "prediction": [0.5, 0.5],
@@ -175,7 +175,8 @@ def test_a_failed_resimulation_drops_its_realisation_from_all_three_means(cfg, m
 
     monkeypatch.setattr(resim, "_simulate_task", fake)
     truths = pd.DataFrame([TRUTH], index=[SAMPLE])
-    result, _ = simulated.closed_loop(cfg, _table({**TRUTH, "D": 2e-3}), {SAMPLE: input_family}, truths, medians, 5)
+    result, _ = simulated.closed_loop(cfg, _table({**TRUTH, "D": 2e-3}), {SAMPLE: input_family}, truths, medians,
+                                      max_samples=5)
     row = result.iloc[0]
     assert row["realisations_used"] == 2 and row["failures"] == "null r=1: SimulationError: diverged"
     assert np.isnan(row["rms_null_per_realisation"][1])
@@ -183,7 +184,7 @@ def test_a_failed_resimulation_drops_its_realisation_from_all_three_means(cfg, m
     assert row["rms_null"] == pytest.approx((0.30 + 0.32) / 2)
     monkeypatch.setattr(resim, "_simulate_task", lambda *args: (None, "ValueError: bad"))
     with pytest.raises(SimulationError, match="every re-simulation failed"):
-        simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family}, truths, medians, 5)
+        simulated.closed_loop(cfg, _table(TRUTH), {SAMPLE: input_family}, truths, medians, max_samples=5)
 
 
 def test_summary_medians_of_the_ratios_with_bootstrap_intervals(cfg):

@@ -15,7 +15,7 @@ import yaml
 from forcdecode.bench.effects_independent import _answer_of_report, score_answer
 from forcdecode.loop.effects import HAMILTONIAN_CHANGE
 from forcdecode.loop.physics_effects import analyse_residual, physics_candidate_families
-from forcdecode.loop.refit import analyse_with_refit, refit_hamiltonian
+from forcdecode.loop.refit import EffectOnTop, RefitSearch, analyse_with_refit, refit_hamiltonian
 from forcdecode.infer.resimulate import resimulate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -85,8 +85,8 @@ def test_refit_with_a_measured_side_effect_fits_both(film):
     from forcdecode.loop.effects import EFFECTS, heldout_folds
 
     train, _ = heldout_folds(measured, 4, cross_fit=False)[0]
-    joint = refit_hamiltonian(film.cfg, PREDICTION, measured, train, n_profiles=2, budget=14,
-                              effect=EFFECTS["background"], fields=film.fields)
+    joint = refit_hamiltonian(film.cfg, PREDICTION, measured, train, RefitSearch(n_profiles=2, budget=14),
+                              on_top=EffectOnTop(EFFECTS["background"], film.fields))
     assert joint["params"]["K_u"] == pytest.approx(1.1 * PREDICTION["K_u"], rel=0.05)
     assert joint["effect_parameters"]["chi_per_T"] == pytest.approx(0.1, abs=0.01)
 

@@ -61,6 +61,7 @@ prior's."""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import multivariate_normal
@@ -204,6 +205,26 @@ def next_beta(loglik, log_q, beta_prev: float, target_ess: float, steps: int = 3
 PATHS = ("amortized", "prior")
 
 
+@dataclass(frozen=True)
+class RefinementOptions:
+    """How a ``Refinement`` weighs and reports its particles (each default the former keyword's).
+
+    ``checkpoints``: budgets (simulations; multiples of the round size) at which the posterior summary is
+    also kept (``by_budget``); ``n_effective``: the effective number of independent curves of the synthetic
+    likelihood (None: the observation's rows); ``tempering``: after each round β rises (never falls) to the
+    largest value at which the ESS of all particles so far is ≥ ``target_ess_fraction`` × the round size (β = 1
+    at once where that allows; False: β = 1 throughout, plain PMC); ``target_ess_fraction``: in (0, 1];
+    ``path``: the tempered family (of ``PATHS``: ``"amortized"``: q₀^{1−β} (pL)^β; ``"prior"``: p L^β);
+    ``scale``: one factor ≥ 1 per parameter, the box extended beyond the prior's bound (None: all 1)."""
+
+    checkpoints: tuple = ()
+    n_effective: float | None = None
+    tempering: bool = True
+    target_ess_fraction: float = 0.3
+    path: str = "amortized"
+    scale: object = None
+
+
 class Refinement:
     """The state of one tempered population Monte Carlo run between rounds (see the module docstring):
     every particle so far (u, log-likelihood, log q₀), the rounds' proposals, β, the per-round ESS, the
@@ -212,8 +233,14 @@ class Refinement:
     (``forcdecode fit-round``, the workflow's ``fit_round`` rule) with results identical to ``refine``."""
 
     def __init__(self, observed, proposal_draws, sigma2: float, budget: int, round_size: int, rng: np.random.Generator,
-                 names, checkpoints=(), n_effective: float | None = None, *, tempering: bool = True,
-                 target_ess_fraction: float = 0.3, path: str = "amortized", scale=None):
+                 names, options: RefinementOptions | None = None):
+        """``observed``: the grid family; ``proposal_draws`` (m, d): draws of q₀ in u ∈ [0, 1]^d; ``sigma2``:
+        the synthetic likelihood's variance (m² normalized); ``budget``: simulations in all, in rounds of
+        ``round_size``; ``rng``: the rounds' generator; ``names``: the parameters; ``options``:
+        ``RefinementOptions`` (its defaults where None). ConfigError for inconsistent settings."""
+        options = options or RefinementOptions()
+        checkpoints, n_effective, tempering = options.checkpoints, options.n_effective, options.tempering
+        target_ess_fraction, path, scale = options.target_ess_fraction, options.path, options.scale
         if budget < round_size or round_size < 2:
             raise ConfigError(f"budget ({budget}) must be at least one round ({round_size} >= 2 simulations)")
         if not 0.0 < target_ess_fraction <= 1.0:
@@ -371,8 +398,9 @@ class Refinement:
         rng = np.random.Generator(getattr(np.random, meta["rng"]["bit_generator"])())
         rng.bit_generator.state = meta["rng"]
         state = cls(arrays["observed"], arrays["pool"], meta["sigma2"], meta["budget"], meta["round_size"], rng,
-                    meta["names"], meta["checkpoints"], meta["n_curves"], tempering=meta["tempering"],
-                    target_ess_fraction=meta["target_ess_fraction"], path=meta["path"], scale=meta.get("scale"))
+                    meta["names"], RefinementOptions(meta["checkpoints"], meta["n_curves"], tempering=meta["tempering"],
+                                                     target_ess_fraction=meta["target_ess_fraction"], path=meta["path"],
+                                                     scale=meta.get("scale")))
         state.pool = arrays["pool"]  # saved in u' (not divided twice)
         state.u, state.loglik, state.log_q0, state.logw = arrays["u"], arrays["loglik"], arrays["log_q0"], arrays["logw"]
         state.log_prior = arrays.get("log_prior", np.zeros(len(state.u)))
@@ -861,26 +889,20 @@ def beyond_prior(state) -> dict:
     return out
 
 
-def refine(observed, simulate, proposal_draws, proposal_logpdf, sigma2: float, budget: int, round_size: int,
-           rng: np.random.Generator, names, checkpoints=(), progress=None, n_effective: float | None = None, *,
-           tempering: bool = True, target_ess_fraction: float = 0.3, path: str = "amortized",
-           prior_logpdf=None, scale=None) -> dict:
-    """Tempered population Monte Carlo for one observation (see the module docstring).
+def refine(state: Refinement, simulate, proposal_logpdf, *, prior_logpdf=None, progress=None) -> dict:
+    """Tempered population Monte Carlo for one observation (see the module docstring): the rounds of the
+    fresh ``state`` (a ``Refinement``: the observation, q₀'s draws, σ², the budget, the rounds, the
+    ``RefinementOptions``) run to its budget.
 
-    ``proposal_draws`` (m, d): draws of the amortized posterior q₀ in u ∈ [0, 1]^d (round 1 takes the
-    first ``round_size``; the mixture reuses the rest); ``proposal_logpdf(u (k, d)) → (k,)`` its log
-    density. ``checkpoints``: budgets (multiples of ``round_size``) at which the posterior summary is
-    also returned (``by_budget``). ``tempering``: after each round β rises (never falls) to the largest
-    value at which the ESS of all particles so far is ≥ ``target_ess_fraction`` × ``round_size``
-    (β = 1 at once where that allows); ``path`` the tempered family (``"amortized"``: q₀^{1−β} (pL)^β;
-    ``"prior"``: p L^β). ``tempering=False``: β = 1 throughout (plain PMC, the former method).
+    ``simulate(u (k, d)) → families (k, n, n)``; ``proposal_logpdf(u (k, d)) → (k,)``: the log density of the
+    amortized posterior q₀ whose draws the state holds (round 1 takes the first ``round_size``; the mixture
+    reuses the rest); ``prior_logpdf``: the prior's (None: uniform on the box); ``progress(done, total)``: per
+    round, in simulations.
 
     Returns particles, weights at the final β, the final summary, ``by_budget`` (each summary with its
     ``beta``, ``tempered`` and, if tempered, a ``note``), per round ``betas`` and ``ess``, and
     ``reached_full_likelihood`` (final β = 1; otherwise the result is a tempered posterior, not the
     target: raise the budget)."""
-    state = Refinement(observed, proposal_draws, sigma2, budget, round_size, rng, names, checkpoints, n_effective,
-                       tempering=tempering, target_ess_fraction=target_ess_fraction, path=path, scale=scale)
     while not state.done:
         started = time.perf_counter()
         take = state.propose()
@@ -911,4 +933,4 @@ def simulate_on_film(cfg: dict, names, Ms: float, bounds: dict, key, workers: in
     return simulate
 
 
-__all__ = ["Refinement", "WIDENING_NODES", "beyond_prior", "log_likelihood_ratio", "refine", "widen_draws", "widened_logpdf", "regression_adjust", "summary_resolution", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]
+__all__ = ["Refinement", "RefinementOptions", "WIDENING_NODES", "beyond_prior", "log_likelihood_ratio", "refine", "widen_draws", "widened_logpdf", "regression_adjust", "summary_resolution", "difference_variance", "effective_observations", "next_beta", "synthetic_loglik", "summarize_particles", "observation_rms", "simulate_on_film", "weighted_quantiles"]

@@ -18,7 +18,9 @@ from pathlib import Path
 from ..config import load_config, shipped_config
 from ..core.errors import ConfigError
 from ..core.io import write_json
-from .refine import add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation, parse_extension
+from .predictive_check import check_figure, predictive_check, read_reference
+from .refine import (RefineRun, add_refinement_arguments, beyond_prior_lines, family_key, fit_function, observation,
+                     parse_extension)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,7 +70,7 @@ def print_summary(result: dict, budget: int) -> None:
         print(line)
 
 def run(args) -> int:
-    from ..learn.posterior import PosteriorEstimator
+    from ..learn.posterior import PosteriorEstimator  # local: the posterior imports torch
 
     if args.budget < args.round_size or args.round_size < 2 or args.workers < 1:
         raise ConfigError("--budget must be at least one round (--round-size >= 2) and --workers >= 1")
@@ -82,22 +84,17 @@ def run(args) -> int:
     est = PosteriorEstimator.load(args.posterior)
     extend = parse_extension(args.extend_prior, tuple(est.names))
     if args.predictive_reference:
-        from .predictive_check import read_reference
-
         reference = read_reference(args.predictive_reference, round_size=args.round_size, prior=args.prior,
                                    budget_run=args.budget, extend=extend)
     image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
     key = family_key(f"{Path(args.input).name}:{args.sample_id}")
     log = lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True)  # noqa: E731
-    result = fit_function(args.method)(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                                       workers=args.workers, seed=args.seed, key=key, prior=args.prior,
-                                       checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
-                                       log=log, extend=extend)
+    run = RefineRun(budget=args.budget, round_size=args.round_size, workers=args.workers, seed=args.seed, key=key,
+                    prior=args.prior, checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
+                    extend=extend)
+    result = fit_function(args.method)(cfg, est, image, family, Ms, run, log=log)
     result["truth"] = truth
     if reference is not None:
-        from .predictive_check import predictive_check
-        from .predictive_check import check_figure
-
         result["predictive_check"] = check = predictive_check(result, reference)
         label = Path(args.input).name + ("" if args.sample_id is None else f":{args.sample_id}")
         check_figure(Path(args.out) / "predictive_check.png", reference, {label: check},

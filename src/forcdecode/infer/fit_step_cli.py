@@ -18,10 +18,11 @@ from pathlib import Path
 
 from ..config import load_config, shipped_config
 from ..core.errors import ConfigError
-from ..core.io import write_json
+from ..core.io import read_config, write_json
 from .fit import Refinement
-from .refine import (DEFAULT_PRIOR, add_refinement_arguments, family_key, finish_fit, fit_round, observation,
-                     parse_extension, start_fit)
+from .predictive_check import check_figure, predictive_check, read_reference
+from .refine import (DEFAULT_PRIOR, RefineRun, add_refinement_arguments, family_key, finish_fit, fit_round,
+                     observation, parse_extension, start_fit)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,9 +65,6 @@ def run(args) -> int:
         result = finish_fit(state)
         result["truth"] = state.context.get("truth")
         if args.predictive_reference:
-            from .predictive_check import predictive_check, read_reference
-            from .predictive_check import check_figure
-
             reference = read_reference(args.predictive_reference, round_size=state.round_size,
                                        prior=result["prior"], budget_run=state.budget, extend=result.get("extend"))
             result["predictive_check"] = check = predictive_check(result, reference)
@@ -75,11 +73,9 @@ def run(args) -> int:
             print(("warning: " if check["misspecified"] else "") + check["verdict"])
         write_json(args.out, result)
         return 0
-    from ..learn.posterior import PosteriorEstimator
+    from ..learn.posterior import PosteriorEstimator  # local: the posterior imports torch
 
     if args.config and str(args.config).endswith(".json"):
-        from ..core.io import read_config
-
         cfg = read_config(args.config)  # the workflow's resolved config (validated when it was written)
     else:
         cfg = load_config(args.config or shipped_config("config"))
@@ -90,15 +86,14 @@ def run(args) -> int:
             raise ConfigError("--budget must be at least one round (--round-size >= 2)")
         extend = parse_extension(args.extend_prior, tuple(est.names))
         if args.predictive_reference:
-            from .predictive_check import read_reference
-
             read_reference(args.predictive_reference, round_size=args.round_size, prior=DEFAULT_PRIOR,
                            budget_run=args.budget, extend=extend)
         image, family, Ms, truth = observation(args.input, args.sample_id, cfg, args.ms_kA_m)
         key = family_key(f"{Path(args.input).name}:{args.sample_id}")
-        state = start_fit(cfg, est, image, family, Ms, budget=args.budget, round_size=args.round_size,
-                          workers=args.workers, seed=args.seed, key=key, prior=DEFAULT_PRIOR,
-                          checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)), extend=extend)
+        state = start_fit(cfg, est, image, family, Ms, RefineRun(
+            budget=args.budget, round_size=args.round_size, workers=args.workers, seed=args.seed, key=key,
+            prior=DEFAULT_PRIOR, checkpoints=tuple(range(args.round_size, args.budget + 1, args.round_size)),
+            extend=extend))
         state.context["truth"] = truth
         state.save(args.state)
         print(f"{state.n_rounds} rounds of {state.round_size} simulations to run")

@@ -12,7 +12,7 @@ import argparse
 import sys
 import time
 from ..core.errors import ConfigError
-from .posterior_predictive import run_stage
+from .posterior_predictive import PosteriorLoopRun, StageOutputs, run_stage
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,8 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     if args.draws < 1 or args.max_samples < 1 or args.workers < 1:
         raise ConfigError("--draws, --max-samples and --workers must be >= 1")
-    summary = run_stage(args.config, args.learning, args.dataset, args.posterior, out=args.out, table=args.table,
-                        figure=args.figure, draws=args.draws, max_samples=args.max_samples, workers=args.workers,
+    summary = run_stage(args.config, args.learning, args.dataset, args.posterior,
+                        StageOutputs(out=args.out, table=args.table, figure=args.figure),
+                        PosteriorLoopRun(draws=args.draws, max_samples=args.max_samples, workers=args.workers),
                         log=lambda m: print(f"[{time.strftime('%H:%M:%S')}] {m}", file=sys.stderr, flush=True))
     print(f"posterior-predictive closed loop on {summary['n_samples']} test families x {summary['draws_per_sample']} "
           f"draws: median rms(draws)/rms(floor) {summary['median_rms_draws_over_floor']:.2f} "

@@ -15,6 +15,7 @@ one has them above it.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -43,11 +44,28 @@ def draws_as_hamiltonians(draws_u, names, Ms: float, bounds: dict) -> list[dict]
     return out
 
 
-def posterior_closed_loop(cfg: dict, estimator, data, test_index, curves_by_id: dict, *, draws: int = 4,
-                          max_samples: int = 8, seed: int = 0, workers: int = 1, progress=None) -> tuple[pd.DataFrame, dict]:
+@dataclass(frozen=True)
+class PosteriorLoopRun:
+    """How the posterior-predictive closed loop runs: ``draws`` posterior draws re-simulated per family (≥ 1), at
+    most ``max_samples`` test families (a random subset beyond), ``seed`` of its streams (``core.streams``),
+    ``workers`` processes."""
+
+    draws: int = 4
+    max_samples: int = 8
+    seed: int = 0
+    workers: int = 1
+
+
+def posterior_closed_loop(cfg: dict, estimator, data, test_index, curves_by_id: dict,
+                          run: PosteriorLoopRun | None = None, *, progress=None,
+                          **options) -> tuple[pd.DataFrame, dict]:
     """Per-sample table and summary of the posterior-predictive closed loop (see module docstring).
     ``estimator``: a ``learn.posterior.PosteriorEstimator``; ``data``: ``LearningData``; ``test_index``:
-    positions of the test families in ``data``; ``curves_by_id``: their input families."""
+    positions of the test families in ``data``; ``curves_by_id``: their input families; ``run``: a
+    ``PosteriorLoopRun`` (its defaults where None; keyword ``options`` set single fields);
+    ``progress(done, total)``: per re-simulation."""
+    run = replace(run or PosteriorLoopRun(), **options)
+    draws, max_samples, seed, workers = run.draws, run.max_samples, run.seed, run.workers
     if draws < 1:
         raise ValueError("draws must be >= 1")
     test_index = np.asarray(test_index, dtype=int)
@@ -125,14 +143,27 @@ def posterior_closed_loop(cfg: dict, estimator, data, test_index, curves_by_id: 
     return table, summary
 
 
-def run_stage(config_path, learning_path, dataset_path, model_path, *, out, table, figure=None, draws: int = 4,
-              max_samples: int = 8, workers: int = 1, log=None) -> dict:
+@dataclass(frozen=True)
+class StageOutputs:
+    """Where the posterior-predictive stage writes: the summary JSON ``out``, the per-sample Parquet ``table``
+    and the figure (PNG; None: none)."""
+
+    out: object
+    table: object
+    figure: object = None
+
+
+def run_stage(config_path, learning_path, dataset_path, model_path, outputs: StageOutputs,
+              run: PosteriorLoopRun = PosteriorLoopRun(), *, log=None) -> dict:
     """Read config, learning.json (seed, split), dataset.h5 and the posterior model; run the loop on the
-    test split; write the per-sample Parquet ``table``, the summary JSON ``out`` and a figure."""
+    test split (``run``: draws, test families, workers; the seed is the config's); write the per-sample Parquet
+    table, the summary JSON and a figure (``outputs``)."""
     import h5py
 
-    from ..learn.posterior import PosteriorEstimator
+    from ..learn.posterior import PosteriorEstimator  # local: the posterior imports torch
 
+    out, table, figure = outputs.out, outputs.table, outputs.figure
+    draws, max_samples, workers = run.draws, run.max_samples, run.workers
     started = time.perf_counter()
     cfg = read_config(config_path)
     stage = read_config(learning_path)
@@ -154,8 +185,8 @@ def run_stage(config_path, learning_path, dataset_path, model_path, *, out, tabl
         if log is not None:
             log(f"re-simulated {k}/{n} families")
 
-    result, summary = posterior_closed_loop(cfg, estimator, data, test, curves, draws=draws, max_samples=max_samples,
-                                            seed=cfg["seed"], workers=workers, progress=progress)
+    result, summary = posterior_closed_loop(cfg, estimator, data, test, curves, replace(run, seed=cfg["seed"]),
+                                            progress=progress)
     write_parquet(table, result)
     summary["wall_s"] = time.perf_counter() - started
     write_json(out, summary)
@@ -191,4 +222,4 @@ def _figure(path, table: pd.DataFrame, summary: dict) -> None:
     plt.close(fig)
 
 
-__all__ = ["draws_as_hamiltonians", "posterior_closed_loop", "run_stage"]
+__all__ = ["PosteriorLoopRun", "StageOutputs", "draws_as_hamiltonians", "posterior_closed_loop", "run_stage"]

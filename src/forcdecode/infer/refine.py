@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +24,12 @@ from ..core.streams import stream_rng, stream_seed
 from ..dataset.params import UNIFORM_DRAWS, draw_log_density
 from ..forc.raster import measurement_on_grid, rasterize_grid_family
 from ..learn.calibration import recalibrate_draws
+from ..learn.data import load_dataset
 from ..measured import read_forc
-from .fit import (Refinement, _logit, anchored_summary, beyond_prior, difference_variance, image_likelihood,
-                  image_summaries, likelihood_posterior, observation_rms, outside_simulations, regression_adjust,
-                  shifted_summary, simulate_on_film, summarize_particles, summary_resolution)
+from .fit import (Refinement, RefinementOptions, _logit, anchored_summary, beyond_prior, difference_variance,
+                  image_likelihood, image_summaries, likelihood_posterior, observation_rms, outside_simulations,
+                  regression_adjust, shifted_summary, simulate_on_film, summarize_particles, summary_resolution,
+                  widen_draws, widened_logpdf)
 from .posterior_predictive import draws_as_hamiltonians
 from .resimulate import run_tasks
 
@@ -40,6 +43,37 @@ the dataset's draw law given M_s, the law the amortized networks and the check's
 EXTENSION_FACTOR = 4.0
 """Default factor of ``--extend-prior NAME``: the box of NAME reaches 4 × its prior's range (for N_pin,
 four times the densest pinning the dataset was drawn with)."""
+
+
+@dataclass(frozen=True)
+class RefineRun:
+    """How one refinement of one family runs (``fit_one``, ``fit_adjusted``, ``start_fit``).
+
+    ``budget``: the simulations of the film made in all; ``workers``: processes simulating in parallel;
+    ``seed``: the run's seed (its streams: ``core.streams``); ``key``: the family's disorder key
+    (``family_key``: common random numbers); ``round_size``: simulations per round (pmc: per update of the
+    particles; adjusted: between two saves of the state); ``checkpoints``: nested budgets (the first b
+    simulations) also reported; ``prior``: the refinement's prior (of ``PRIORS``); ``extend``: {name: factor}
+    of ``parse_extension`` (the box beyond the prior's bound; pmc only; None: the prior's box);
+    ``state_path``: where the state is saved after every round (a run that stops resumes from it; None:
+    not saved)."""
+
+    budget: int
+    workers: int
+    seed: int
+    key: int
+    round_size: int = 25
+    checkpoints: tuple = ()
+    prior: str = DEFAULT_PRIOR
+    extend: dict | None = None
+    state_path: object = None
+
+
+def refine_run(run: RefineRun | None, options: dict) -> RefineRun:
+    """``run`` with the fields named in the keyword ``options`` replaced, or (None) a run of ``options``
+    alone (TypeError for an unknown or a missing field)."""
+    return RefineRun(**options) if run is None else replace(run, **options)
+
 
 
 def parse_extension(items, names) -> dict:
@@ -75,8 +109,6 @@ def observation(path, sample_id, cfg, ms_kA_m):
     n, B_max = cfg["field"]["n_fields"], cfg["field"]["B_max_T"]
     p = Path(path)
     if p.suffix in (".h5", ".hdf5"):
-        from ..learn.data import load_dataset
-
         if sample_id is None:
             raise InputFileError(f"{path}: a dataset input needs --sample-id")
         data = load_dataset(p)
@@ -101,16 +133,16 @@ def family_key(label: str) -> int:
     return int(hashlib.sha1(label.encode()).hexdigest()[:8], 16)
 
 
-def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(),
-              prior=DEFAULT_PRIOR, extend=None):
+def start_fit(cfg, est, image, family, Ms, run: RefineRun):
     """The refinement's initial state (``infer.fit.Refinement``) for one family: amortized draws, and
     σ² (of candidate − observation: two realisations) and ν from the amortized median on 4 disorder
     realisations. The state carries what later rounds
     need (``context``: M_s, key, names, the amortized summary, the prior) so that each round can run as a
-    job. ``prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
-    or "uniform" on the normalized box (the former target, kept for comparison). ``extend``: {name:
+    job. ``run.prior``: "draw", the dataset's draw prior given M_s (``dataset.params.draw_log_density``),
+    or "uniform" on the normalized box (the former target, kept for comparison). ``run.extend``: {name:
     factor} of ``parse_extension`` (the box beyond the prior's bound; ``infer.fit.beyond_prior``)."""
-
+    budget, round_size, workers, seed, key = run.budget, run.round_size, run.workers, run.seed, run.key
+    checkpoints, prior, extend = run.checkpoints, run.prior, run.extend
     if prior not in PRIORS:
         raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
     names = tuple(est.names)
@@ -129,12 +161,10 @@ def start_fit(cfg, est, image, family, Ms, *, budget, round_size, workers, seed,
     sigma2, nu = difference_variance(floor, quantization_step=2 / 255)
     scale = None
     if extend:  # the proposal widened over the extended box (infer.fit.widened_logpdf; _proposal_logpdf)
-        from .fit import widen_draws
-
         scale = extension_scale(names, extend)
         draws = widen_draws(draws, scale, stream_rng(seed, "posterior", "fit_widening", key))
     state = Refinement(family, draws, sigma2, budget, round_size, stream_rng(seed, "posterior", "fit_rounds", key),
-                       names, checkpoints=checkpoints, n_effective=nu, scale=scale)
+                       names, RefinementOptions(checkpoints=checkpoints, n_effective=nu, scale=scale))
     state.context = {"names": list(names), "Ms": float(Ms), "ms_norm": ms_norm, "key": int(key), "sigma2": sigma2,
                      "prior": prior, **({"extend": dict(extend), "proposal": "widened"} if extend else {}),
                      "n_effective": nu, "simulations_for_sigma2": n_real,
@@ -189,8 +219,6 @@ def _proposal_logpdf(est, state):
     ms_norm = state.context["ms_norm"]
     extend = state.context.get("extend")
     if extend:
-        from .fit import widened_logpdf
-
         return widened_logpdf(_flow_logpdf(est, image, ms_norm), extension_scale(state.names, extend))
     return _flow_logpdf(est, image, ms_norm)
 
@@ -211,12 +239,15 @@ def _flow_logpdf(est, image, ms_norm: float):
     return logpdf
 
 
-def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, key, checkpoints=(), log=None,
-            state_path=None, prior=DEFAULT_PRIOR, extend=None) -> dict:
+def fit_one(cfg, est, image, family, Ms, run: RefineRun | None = None, *, log=None, **options) -> dict:
     """Amortized posterior → refined posterior of one family (see ``infer.fit``); plain-value dict.
-    The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results).
-    ``state_path``: the state (every particle) is saved there after each round; a run that stops
-    resumes from it."""
+    The same rounds as ``forcdecode fit-step`` runs one job at a time (identical results). ``run`` (a
+    ``RefineRun``; keyword ``options`` set single fields of it, or make it where None): the budget, seed,
+    key, ...; ``run.state_path``: the state (every particle) is saved there after each round; a run that
+    stops resumes from it. ``log(text)``: a line per round."""
+    run = refine_run(run, options)
+    budget, round_size, workers, checkpoints = run.budget, run.round_size, run.workers, run.checkpoints
+    state_path, prior, extend = run.state_path, run.prior, run.extend
     if state_path is not None and Path(state_path).exists():
         state = Refinement.load(state_path)
         if state.round_size != round_size:
@@ -232,8 +263,7 @@ def fit_one(cfg, est, image, family, Ms, *, budget, round_size, workers, seed, k
                               f"asked for {extend or {}}")
         state.extend(budget, checkpoints)  # nested rounds: a longer budget continues the saved run
     else:
-        state = start_fit(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                          seed=seed, key=key, checkpoints=checkpoints, prior=prior, extend=extend)
+        state = start_fit(cfg, est, image, family, Ms, run)
     while not state.done:
         fit_round(state, cfg, est, workers)
         if state_path is not None:
@@ -355,8 +385,213 @@ def _likelihood_reading(u, images, image, pool, names):
     return summary
 
 
-def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, checkpoints=(), log=None,
-                 state_path=None, prior=DEFAULT_PRIOR, round_size: int = 25, extend=None) -> dict:
+def _check_adjusted(run: RefineRun) -> None:
+    """ConfigError for a run the adjusted fit cannot make: an unknown prior, a box beyond the prior, fewer
+    than 10 simulations."""
+    if run.prior not in PRIORS:
+        raise ConfigError(f"prior {run.prior!r} is not one of {PRIORS}")
+    if run.extend:
+        raise ConfigError("a box extended beyond the prior needs the pmc method (the adjusted fit only reweights "
+                          "the amortized draws, which never leave the prior's box)")
+    if run.budget < 10:
+        raise ConfigError(f"budget {run.budget}: the regression adjustment needs at least 10 simulations")
+
+
+@dataclass
+class _AmortizedDraws:
+    """The amortized posterior at the observation: its parameter ``names``, M_s (A/m) ``Ms`` and normalized
+    ``ms_norm``,
+    the seed of the network's summaries, the flow's ``draws`` (normalized, recalibration off), the
+    ``reported`` draws (recalibrated, as `predict` gives them) and the network's summary of the observed
+    image (mean of logit(u))."""
+
+    names: tuple
+    Ms: float
+    ms_norm: float
+    summary_seed: int
+    draws: np.ndarray
+    reported: np.ndarray
+    observed_summary: np.ndarray
+
+
+def _amortized_draws(est, image, Ms, run: RefineRun) -> _AmortizedDraws:
+    """The flow's draws at the observation (at least 4000, stream ``fit``), recalibrated for the report,
+    and the network's summary of the observed image (stream ``fit_summaries``)."""
+    names = tuple(est.names)
+    ms_norm = float(normalize("Ms", Ms, est.bounds))
+    summary_seed = stream_seed(run.seed, "posterior", "fit_summaries", run.key)
+    draws = est.sample(np.asarray(image)[None], [ms_norm], max(4000, int(run.budget)),
+                       seed=stream_seed(run.seed, "posterior", "fit", run.key), recalibrated=False)[0]
+    reported = draws if est.recalibration is None else recalibrate_draws(draws[None], est.recalibration, names)[0]
+    observed_summary = network_summaries(est, np.asarray(image)[None], ms_norm, summary_seed)[0]
+    return _AmortizedDraws(names, Ms, ms_norm, summary_seed, draws, reported, observed_summary)
+
+
+@dataclass
+class _AdjustedSimulations:
+    """The adjusted fit's simulations so far: per draw the network's ``summaries`` (NaN where the simulation
+    failed), whether it succeeded (``valid``), the rasterized images (``kept``, uint8; None for a state saved
+    before they were kept) and the wall time (s)."""
+
+    summaries: np.ndarray
+    valid: np.ndarray
+    kept: np.ndarray | None
+    wall: float
+
+
+def _saved_simulations(state_path, u, image, n_names: int) -> _AdjustedSimulations:
+    """The simulations of a saved state (.npz) of the same draws ``u``, or none; ConfigError for a state
+    saved for other draws."""
+    sims = _AdjustedSimulations(np.zeros((0, n_names)), np.zeros(0, bool),
+                                np.zeros((0, *np.shape(image)), np.uint8), 0.0)
+    if state_path is not None and Path(state_path).exists():
+        with np.load(state_path) as saved:
+            if not np.array_equal(saved["u"], u[:len(saved["summaries"])]):
+                raise ConfigError(f"{state_path}: saved for other draws (another posterior, seed or family)")
+            # a state saved before the images were kept keeps none (a partial set would not line up)
+            sims = _AdjustedSimulations(saved["summaries"], saved["valid"],
+                                        saved["images"] if "images" in saved.files else None, float(saved["wall_s"]))
+    return sims
+
+
+def _simulate_draws(cfg, est, image, u, a: _AmortizedDraws, sims: _AdjustedSimulations, run: RefineRun,
+                    log=None) -> _AdjustedSimulations:
+    """The draws ``u`` not yet simulated, ``run.round_size`` at a time, each on its own disorder realisation
+    (keys (``run.key``, 1000 + i)), summarized by the network and rasterized; the state saved after every
+    round (``run.state_path``)."""
+    summaries, valid, kept, wall = sims.summaries, sims.valid, sims.kept, sims.wall
+    budget, key, state_path = run.budget, run.key, run.state_path
+    while len(summaries) < budget:
+        start = time.perf_counter()
+        part = u[len(summaries): len(summaries) + run.round_size]
+        params = draws_as_hamiltonians(part, a.names, a.Ms, est.bounds)
+        tasks = [(p, key, 1000 + len(summaries) + i) for i, p in enumerate(params)]
+        results = run_tasks(cfg, tasks, run.workers)
+        ok = np.array([c is not None for c, _ in results])
+        images = np.stack([rasterize_grid_family(c) if c is not None else np.zeros(np.shape(image), np.uint8)
+                           for c, _ in results])
+        s_part = network_summaries(est, images, a.ms_norm, a.summary_seed + 1 + len(summaries))
+        summaries = np.concatenate([summaries, np.where(ok[:, None], s_part, np.nan)])
+        valid = np.concatenate([valid, ok])
+        kept = None if kept is None else np.concatenate([kept, images])
+        wall += time.perf_counter() - start
+        if state_path is not None:
+            with atomic_path(state_path) as tmp:
+                with open(tmp, "wb") as handle:
+                    np.savez(handle, u=u[:len(summaries)], summaries=summaries, valid=valid, wall_s=wall,
+                             **({} if kept is None else {"images": kept}))
+        if log:
+            log(f"simulated {len(summaries)}/{budget}")
+    return _AdjustedSimulations(summaries, valid, kept, wall)
+
+
+def _importance_log_weights(est, image, u, a: _AmortizedDraws, prior: str) -> np.ndarray:
+    """log p(u | M_s) − log q₀(u) of every draw (−∞ outside the prior; p uniform for ``prior`` "uniform")."""
+    log_q0 = _proposal_logpdf(est, _Context(image, a.ms_norm))(u)
+    log_p = np.zeros(len(u)) if prior == "uniform" else draw_log_density(u, a.names, a.Ms, est.bounds,
+                                                                          prior=getattr(est, "prior_class", "paper"))
+    with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
+        return np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
+
+
+@dataclass
+class _Readings:
+    """The adjusted fit's readings, filled budget by budget: ``answers`` {reading: {budget: summary}}, the
+    network summaries' ``resolution`` {budget: {name: ratio}} and the image summaries' record
+    ``image_reading`` {budget: {...}} (both reported with the answer only)."""
+
+    answers: dict
+    resolution: dict
+    image_reading: dict
+
+
+def _read_at_budget(b: int, u, image, a: _AmortizedDraws, sims: _AdjustedSimulations, log_w, likelihood_pool,
+                    readings: _Readings) -> None:
+    """Every reading of ``ADJUSTED_READINGS`` (and ``images_likelihood``) from the first ``b`` simulations,
+    added to ``readings``."""
+    names, summaries, valid, kept, budget = a.names, sims.summaries, sims.valid, sims.kept, len(u)
+    answers = readings.answers
+    flat = np.zeros(len(u))
+    use = valid[:b] & np.isfinite(log_w[:b])
+    if use.sum() >= len(names) + 3:
+        ratio = summary_resolution(u[:b][use], summaries[:b][use])
+        readings.resolution[str(b)] = {n: float(ratio[j]) for j, n in enumerate(names)}
+    by_source = {"network": (summaries[:b][use], a.observed_summary)}
+    if kept is not None:  # summaries read from the family's own simulated images (none in older states)
+        try:
+            s_images, observed_images, info = image_summaries(u[:b][use], kept[:b][use], image)
+        except ValueError:  # too few simulations to cross-fit
+            s_images = None
+        if s_images is not None:
+            outside, d2_observed, d2_max = outside_simulations(s_images, observed_images)
+            readings.image_reading[str(b)] = {"components": info["components"], "ridge": info["ridge"],
+                                              "resolution": dict(zip(names, info["resolution"])),
+                                              "outside_simulations": outside, "distance2_observed": d2_observed,
+                                              "distance2_simulated_max": d2_max}
+            reading = _likelihood_reading(u[:b][use], kept[:b][use], image, likelihood_pool, names)
+            if reading is not None:
+                reading.update(wall_s=sims.wall * b / budget, failed_simulations=int((~valid[:b]).sum()))
+                answers.setdefault("images_likelihood", {})[str(b)] = reading
+            if not outside:  # outside, the regression would extrapolate: no image reading at this budget
+                by_source["images"] = (s_images, observed_images)
+                by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
+                                     np.concatenate([a.observed_summary, observed_images]))
+    for name, (weighted, diagonal, anchored, source) in ADJUSTED_READINGS.items():
+        if source not in by_source:
+            continue
+        s_b, s_o = by_source[source]
+        u_adj, w, coef = regression_adjust(u[:b][use], s_b, s_o, (log_w if weighted else flat)[:b][use],
+                                           diagonal=diagonal)
+        summary = (anchored_summary(a.reported, u[:b][use], u_adj, w, names) if anchored
+                   else summarize_particles(u_adj, w, names))
+        summary.update(tempered=False, wall_s=sims.wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
+                       outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
+                       regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
+        answers.setdefault(name, {})[str(b)] = summary
+
+
+def _combined_readings(readings: _Readings, a: _AmortizedDraws) -> None:
+    """The readings made of others, added to ``readings.answers``: ``resolved_anchored`` (each parameter from
+    the summaries that resolve it better) and the ``SHIFTED_READINGS`` (the anchored centres, q₀'s widths
+    unless a summary pins finer)."""
+    answers, resolution, names = readings.answers, readings.resolution, a.names
+    for b, reading in readings.image_reading.items():  # each parameter from the summaries that resolve it better
+        if reading["outside_simulations"]:
+            continue
+        network, images = answers["anchored"][b], answers["images_anchored"][b]
+        source = {n: "images" if reading["resolution"][n] < resolution[b][n] else "network" for n in names}
+        answers.setdefault("resolved_anchored", {})[b] = {
+            **network, "parameters": {n: (images if source[n] == "images" else network)["parameters"][n] for n in names},
+            "ess": min(network["ess"], images["ess"]), "summary_source": source}
+    for shifted, anchored in SHIFTED_READINGS.items():  # the same centres, q₀'s widths unless a summary pins finer
+        if anchored in answers:
+            answers[shifted] = {
+                b: shifted_summary(a.reported, summary, names,
+                                   readings.image_reading[b]["resolution"] if ADJUSTED_READINGS[anchored][3] == "images"
+                                   else resolution.get(b))
+                for b, summary in answers[anchored].items()}
+
+
+def _adjusted_answer(readings: _Readings) -> tuple[str, dict, dict]:
+    """(the reading reported, the answer by budget, the other readings kept as variants): per budget
+    ``ADJUSTED_CHOICE`` where it was formed at that budget, else ``ADJUSTED_FALLBACK`` (a refusal at an early
+    checkpoint does not hold for a later one, where more simulations may surround the observation), with the
+    summaries' resolution and image record; a variant only where every budget has it."""
+    answers = readings.answers
+    complete = {name for name, answer in answers.items() if set(answer) == set(answers[ADJUSTED_FALLBACK])}
+    preferred = answers.get(ADJUSTED_CHOICE, {})
+    by_budget = {b: {**preferred[b], "reading": ADJUSTED_CHOICE} if b in preferred
+                 else {**summary, "reading": ADJUSTED_FALLBACK} for b, summary in answers[ADJUSTED_FALLBACK].items()}
+    choice = by_budget[str(max(int(b) for b in by_budget))]["reading"]
+    for b, by_name in readings.resolution.items():
+        by_budget[b]["summary_resolution"] = by_name
+    for b, reading in readings.image_reading.items():
+        by_budget[b]["image_summaries"] = reading
+    variants = {name: answers[name] for name in sorted(complete - {choice})}
+    return choice, by_budget, variants
+
+
+def fit_adjusted(cfg, est, image, family, Ms, run: RefineRun | None = None, *, log=None, **options) -> dict:
     """The amortized posterior corrected by simulation of this film, by regression adjustment.
 
     ``budget`` draws of the amortized posterior q₀ (the flow) are simulated, each on its own disorder
@@ -377,134 +612,31 @@ def fit_adjusted(cfg, est, image, family, Ms, *, budget, workers, seed, key, che
     the image summaries are). Independent
     realisations, not common random numbers: the regression's residual is then the disorder's scatter,
     which it averages instead of fitting one realisation.
-    ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz): draws, summaries and the
-    simulated images (uint8, zeros where a simulation failed; for summaries other than the network's) so
-    far, saved after every ``round_size`` simulations; a longer budget extends a saved run. ``extend``
-    (the pmc method's box beyond the prior) is refused: the draws never leave the prior's box."""
-    if prior not in PRIORS:
-        raise ConfigError(f"prior {prior!r} is not one of {PRIORS}")
-    if extend:
-        raise ConfigError("a box extended beyond the prior needs the pmc method (the adjusted fit only reweights "
-                          "the amortized draws, which never leave the prior's box)")
-    if budget < 10:
-        raise ConfigError(f"budget {budget}: the regression adjustment needs at least 10 simulations")
-    names = tuple(est.names)
-    ms_norm = float(normalize("Ms", Ms, est.bounds))
-    summary_seed = stream_seed(seed, "posterior", "fit_summaries", key)
-    draws = est.sample(np.asarray(image)[None], [ms_norm], max(4000, int(budget)),
-                       seed=stream_seed(seed, "posterior", "fit", key), recalibrated=False)[0]
-    reported = draws if est.recalibration is None else recalibrate_draws(draws[None], est.recalibration, names)[0]
-    observed_summary = network_summaries(est, np.asarray(image)[None], ms_norm, summary_seed)[0]
-    u = draws[:budget]
-    summaries, valid, wall = np.zeros((0, len(names))), np.zeros(0, bool), 0.0
-    kept = np.zeros((0, *np.shape(image)), np.uint8)  # the simulated images, for other summaries later
-    if state_path is not None and Path(state_path).exists():
-        with np.load(state_path) as saved:
-            if not np.array_equal(saved["u"], u[:len(saved["summaries"])]):
-                raise ConfigError(f"{state_path}: saved for other draws (another posterior, seed or family)")
-            summaries, valid, wall = saved["summaries"], saved["valid"], float(saved["wall_s"])
-            # a state saved before the images were kept keeps none (a partial set would not line up)
-            kept = saved["images"] if "images" in saved.files else None
-    while len(summaries) < budget:
-        start = time.perf_counter()
-        part = u[len(summaries): len(summaries) + round_size]
-        params = draws_as_hamiltonians(part, names, Ms, est.bounds)
-        tasks = [(p, key, 1000 + len(summaries) + i) for i, p in enumerate(params)]
-        results = run_tasks(cfg, tasks, workers)
-        ok = np.array([c is not None for c, _ in results])
-        images = np.stack([rasterize_grid_family(c) if c is not None else np.zeros(np.shape(image), np.uint8)
-                           for c, _ in results])
-        s_part = network_summaries(est, images, ms_norm, summary_seed + 1 + len(summaries))
-        summaries = np.concatenate([summaries, np.where(ok[:, None], s_part, np.nan)])
-        valid = np.concatenate([valid, ok])
-        kept = None if kept is None else np.concatenate([kept, images])
-        wall += time.perf_counter() - start
-        if state_path is not None:
-            with atomic_path(state_path) as tmp:
-                with open(tmp, "wb") as handle:
-                    np.savez(handle, u=u[:len(summaries)], summaries=summaries, valid=valid, wall_s=wall,
-                             **({} if kept is None else {"images": kept}))
-        if log:
-            log(f"simulated {len(summaries)}/{budget}")
-    log_q0 = _proposal_logpdf(est, _Context(image, ms_norm))(u)
-    log_p = np.zeros(len(u)) if prior == "uniform" else draw_log_density(u, names, Ms, est.bounds,
-                                                                          prior=getattr(est, "prior_class", "paper"))
-    with np.errstate(invalid="ignore"):  # outside the prior: weight 0 (not −∞ − −∞)
-        log_w = np.where(np.isneginf(log_p), -np.inf, log_p - log_q0)
-    flat = np.zeros(len(u))
-    likelihood_pool = None if kept is None else _likelihood_pool(est, image, ms_norm, draws, Ms, prior, seed, key)
-    answers = {}
-    resolution, image_reading = {}, {}  # of the summaries, whatever the reading: reported with the answer only
-    for b in sorted({int(c) for c in checkpoints if 10 <= int(c) <= budget} | {budget}):
-        use = valid[:b] & np.isfinite(log_w[:b])
-        if use.sum() >= len(names) + 3:
-            ratio = summary_resolution(u[:b][use], summaries[:b][use])
-            resolution[str(b)] = {n: float(ratio[j]) for j, n in enumerate(names)}
-        by_source = {"network": (summaries[:b][use], observed_summary)}
-        if kept is not None:  # summaries read from the family's own simulated images (none in older states)
-            try:
-                s_images, observed_images, info = image_summaries(u[:b][use], kept[:b][use], image)
-            except ValueError:  # too few simulations to cross-fit
-                s_images = None
-            if s_images is not None:
-                outside, d2_observed, d2_max = outside_simulations(s_images, observed_images)
-                image_reading[str(b)] = {"components": info["components"], "ridge": info["ridge"],
-                                         "resolution": dict(zip(names, info["resolution"])),
-                                         "outside_simulations": outside, "distance2_observed": d2_observed,
-                                         "distance2_simulated_max": d2_max}
-                reading = _likelihood_reading(u[:b][use], kept[:b][use], image, likelihood_pool, names)
-                if reading is not None:
-                    reading.update(wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()))
-                    answers.setdefault("images_likelihood", {})[str(b)] = reading
-                if not outside:  # outside, the regression would extrapolate: no image reading at this budget
-                    by_source["images"] = (s_images, observed_images)
-                    by_source["both"] = (np.hstack([summaries[:b][use], s_images]),
-                                         np.concatenate([observed_summary, observed_images]))
-        for name, (weighted, diagonal, anchored, source) in ADJUSTED_READINGS.items():
-            if source not in by_source:
-                continue
-            s_b, s_o = by_source[source]
-            u_adj, w, coef = regression_adjust(u[:b][use], s_b, s_o, (log_w if weighted else flat)[:b][use],
-                                               diagonal=diagonal)
-            summary = (anchored_summary(reported, u[:b][use], u_adj, w, names) if anchored
-                       else summarize_particles(u_adj, w, names))
-            summary.update(tempered=False, wall_s=wall * b / budget, failed_simulations=int((~valid[:b]).sum()),
-                           outside_prior=int((valid[:b] & ~np.isfinite(log_w[:b])).sum()),
-                           regression={n: [float(v) for v in coef[:, j]] for j, n in enumerate(names)})
-            answers.setdefault(name, {})[str(b)] = summary
+    ``run`` (a ``RefineRun``; keyword ``options`` set single fields of it, or make it where None; here
+    ``round_size`` defaults to 25): ``checkpoints``: nested budgets (the first b draws). ``state_path`` (.npz):
+    draws, summaries and the simulated images (uint8, zeros where a simulation failed; for summaries other
+    than the network's) so far, saved after every ``round_size`` simulations; a longer budget extends a saved
+    run. ``extend`` (the pmc method's box beyond the prior) is refused: the draws never leave the prior's box.
+    ``log(text)``: a line per round."""
+    run = refine_run(run, options)
+    _check_adjusted(run)
+    a = _amortized_draws(est, image, Ms, run)
+    u = a.draws[:run.budget]
+    sims = _saved_simulations(run.state_path, u, image, len(a.names))
+    sims = _simulate_draws(cfg, est, image, u, a, sims, run, log=log)
+    log_w = _importance_log_weights(est, image, u, a, run.prior)
+    likelihood_pool = (None if sims.kept is None else
+                       _likelihood_pool(est, image, a.ms_norm, a.draws, Ms, run.prior, run.seed, run.key))
+    readings = _Readings({}, {}, {})  # the summaries' resolution, whatever the reading: reported with the answer only
+    for b in sorted({int(c) for c in run.checkpoints if 10 <= int(c) <= run.budget} | {run.budget}):
+        _read_at_budget(b, u, image, a, sims, log_w, likelihood_pool, readings)
     # the answer is the reading chosen on validation; the others, read off the same simulations, are kept
-    for b, reading in image_reading.items():  # each parameter from the summaries that resolve it better
-        if reading["outside_simulations"]:
-            continue
-        network, images = answers["anchored"][b], answers["images_anchored"][b]
-        source = {n: "images" if reading["resolution"][n] < resolution[b][n] else "network" for n in names}
-        answers.setdefault("resolved_anchored", {})[b] = {
-            **network, "parameters": {n: (images if source[n] == "images" else network)["parameters"][n] for n in names},
-            "ess": min(network["ess"], images["ess"]), "summary_source": source}
-    for shifted, anchored in SHIFTED_READINGS.items():  # the same centres, q₀'s widths unless a summary pins finer
-        if anchored in answers:
-            answers[shifted] = {
-                b: shifted_summary(reported, summary, names,
-                                   image_reading[b]["resolution"] if ADJUSTED_READINGS[anchored][3] == "images"
-                                   else resolution.get(b))
-                for b, summary in answers[anchored].items()}
-    complete = {name for name, answer in answers.items() if set(answer) == set(answers[ADJUSTED_FALLBACK])}
-    # per budget: the image reading where it was formed at that budget (a refusal at an early checkpoint
-    # does not hold for a later one, where more simulations may surround the observation)
-    preferred = answers.get(ADJUSTED_CHOICE, {})
-    by_budget = {b: {**preferred[b], "reading": ADJUSTED_CHOICE} if b in preferred
-                 else {**summary, "reading": ADJUSTED_FALLBACK} for b, summary in answers[ADJUSTED_FALLBACK].items()}
-    choice = by_budget[str(max(int(b) for b in by_budget))]["reading"]
-    for b, by_name in resolution.items():
-        by_budget[b]["summary_resolution"] = by_name
-    for b, reading in image_reading.items():
-        by_budget[b]["image_summaries"] = reading
-    # a reading is kept only where every budget has it (the image readings need the simulated images)
-    variants = {name: answers[name] for name in sorted(complete - {choice})}
-    return {"method": "adjusted", "reading": choice, "names": list(names), "Ms": float(Ms), "prior": prior,
-            "amortized": summarize_particles(reported, np.ones(len(reported)), names),
-            "observed_summary": observed_summary.tolist(), "refined_by_budget": by_budget, "variants": variants,
-            "reached_full_likelihood": True, "wall_s": wall}
+    _combined_readings(readings, a)
+    choice, by_budget, variants = _adjusted_answer(readings)
+    return {"method": "adjusted", "reading": choice, "names": list(a.names), "Ms": float(Ms), "prior": run.prior,
+            "amortized": summarize_particles(a.reported, np.ones(len(a.reported)), a.names),
+            "observed_summary": a.observed_summary.tolist(), "refined_by_budget": by_budget, "variants": variants,
+            "reached_full_likelihood": True, "wall_s": sims.wall}
 
 
 def fit_function(method: str):

@@ -15,6 +15,7 @@ parameter ``field_tilt_deg`` applies the field at that angle from the normal (a 
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -107,12 +108,26 @@ def simulate_measured(cfg: dict, params: dict, rng: np.random.Generator, reversa
                                     field_tol_T=field_tol_T)
 
 
-def resimulate_measured(cfg: dict, params: dict, reversal_fields_T, curve_fields_T, n_profiles: int = 1,
-                        first_profile: int = 0, key: int | str = "measured", max_step_T: float | None = None,
-                        progress=None) -> list:
-    """``simulate_measured`` averaged over ``n_profiles`` disorder profiles (the streams of
-    ``resimulate``: the same disorder as the grid re-simulation of the same key). Returns per curve
-    the mean ⟨m⟩·ĥ at its fields (input order)."""
+@dataclass(frozen=True)
+class DisorderProfiles:
+    """Which disorder profiles a re-simulation averages: ``n_profiles`` profiles (≥ 1) from ``first_profile``
+    on, of the stream ``closed_loop_disorder`` under ``key`` (the streams of ``resimulate``)."""
+
+    n_profiles: int = 1
+    first_profile: int = 0
+    key: int | str = "measured"
+
+
+def resimulate_measured(cfg: dict, params: dict, reversal_fields_T, curve_fields_T,
+                        profiles: DisorderProfiles | None = None, *, max_step_T: float | None = None, progress=None,
+                        **profile_options) -> list:
+    """``simulate_measured`` averaged over the disorder ``profiles`` (a ``DisorderProfiles``, its defaults where
+    None; keyword ``profile_options`` set single fields: ``n_profiles``, ``first_profile``, ``key``) — the same
+    disorder as the grid re-simulation of the same key. ``max_step_T``: the sweep's largest field step (T; None:
+    the protocol's own fields); ``progress(done, total)``: per profile. Returns per curve the mean ⟨m⟩·ĥ at its
+    fields (input order)."""
+    profiles = replace(profiles or DisorderProfiles(), **profile_options)
+    n_profiles, first_profile, key = profiles.n_profiles, profiles.first_profile, profiles.key
     if n_profiles < 1:
         raise ValueError("n_profiles must be >= 1")
     families = map_in_order(measured_single, [(cfg, params, key, first_profile + p, reversal_fields_T, curve_fields_T,

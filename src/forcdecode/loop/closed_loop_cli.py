@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from .simulated import run_stage
+from .simulated import StageOutputs, run_stage
 
 
 def _positive_int(text: str) -> int:
@@ -40,8 +40,9 @@ def _log(message: str) -> None:
 
 
 def run(args) -> int:
-    summary = run_stage(args.config, args.learning, args.dataset, args.predictions, out=args.out, table=args.table,
-                        figures=args.figures, workers=args.workers, log=_log)
+    summary = run_stage(args.config, args.learning, args.dataset, args.predictions,
+                        StageOutputs(out=args.out, table=args.table, figures=args.figures), workers=args.workers,
+                        log=_log)
     print(f"closed loop on {summary['n_samples']} test samples x {summary['realisations']} realisations: "
           f"median rms/rms_floor {summary['median_rms_over_floor']:.2f} {summary['median_rms_over_floor_ci90']}, "
           f"median rms/rms_null {summary['median_rms_over_null']:.2f} {summary['median_rms_over_null_ci90']}; "

@@ -17,7 +17,6 @@ from ..core.io import read_json
 from ..core.parallel import available_cores
 from ..infer.refine import METHODS
 from ..learn.estimator_choice import add_estimator_arguments, choose_estimator, default_posterior_path
-from ..learn.predictor import prediction_lines
 from ..learn.prior_class import prior_class_line
 from ..learn.shipped import check_thickness, resolve_models
 from .measured_loop import _json_ready, close_loop_on_file
@@ -181,6 +180,8 @@ def run(args) -> int:
         print(prior_class_line(report["prior_class"], report.get("prior_check")))
     prediction = report.get("prediction")
     if prediction:  # the decoded Hamiltonian: intervals, read from the image or prior only, combinations
+        from ..learn.predictor import prediction_lines  # local: the predictor imports torch
+
         ms = report.get("Ms_chosen_A_per_m", prediction.get("Ms"))
         swept = report.get("Ms_source") == "swept"
         for line in prediction_lines(prediction, f"{args.file}: decoded Hamiltonian", ms / 1e3,

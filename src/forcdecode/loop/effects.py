@@ -29,7 +29,7 @@ best simpler candidate; a single effect stays named as the single effect.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -465,10 +465,22 @@ def _beats_beyond_floors(challenger_mse, current_mse, floors: list, rng, n_boot,
     return float(np.nanmean(current_mse)) - float(np.nanmean(challenger_mse)) > floor * (1 + margin)
 
 
-def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 2000, min_relative_gain: float = 0.05,
-                          equivalence: float = 0.05, same_observable=(), floors: dict | None = None,
-                          floor_margin: float = 0.05) -> list[str]:
-    """The candidates that explain the held-out residual as well as ``chosen``.
+@dataclass(frozen=True)
+class SelectionRule:
+    """When one candidate beats another on held-out curves (``_beats``, ``choose_candidate``): a held-out error
+    lower by more than ``equivalence`` (relative, dimensionless) and a paired-bootstrap 5 % bound of the relative
+    reduction above ``min_relative_gain`` (dimensionless), from ``n_boot`` resamples of the held-out curves."""
+
+    n_boot: int = 2000
+    min_relative_gain: float = 0.05
+    equivalence: float = 0.05
+
+
+def equivalent_candidates(heldout_mse: dict, chosen: str, rng, rule: SelectionRule | None = None, *,
+                          same_observable=(), floors: dict | None = None, floor_margin: float = 0.05,
+                          **rule_values) -> list[str]:
+    """The candidates that explain the held-out residual as well as ``chosen``, by the ``rule`` (a
+    ``SelectionRule``, its defaults where None; keyword ``rule_values`` set single fields).
 
     ``heldout_mse``: {name: per-held-out-curve mean-square misfit} of the candidates still offered
     (after every gate), ``"none"`` included, and optionally ``HAMILTONIAN_CHANGE`` (the Hamiltonian's
@@ -485,6 +497,8 @@ def equivalent_candidates(heldout_mse: dict, chosen: str, rng, n_boot: int = 200
     their null gains. A candidate must then also beat "none" beyond its own floor (``beats_floor``, by
     ``floor_margin``), and one of the two beats the other only by a mean-square difference above the
     larger of their floors (``refit.refit_ambiguity``). None: as before."""
+    rule = replace(rule or SelectionRule(), **rule_values)
+    n_boot, min_relative_gain, equivalence = rule.n_boot, rule.min_relative_gain, rule.equivalence
     if chosen == "none" or chosen not in heldout_mse:
         return []
     same = set().union(*[set(g) for g in same_observable if chosen in g]) if same_observable else set()
@@ -524,18 +538,39 @@ def _grid_resolution(values, best) -> float:
     return abs(values[hi] - values[lo]) / (hi - lo) / 2
 
 
-def select_effect(measured, sim, fields, order=None, every_k: int = 4, n_boot: int = 2000, seed: int = 0,
-                  candidates=None, min_relative_gain: float = 0.05, equivalence: float = 0.05,
-                  cross_fit: bool = False) -> dict:
+@dataclass(frozen=True)
+class EffectSelection:
+    """How ``select_effect`` chooses among the measured-side candidates.
+
+    ``every_k``: every k-th curve held out; ``cross_fit``: each of the ``every_k`` such splits in turn (every
+    curve held out once); ``seed``: the seed of the bootstrap stream (``core.streams``); ``candidates``: names in
+    ``EFFECTS`` offered (None: all); ``n_boot``, ``min_relative_gain``, ``equivalence``: the rule
+    (``SelectionRule``)."""
+
+    every_k: int = 4
+    n_boot: int = 2000
+    seed: int = 0
+    candidates: object = None
+    min_relative_gain: float = 0.05
+    equivalence: float = 0.05
+    cross_fit: bool = False
+
+
+def select_effect(measured, sim, fields, order=None, settings: EffectSelection | None = None, **options) -> dict:
     """Fit measured-side candidates (singles and ``COMBINATIONS``; ``candidates`` restricts them) on
     training curves, compare them on held-out curves (every ``every_k``-th; with ``cross_fit`` each
-    of the ``every_k`` such splits in turn, so every curve is held out once), choose (module rule).
+    of the ``every_k`` such splits in turn, so every curve is held out once), choose (module rule). The
+    settings are those of ``settings`` (an ``EffectSelection``, its defaults where None), keyword ``options``
+    setting single ones.
 
     ``order``: measurement clock τ ∈ [0, 1] per curve (n,) or per point (n, n); default per curve
     0 → 1 in ascending H_r. Parameters and uncertainties are those of the fit on the training curves
     (all usable curves with ``cross_fit``). Returns {"chosen", "candidates": {name: {"parameters",
     "uncertainties", "n_parameters", "heldout_rms", "gain_mse", "gain_ci90", "accepted"}},
     "heldout_curves", "heldout_rms_before", "heldout_rms_after"}."""
+    o = replace(settings or EffectSelection(), **options)
+    every_k, n_boot, seed, candidates = o.every_k, o.n_boot, o.seed, o.candidates
+    min_relative_gain, equivalence, cross_fit = o.min_relative_gain, o.equivalence, o.cross_fit
     measured = np.asarray(measured, dtype=float)
     sim = np.asarray(sim, dtype=float)
     fields = np.asarray(fields, dtype=float)

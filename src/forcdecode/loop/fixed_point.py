@@ -22,6 +22,8 @@ than ``tolerance`` (relative). At ``max_iterations`` without that, ``converged``
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields as dataclass_fields, replace
+
 import numpy as np
 
 from ..core.errors import ConfigError
@@ -64,19 +66,39 @@ def _relative_change(new: dict, old: dict) -> dict:
     return out
 
 
-def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u",), budget: int = 20,
-                            max_iterations: int = 4, tolerance: float = 0.02, null_realisations: int = NULL_REALISATIONS,
-                            noise_sigma: float | None = None, order=None, progress=None, log=None,
-                            **analysis) -> dict:
+@dataclass(frozen=True)
+class FixedPointSettings:
+    """The iteration's own settings (``predict_correct_iterate``).
+
+    ``max_iterations``: the most predictions made (a positive integer); ``tolerance``: the relative change
+    (dimensionless, in (0, 1)) of every refitted parameter below which, with the same effect chosen twice in a
+    row, the iteration has reached its fixed point; ``order``: the measurement clock of the correction (None:
+    ``effects.measurement_clock``; when given, passed to the analysis too)."""
+
+    max_iterations: int = 4
+    tolerance: float = 0.02
+    order: object = None
+
+
+FIXED_POINT_SETTINGS = frozenset(f.name for f in dataclass_fields(FixedPointSettings))
+"""The keywords of ``predict_correct_iterate`` that set a ``FixedPointSettings`` field."""
+
+REFIT_DEFAULTS = {"names": ("K_u",), "budget": 20, "null_realisations": NULL_REALISATIONS, "noise_sigma": None}
+"""The refit's settings ``predict_correct_iterate`` passes to every analysis unless told otherwise (its
+realisation floor is on by default: ``physics_effects.NULL_REALISATIONS`` films)."""
+
+
+def predict_correct_iterate(cfg: dict, predict, measured, fields, settings: FixedPointSettings | None = None, *,
+                            progress=None, log=None, **analysis) -> dict:
     """The iteration of the module docstring.
 
     ``predict(family) -> params`` (SI, the simulator's dict): the Hamiltonian predicted from a grid
     family (in the loop: the networks on ``image_of_family(family)`` at the chosen M_s).
     ``measured``: the measured grid family (n × n, NaN below the diagonal, m normalized);
-    ``fields``: the grid (μ0H, T). ``names``, ``budget``, ``null_realisations``, ``noise_sigma`` and
-    ``analysis`` (further keyword arguments: every_k, n_profiles, physics, physics_grids, seed, ...):
-    those of ``refit.analyse_with_refit``. ``order``: measurement clock of the correction (default
-    ``effects.measurement_clock``; passed to the analysis too). ``progress``: that of the refit;
+    ``fields``: the grid (μ0H, T). ``settings``: the iteration's own (``FixedPointSettings``; keyword
+    ``analysis`` entries that name one of its fields replace it). The other ``analysis`` keywords (names,
+    budget, null_realisations, noise_sigma, every_k, n_profiles, physics, physics_grids, seed, ...): those of
+    ``refit.analyse_with_refit``, with the defaults ``REFIT_DEFAULTS``. ``progress``: that of the refit;
     ``log(text)``: one line per iteration. An iteration whose prediction equals the previous one
     exactly reuses its analysis (the analysis is deterministic).
 
@@ -87,6 +109,12 @@ def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u
     iteration), "reused"), ``converged``, ``n_iterations``, ``tolerance`` and ``corrected_family``
     (the measurement with the last chosen measured-side effect removed; the measurement itself when
     none is chosen). ConfigError for bad options."""
+    settings = replace(settings or FixedPointSettings(),
+                       **{k: v for k, v in analysis.items() if k in FIXED_POINT_SETTINGS})
+    max_iterations, tolerance, order = settings.max_iterations, settings.tolerance, settings.order
+    refit = {k: analysis.get(k, v) for k, v in REFIT_DEFAULTS.items()}
+    analysis = {k: v for k, v in analysis.items() if k not in FIXED_POINT_SETTINGS and k not in REFIT_DEFAULTS}
+    names, null_realisations = refit["names"], refit["null_realisations"]
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
         raise ConfigError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     if isinstance(tolerance, bool) or not (isinstance(tolerance, (int, float, np.floating)) and 0 < tolerance < 1):
@@ -111,9 +139,7 @@ def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u
         params = dict(predict(corrected))
         reused = result is not None and params == last_params
         if not reused:
-            result = analyse_with_refit(cfg, params, measured, fields, names=names, budget=budget,
-                                        null_realisations=null_realisations, noise_sigma=noise_sigma,
-                                        progress=progress, **analysis)
+            result = analyse_with_refit(cfg, params, measured, fields, **refit, progress=progress, **analysis)
         last_params = params
         chosen, kind = result["chosen"], result["kind"]
         with_effect = result["hamiltonian"].get("refit_with_effect")
@@ -147,4 +173,4 @@ def predict_correct_iterate(cfg: dict, predict, measured, fields, *, names=("K_u
     return out
 
 
-__all__ = ["image_of_family", "predict_correct_iterate"]
+__all__ = ["FIXED_POINT_SETTINGS", "REFIT_DEFAULTS", "FixedPointSettings", "image_of_family", "predict_correct_iterate"]

@@ -28,18 +28,21 @@ from ..core.streams import stream_rng
 from ..forc.raster import measurement_on_grid
 from ..forc.simulate import protocol_name
 from ..infer.posterior_predictive import draws_as_hamiltonians
-from ..infer.refine import DEFAULT_PRIOR, beyond_prior_lines, family_key, fit_function, parse_extension
+from ..infer.predictive_check import check_figure, predictive_check, read_reference
+from ..infer.refine import DEFAULT_PRIOR, RefineRun, beyond_prior_lines, family_key, fit_function, parse_extension
 from ..infer.resimulate import observation_error, resimulate_measured, resimulate_with_spread
+from ..learn.answer import alice_answer
 from ..learn.prediction import Prediction, answer_table, basis_lines
 from ..learn.prior_class import check_prior_class, prior_class_line
 from ..measured import read_forc
-from .fixed_point import image_of_family
+from .fixed_point import image_of_family, predict_correct_iterate
 from .patches import (POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, null_films, rasterized_singles,
                       single_realisations)
 from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
                               physics_candidate_families)
-from .refit import measured_saturation, realisation_floor
+from .refit import RefitSettings, analyse_with_refit, measured_saturation, realisation_floor
 from .report_page import diagrams_figure, write_report_page
+from .signatures import drift_evidence_of, field_shift_of, measured_point_arrays
 from .structure import null_structure_floor
 
 
@@ -70,7 +73,7 @@ def _hamiltonian_of(prediction: dict) -> dict:
 def family_predictor(models, Ms_A_per_m: float):
     """family → Hamiltonian (SI): the prediction path of ``predict_and_sweep`` at one M_s applied to
     the networks' image of a grid family (``loop.fixed_point.image_of_family``)."""
-    from ..learn.predictor import predict_parameters
+    from ..learn.predictor import predict_parameters  # local: the predictor imports torch
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     return lambda family: _hamiltonian_of(predict(image_of_family(family), Ms_A_per_m))
@@ -81,7 +84,7 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     prediction such as the posterior's), re-simulate it, keep the M_s whose family is closest to
     the measured one (observation-space RMS). Returns (best, sweep rows); each row keeps its
     re-simulated ``family``, the variance between its profiles ``spread`` and ``n_profiles``."""
-    from ..learn.predictor import predict_parameters
+    from ..learn.predictor import predict_parameters  # local: the predictor imports torch
 
     predict = models if callable(models) else (lambda img, ms: predict_parameters(models, img, ms))
     rows = []
@@ -97,20 +100,21 @@ def predict_and_sweep(cfg, models, image, family, ms_values, n_profiles, log=_pr
     return best, rows
 
 
-def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log, predictive_reference=None,
-            method: str = "pmc", extend=None):
-    """(report entry, Hamiltonian SI) of the refined posterior of one measured family (``infer.fit``):
-    medians and 68/90 % intervals per parameter (normalized and SI), effective sample size, whether
-    the tempering reached the full likelihood; with ``predictive_reference`` (a dict of
-    ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
-    ``method``: "pmc" (``refine.fit_one``) or "adjusted" (``refine.fit_adjusted``: no tempering, no
-    particles' observation RMS). ``extend`` ({name: factor}, pmc only): the refinement's box reaches
+def _refine(cfg, est, m: Measurement, Ms, path, s: LoopSettings, setup: RefineSetup, log):
+    """(report entry, Hamiltonian SI) of the refined posterior of the measured family ``m.family`` at M_s
+    ``Ms`` (A/m; ``infer.fit``, ``s.refine_budget`` simulations in rounds of ``s.refine_round_size`` on
+    ``s.refine_workers`` processes): medians and 68/90 % intervals per parameter (normalized and SI),
+    effective sample size, whether the tempering reached the full likelihood; with ``setup.reference`` (a
+    dict of ``infer.predictive_check.make_reference``) the posterior-predictive misspecification check.
+    ``s.refine_method``: "pmc" (``refine.fit_one``) or "adjusted" (``refine.fit_adjusted``: no tempering, no
+    particles' observation RMS). ``setup.extend`` ({name: factor}, pmc only): the refinement's box reaches
     beyond the prior's bound (``refine.parse_extension``); the entry then carries ``beyond_prior``
     (``infer.fit.beyond_prior``) and the medians may lie past the bound."""
+    budget, method, extend, predictive_reference = s.refine_budget, s.refine_method, setup.extend, setup.reference
     key = family_key(f"{Path(path).name}:refine")
-    result = fit_function(method)(cfg, est, image, family, Ms, budget=budget, round_size=round_size, workers=workers,
-                                  seed=int(cfg.get("seed", 0)), key=key, log=log, prior=DEFAULT_PRIOR,
-                                  extend=extend)
+    run = RefineRun(budget=budget, round_size=s.refine_round_size, workers=s.refine_workers,
+                    seed=int(cfg.get("seed", 0)), key=key, prior=DEFAULT_PRIOR, extend=extend)
+    result = fit_function(method)(cfg, est, m.image, m.family, Ms, run, log=log)
     final = result["refined_by_budget"][str(max(int(b) for b in result["refined_by_budget"]))]
     names = result["names"]
     medians = np.array([[final["parameters"][n]["median"] for n in names]])
@@ -134,8 +138,6 @@ def _refine(cfg, est, image, family, Ms, path, budget, round_size, workers, log,
         for line in beyond_prior_lines(result["beyond_prior"]):
             log(line)
     if predictive_reference is not None:
-        from ..infer.predictive_check import predictive_check
-
         entry["predictive_check"] = predictive_check(result, predictive_reference)
         log(f"{entry['predictive_check'].get('check', 'predictive')} check: {entry['predictive_check']['verdict']}")
     return entry, params
@@ -323,13 +325,15 @@ class Estimate:
 @dataclass
 class Residual:
     """The observation error of the re-simulation, and the model-free evidence the candidates need: the
-    noise (m units), the field-shift and drift evidence, the measured points for the saturation test."""
+    noise (m units), the field-shift and drift evidence, the measured points for the saturation test; and
+    the re-simulated grid family (n × n, m normalized) the residual is of."""
 
     error: dict
     noise: float | None
     shift: dict | None
     drift: dict | None
     points: object
+    resim: np.ndarray | None = None
 
 
 @dataclass
@@ -380,8 +384,6 @@ def check_options(s: LoopSettings) -> RefineSetup:
     if predictive_reference is not None:
         if not refine_budget:
             raise ConfigError("the posterior-predictive check (--predictive-reference) judges a refinement: it needs --refine")
-        from ..infer.predictive_check import read_reference
-
         reference = read_reference(predictive_reference, round_size=refine_round_size, prior=DEFAULT_PRIOR,
                                    budget_run=refine_budget, extend=extend)
     if fixed_point and s.params is not None:
@@ -427,7 +429,7 @@ OOD_SWEPT_NOTE = "M_s unknown: the most favourable p over the sweep"
 def posterior_ood(est, image, ms_values) -> dict:
     """The posterior's training-data check (``learn.ood.ood_check``): at the given M_s alone (one value),
     or, M_s unknown (several), at each M_s of the sweep keeping the most favourable p, and saying so."""
-    from ..learn.ood import ood_check
+    from ..learn.ood import ood_check  # local: the check imports torch
 
     checks = [ood_check(est, image, [float(normalize("Ms", ms, est.bounds))]) for ms in ms_values]
     if not checks[0].get("available"):
@@ -450,7 +452,7 @@ def alice_ood(models_dir, models, image, dataset=None, log=_progress) -> dict:
     """Alice's training-data check: the image-only conformal check (``learn.ood.image_ood_check``) against
     the train split of the networks' own dataset (``training_image_reference``); M_s plays no part. Not
     available, with the reason, when that dataset cannot be found or is another configuration's."""
-    from ..learn.ood import image_ood_check, training_image_reference
+    from ..learn.ood import image_ood_check, training_image_reference  # local: the check imports torch
 
     check = "image only (no posterior)"
     hashes = ([str(m.payload["config_hash"]) for m in models.values()
@@ -506,7 +508,7 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
     ms_values = list(s.ms_values_A_per_m if s.ms_values_A_per_m is not None else np.linspace(470e3, 1400e3, 6))
     est = None
     if s.estimator == "posterior":
-        from ..learn.posterior import PosteriorEstimator, posterior_prediction
+        from ..learn.posterior import PosteriorEstimator, posterior_prediction  # local: imports torch
 
         est = PosteriorEstimator.load(s.posterior_path)
         prior_check(report, est.prior_class, m, s, out, path, log)
@@ -514,7 +516,7 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
         models = lambda img, ms: posterior_prediction(est, img, ms)  # noqa: E731
         trained = "The posterior was trained on"
     elif s.estimator == "alice":
-        from ..learn.predictor import load_models, models_prior_class
+        from ..learn.predictor import load_models, models_prior_class  # local: imports torch
 
         models = load_models(s.models_dir)
         prior_check(report, models_prior_class(models), m, s, out, path, log)
@@ -536,8 +538,6 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
         result.predictor = family_predictor(models, best["Ms"])
     prediction = best["prediction"]
     if s.estimator == "alice":  # the posterior's prediction carries its flags and combinations already
-        from ..learn.answer import alice_answer
-
         prediction = alice_answer(models, prediction, seed=int(cfg.get("seed", 0)))
     report.update(parameters=result.params, prediction=prediction, Ms_chosen_A_per_m=best["Ms"],
                   Ms_source="given" if len(ms_values) == 1 else "swept",
@@ -545,16 +545,11 @@ def estimate(cfg: dict, s: LoopSettings, m: Measurement, setup: RefineSetup, rep
     if best["n_profiles"] == profiles:
         result.resim, result.spread = best["family"], best["spread"]
     if s.refine_budget:
-        report["refined"], result.params = _refine(cfg, est, m.image, m.family, best["Ms"], path, s.refine_budget,
-                                                   s.refine_round_size, s.refine_workers, log, setup.reference,
-                                                   method=s.refine_method,
-                                                   extend=setup.extend)
+        report["refined"], result.params = _refine(cfg, est, m, best["Ms"], path, s, setup, log)
         report["parameters"] = result.params
         result.resim = None  # re-simulate the refined Hamiltonian
         check = report["refined"].get("predictive_check")
         if check is not None:  # where this film lies among the reference's validation families
-            from ..infer.predictive_check import check_figure
-
             check_figure(out / "predictive_check.png", setup.reference, {Path(str(path)).name: check},
                          title=f"{check['check']} check")
     return result
@@ -579,8 +574,6 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
     # the saturated end points drift?
     shift = drift = None
     if noise:
-        from .signatures import drift_evidence_of, field_shift_of
-
         shift = field_shift_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         drift = drift_evidence_of(data, moment_saturation, noise, domain.moment_offset_Am2)
         report["field_shift"], report["drift_evidence"] = shift, drift
@@ -588,10 +581,8 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
     # film is saturated; the measured protocol is re-simulated quasi-statically only)
     points = None
     if protocol_name(cfg) == "quasistatic" and moment_saturation > 0:
-        from .signatures import measured_point_arrays
-
         points = measured_point_arrays(data, moment_saturation, domain.moment_offset_Am2)
-    return Residual(error, noise, shift, drift, points)
+    return Residual(error, noise, shift, drift, points, resim)
 
 
 def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
@@ -657,10 +648,12 @@ def _null_film_gains(film, resim, fields, noise_sigma, seed: int, s: LoopSetting
                       every_k=s.every_k, n_profiles=s.profiles, **candidates)
 
 
-def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, resim: np.ndarray, spread,
-                   r: Residual, candidates: dict, floor: FileFloor) -> Judgement:
-    """The residual traced to an effect against the re-simulation (``analyse_residual``), every candidate
-    judged against its realisation floor at the file's patch number."""
+def judge_residual(cfg: dict, s: LoopSettings, m: Measurement, params: dict, spread, r: Residual, candidates: dict,
+                   floor: FileFloor) -> Judgement:
+    """The residual traced to an effect against the re-simulation ``r.resim`` of ``params`` (``analyse_residual``),
+    every candidate judged against its realisation floor at the file's patch number; ``spread``: the variance of
+    m between the re-simulation's profiles."""
+    resim = r.resim
     saturated = measured_saturation(cfg, params, r.points) if r.points is not None else None
     # the disorder floor of the structure test: the re-simulation's profile spread pooled with the null
     # films' (P-patch films against the re-simulation: their tails, where every profile happened to agree)
@@ -684,8 +677,6 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
 
     data, fields, refit = m.data, m.fields, s.refit
     if s.fixed_point:
-        from .fixed_point import predict_correct_iterate
-
         analysis = predict_correct_iterate(cfg, e.predictor, m.family, fields, names=tuple(refit),
                                            budget=s.refit_budget, noise_sigma=r.noise, every_k=s.every_k,
                                            n_profiles=s.sweep_profiles, physics=s.physics, log=log,
@@ -695,19 +686,14 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
         report["fixed_point"] = {k: analysis.pop(k) for k in ("converged", "n_iterations", "tolerance", "iterations")}
         analysis["arrays"] = {**analysis.get("arrays", {}), "corrected_family": analysis.pop("corrected_family")}
     else:
-        from .refit import analyse_with_refit
-
-        analysis = analyse_with_refit(cfg, e.params, m.family, fields, names=tuple(refit), every_k=s.every_k,
-                                      null_realisations=s.null_realisations,
-                                      null_patches=floor.patches.floor_patches,
-                                      measured_patches=floor.patches.floor_patches,
-                                      n_profiles=s.sweep_profiles, budget=s.refit_budget, physics=s.physics,
-                                      noise_sigma=r.noise, field_shift=r.shift, drift=r.drift,
-                                      moment_tolerance=s.moment_tolerance, measured_points=r.points,
-                                      shift_protocol=((data.reversal_fields_T,
-                                                       [c.field_T for c in data.curves])
-                                                      if r.shift is not None and protocol_name(cfg) == "quasistatic"
-                                                      else None),
+        shift_protocol = ((data.reversal_fields_T, [c.field_T for c in data.curves])
+                          if r.shift is not None and protocol_name(cfg) == "quasistatic" else None)
+        settings = RefitSettings(names=tuple(refit), every_k=s.every_k, null_realisations=s.null_realisations,
+                                 null_patches=floor.patches.floor_patches, n_profiles=s.sweep_profiles,
+                                 budget=s.refit_budget, physics=s.physics, noise_sigma=r.noise, field_shift=r.shift,
+                                 drift=r.drift, measured_points=r.points, shift_protocol=shift_protocol)
+        analysis = analyse_with_refit(cfg, e.params, m.family, fields, settings,
+                                      measured_patches=floor.patches.floor_patches, moment_tolerance=s.moment_tolerance,
                                       progress=counter("Hamiltonian refit", "re-simulations"))
     final_params = analysis["hamiltonian"]["refit_without_effect"]
     report["hamiltonian"] = analysis["hamiltonian"]
@@ -717,12 +703,12 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
     return Judgement(analysis, final_params)
 
 
-def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r: Residual,
-                 j: Judgement, report: dict) -> dict:
+def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, r: Residual, j: Judgement,
+                 report: dict) -> dict:
     """The analysed file's report: its entries, the residual at the measured points (the file's own
-    protocol re-simulated), the figures, report.json, report.md and report.html."""
-
-    analysis, fields, family = j.analysis, m.fields, m.family
+    protocol re-simulated), the figures (against the re-simulation ``r.resim``), report.json, report.md and
+    report.html."""
+    analysis, fields, family, resim = j.analysis, m.fields, m.family, r.resim
     error = r.error
     residual = family - resim
     report.update(status="analysed", observation_rms=error["rms"],
@@ -781,8 +767,8 @@ def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup,
     else:  # candidates, the realisation floor, judge
         candidates = physics_candidates(cfg, s, hamiltonian.params)
         floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
-        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, resim, spread, residual, candidates, floor)
-    return write_report(out, path, cfg, s, measurement, resim, residual, judgement, report)  # report
+        judgement = judge_residual(cfg, s, measurement, hamiltonian.params, spread, residual, candidates, floor)
+    return write_report(out, path, cfg, s, measurement, residual, judgement, report)  # report
 
 
 def _markdown_domain(path, report) -> str:
@@ -850,90 +836,128 @@ def _prior_lines(report) -> list[str]:
     return lines + [""]
 
 
-def _markdown(path, report, analysis) -> str:
-    lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report)]
+def _posterior_lines(prediction) -> list[str]:
+    """The joint posterior's draws in Markdown: the pairwise correlations (normalized parameters) and the
+    conformalized 90 % intervals where the prediction carries them."""
+    lines = []
+    corr = prediction["posterior_correlation"]
+    lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
+              "Pairwise correlations of the draws (normalized parameters):", "",
+              "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
+    for name, row in zip(corr["names"], corr["matrix"]):
+        lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
+    conformal = {n: e["interval_90_conformal"] for n, e in prediction.items()
+                 if isinstance(e, dict) and "interval_90_conformal" in e}
+    if conformal:
+        lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
+                  "families like the training data): " + "; ".join(
+                      f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
+    return lines
+
+
+def _refined_lines(refined) -> list[str]:
+    """The refinement by simulation in Markdown: its table (amortized and refined medians, 68/90 % intervals),
+    what it found beyond the prior's bound and its predictive check."""
+    lines = ["", f"Refined by {refined['budget']} simulations of this film (`loop.fit`; effective sample size "
+             f"{refined['ess']:.1f}{'' if refined['reached_full_likelihood'] else '; tempered, not the full posterior'}). "
+             "The residual below is that of the refined medians:", "",
+             "| parameter | amortized median (normalized) | refined median | refined 68 % | refined 90 % |",
+             "|---|---|---|---|---|"]
+    for name, row in refined["parameters"].items():
+        lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
+                     f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
+    if refined.get("beyond_prior"):
+        lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
+    check = refined.get("predictive_check")
+    if check:
+        extension = check.get("check") == "extension"
+        lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
+                        else "**Misspecified: ") if check["misspecified"] else
+                       ("Extension check: " if extension else "Posterior-predictive check: "))
+                  + check["verdict"] + (".**" if check["misspecified"] else "."), "",
+                  "![the check against its validation reference](predictive_check.png)"]
+    return lines
+
+
+def _prediction_lines(report) -> list[str]:
+    """The decoded Hamiltonian in Markdown: M_s, the answer table, the posterior's correlations, the
+    refinement and the M_s sweep (empty without a prediction)."""
     prediction = report.get("prediction")
-    if prediction:
-        typed = Prediction.from_dict(prediction)
-        lines += [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
-                  *answer_table(typed, markdown=True), *basis_lines(typed, markdown=True)]
-        if prediction.get("estimator") == "posterior":
-            corr = prediction["posterior_correlation"]
-            lines += ["", f"Joint posterior ({prediction['draws']} draws; value = median, central credible intervals). "
-                      "Pairwise correlations of the draws (normalized parameters):", "",
-                      "| | " + " | ".join(corr["names"]) + " |", "|---" * (len(corr["names"]) + 1) + "|"]
-            for name, row in zip(corr["names"], corr["matrix"]):
-                lines.append(f"| {name} | " + " | ".join(f"{v:+.2f}" for v in row) + " |")
-            conformal = {n: e["interval_90_conformal"] for n, e in prediction.items()
-                         if isinstance(e, dict) and "interval_90_conformal" in e}
-            if conformal:
-                lines += ["", "90 % intervals conformalized on the calibration split (coverage guaranteed for "
-                          "families like the training data): " + "; ".join(
-                              f"{n} {lo:.3g}–{hi:.3g}" for n, (lo, hi) in conformal.items())]
-        refined = report.get("refined")
-        if refined:
-            lines += ["", f"Refined by {refined['budget']} simulations of this film (`loop.fit`; effective sample size "
-                      f"{refined['ess']:.1f}{'' if refined['reached_full_likelihood'] else '; tempered, not the full posterior'}). "
-                      "The residual below is that of the refined medians:", "",
-                      "| parameter | amortized median (normalized) | refined median | refined 68 % | refined 90 % |",
-                      "|---|---|---|---|---|"]
-            for name, row in refined["parameters"].items():
-                lines.append(f"| {name} | {row['amortized_median']:.3f} | {row['value']:.4g} ({row['median']:.3f}) | "
-                             f"{row['value_68'][0]:.3g}–{row['value_68'][1]:.3g} | {row['value_90'][0]:.3g}–{row['value_90'][1]:.3g} |")
-            if refined.get("beyond_prior"):
-                lines += ["", *(f"- {line}" for line in beyond_prior_lines(refined["beyond_prior"]))]
-            check = refined.get("predictive_check")
-            if check:
-                extension = check.get("check") == "extension"
-                lines += ["", ((f"**Outside the prior ({', '.join(refined.get('extend') or {})}): " if extension
-                                else "**Misspecified: ") if check["misspecified"] else
-                               ("Extension check: " if extension else "Posterior-predictive check: "))
-                          + check["verdict"] + (".**" if check["misspecified"] else "."), "",
-                          "![the check against its validation reference](predictive_check.png)"]
-        if len(report.get("Ms_sweep", [])) > 1:
-            lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
-    lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "
-              f"{report['observation_rms']:.4f}.", ""]
+    if not prediction:
+        return []
+    typed = Prediction.from_dict(prediction)
+    lines = [f"M_s {report['Ms_chosen_A_per_m'] / 1e3:.0f} kA/m ({report['Ms_source']}).", "",
+             *answer_table(typed, markdown=True), *basis_lines(typed, markdown=True)]
+    if prediction.get("estimator") == "posterior":
+        lines += _posterior_lines(prediction)
+    refined = report.get("refined")
+    if refined:
+        lines += _refined_lines(refined)
+    if len(report.get("Ms_sweep", [])) > 1:
+        lines += ["", "M_s sweep: " + ", ".join(f"{r['Ms'] / 1e3:.0f} kA/m → {r['observation_rms']:.4f}" for r in report["Ms_sweep"])]
+    return lines
+
+
+def _measured_points_lines(report) -> list[str]:
+    """The residual at the measured points (the file's own protocol re-simulated, A·m²) in Markdown."""
     points = report.get("measured_points")
-    if points:
-        lines += [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
-                  f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
-                  f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
-                  f"({points['normalization']}).", ""]
+    if not points:
+        return []
+    return [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
+            f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
+            f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
+            f"({points['normalization']}).", ""]
+
+
+def _hamiltonian_lines(report, analysis) -> list[str]:
+    """The refitted Hamiltonian in Markdown: prediction, refitted without and with the effect, and the joint
+    refit's held-out error (empty without a refit)."""
     hamiltonian = report.get("hamiltonian")
-    if hamiltonian:
-        refit = report["refit"]
-        lines += [f"Hamiltonian refitted around the prediction ({', '.join(refit['names'])}; {refit['evaluations']} "
-                  f"re-simulations): training MSE {refit['training_mse_prediction']:.4g} → {refit['training_mse_refit']:.4g}.", "",
-                  "| parameter | prediction | refitted without the effect | refitted with the effect |", "|---|---|---|---|"]
-        with_effect = (hamiltonian.get("refit_with_effect") or {}).get("params", {})
-        for name in refit["names"]:
-            lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
-                         f"{with_effect.get(name, float('nan')):.4g} |")
-        lines.append("")
-        joint = hamiltonian.get("refit_with_effect") or {}
-        if "heldout_rms" in joint:
-            lines += [f"Hamiltonian and effect refitted together: held-out RMS {joint['heldout_rms']:.4f} (the effect on "
-                      f"the Hamiltonian refitted without it: {analysis['heldout_rms_after']:.4f})"
-                      + ("." if joint.get("generalises", True) else
-                         " — the joint refit does not generalise to the held-out curves, so its Hamiltonian and effect "
-                         "size are not used; the effect is read on the Hamiltonian refitted without it."), ""]
+    if not hamiltonian:
+        return []
+    refit = report["refit"]
+    lines = [f"Hamiltonian refitted around the prediction ({', '.join(refit['names'])}; {refit['evaluations']} "
+             f"re-simulations): training MSE {refit['training_mse_prediction']:.4g} → {refit['training_mse_refit']:.4g}.", "",
+             "| parameter | prediction | refitted without the effect | refitted with the effect |", "|---|---|---|---|"]
+    with_effect = (hamiltonian.get("refit_with_effect") or {}).get("params", {})
+    for name in refit["names"]:
+        lines.append(f"| {name} | {hamiltonian['prediction'][name]:.4g} | {hamiltonian['refit_without_effect'][name]:.4g} | "
+                     f"{with_effect.get(name, float('nan')):.4g} |")
+    lines.append("")
+    joint = hamiltonian.get("refit_with_effect") or {}
+    if "heldout_rms" in joint:
+        lines += [f"Hamiltonian and effect refitted together: held-out RMS {joint['heldout_rms']:.4f} (the effect on "
+                  f"the Hamiltonian refitted without it: {analysis['heldout_rms_after']:.4f})"
+                  + ("." if joint.get("generalises", True) else
+                     " — the joint refit does not generalise to the held-out curves, so its Hamiltonian and effect "
+                     "size are not used; the effect is read on the Hamiltonian refitted without it."), ""]
+    return lines
+
+
+def _fixed_point_lines(report) -> list[str]:
+    """The fixed-point iteration in Markdown (empty without one)."""
     fixed = report.get("fixed_point")
-    if fixed:
-        steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"
-                                                             for n in report["refit"]["names"])
-                          for it in fixed["iterations"])
-        lines += [f"Fixed point of (Hamiltonian, measured-side effect), predicted again from the family with the effect "
-                  f"removed: {'converged' if fixed['converged'] else 'NOT converged'} after {fixed['n_iterations']} "
-                  f"iteration(s) (tolerance {100 * fixed['tolerance']:.0f} %; per iteration effect, prediction → "
-                  f"refitted: {steps}).", ""]
-    lines += [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
-              f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
-              f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
-              f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
-              f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
-              "| candidate | held-out RMS | relative gain | gain on effect-free films (floor) | beats the floor | accepted |",
-              "|---|---|---|---|---|---|"]
+    if not fixed:
+        return []
+    steps = "; ".join(f"{it['chosen']}, " + ", ".join(f"{n} {it['prediction'][n]:.4g} → {it['refitted'][n]:.4g}"
+                                                         for n in report["refit"]["names"])
+                      for it in fixed["iterations"])
+    return [f"Fixed point of (Hamiltonian, measured-side effect), predicted again from the family with the effect "
+            f"removed: {'converged' if fixed['converged'] else 'NOT converged'} after {fixed['n_iterations']} "
+            f"iteration(s) (tolerance {100 * fixed['tolerance']:.0f} %; per iteration effect, prediction → "
+            f"refitted: {steps}).", ""]
+
+
+def _verdict_lines(report, analysis) -> list[str]:
+    """The verdict, the chosen effect, the held-out errors and the candidates' table in Markdown, with the
+    realisation floor's explanation where it was drawn."""
+    lines = [f"**Verdict: {analysis['verdict']}** — {analysis['verdict_text']}.", "",
+             f"Effect chosen on held-out curves: {analysis['chosen']} ({analysis.get('kind', '')}) "
+             f"{_json_ready(analysis.get('parameters', {}))} ± {_json_ready(analysis.get('uncertainties', {}))}", "",
+             f"Held-out RMS {analysis['heldout_rms_before']:.4f} → {analysis['heldout_rms_after']:.4f}"
+             f" (reduction {_json_ready(analysis.get('heldout_reduction'))}, 90 % CI {_json_ready(analysis.get('heldout_reduction_ci90'))}).", "",
+             "| candidate | held-out RMS | relative gain | gain on effect-free films (floor) | beats the floor | accepted |",
+             "|---|---|---|---|---|---|"]
     for name, c in sorted(analysis["candidates"].items(), key=lambda kv: kv[1]["heldout_rms"]):
         null = c.get("null_gain")
         floor = "—" if null is None else f"{null['relative']:.2f}"
@@ -947,6 +971,13 @@ def _markdown(path, report, analysis) -> str:
                   "relatively and in mean-square error (`loop.patches`, `physics_effects.null_gains`). Field-shift "
                   "and drift candidates with model-free evidence are judged by that evidence (their floor is printed, "
                   "not applied)."]
+    return lines
+
+
+def _evidence_lines(report, analysis) -> list[str]:
+    """The patches averaged by the file, the model-free evidence (field shift, drift) and the residual's
+    structure in Markdown (each where it was computed)."""
+    lines = []
     patches = report.get("patches")
     if patches:
         consistent = ", ".join(map(str, patches["consistent"])) or "none of 1–8"
@@ -980,6 +1011,17 @@ def _markdown(path, report, analysis) -> str:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
                   f"{structure['runs_z']:.1f}, lag-1 z {structure['lag1_z']:.1f} (noise σ {structure['noise_sigma']:.3g}, "
                   f"{structure['noise_source']}); rule: {structure['rule']}."]
+    return lines
+
+
+def _markdown(path, report, analysis) -> str:
+    """report.md: the domain, the prior class and training-data checks, the decoded Hamiltonian, the
+    residual, the refit, the verdict and its evidence, the figures."""
+    lines = [_markdown_domain(path, report), *_prior_lines(report), *_ood_lines(report), *_prediction_lines(report)]
+    lines += ["", f"Observation-space RMS error on the training grid (all FORC points, m normalized): "
+              f"{report['observation_rms']:.4f}.", ""]
+    lines += [*_measured_points_lines(report), *_hamiltonian_lines(report, analysis), *_fixed_point_lines(report),
+              *_verdict_lines(report, analysis), *_evidence_lines(report, analysis)]
     lines += ["", "![families](families.png)", "", "![residual](residual.png)", "",
               "FORC diagrams (measured, re-simulated, difference; one colour scale): `diagrams.png` (in report.html).", ""]
     return "\n".join(lines)

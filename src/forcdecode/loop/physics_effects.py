@@ -79,19 +79,34 @@ from an instrument effect. Declared here, not chosen on any benchmark; ``analyse
 and ``forcdecode loop --moment-tolerance`` change it (0 names every scale that beats the floor)."""
 
 
-def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.15, 0.3, 0.45),
-                               bias_fields_T=(-0.04, -0.02, 0.02, 0.04), soft_K_u_ratios=(0.05, 0.1, 0.2, 0.3),
-                               tilts_deg=(3.0, 6.0, 10.0, 15.0), K_u_changes=(-0.06, -0.03, 0.03, 0.06),
-                               n_profiles: int = 1, first_profile: int = 0, key: int | str = "measured",
-                               progress=None) -> dict:
-    """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``): K_2 = r·K_u for
-    r in ``K_2_ratios``, B_bias in ``bias_fields_T``, soft phases with K_u,soft = r·K_u for r in
-    ``soft_K_u_ratios`` and the field tilted by ψ in ``tilts_deg`` (quasi-static protocol only; none
-    for "llg"). Cost: one ``resimulate`` (``n_profiles`` families) per grid value (16 by default).
-    A family is sensitive to K_2 (on the 16×16 test film, K_2 = 0.25 K_u lies between grid families
-    0.2 and 0.3 K_u that each miss curves badly), so the analysis interpolates between the nodes
-    (``fit_interpolated_effect``) instead of naming the nearest one. ``progress(done, total)``, if
-    given, is called after each family (one more than the grids: the reference).
+@dataclass(frozen=True)
+class CandidateGrids:
+    """The grid values at which ``physics_candidate_families`` re-simulates the physics-side candidates.
+
+    ``K_2_ratios``: r of K_2 = r·K_u (dimensionless); ``bias_fields_T``: the bias field B_bias (T);
+    ``soft_K_u_ratios``: r of a soft second phase's K_u,soft = r·K_u; ``tilts_deg``: the field tilt ψ
+    (degrees; quasi-static protocol only); ``K_u_changes``: c of the Hamiltonian's own neighbourhood,
+    K_u × (1 + c) without any effect. An empty (or None, except ``soft_K_u_ratios``) grid offers none."""
+
+    K_2_ratios: tuple = (-0.15, 0.15, 0.3, 0.45)
+    bias_fields_T: tuple = (-0.04, -0.02, 0.02, 0.04)
+    soft_K_u_ratios: tuple = (0.05, 0.1, 0.2, 0.3)
+    tilts_deg: tuple = (3.0, 6.0, 10.0, 15.0)
+    K_u_changes: tuple = (-0.06, -0.03, 0.03, 0.06)
+
+
+def physics_candidate_families(cfg: dict, params: dict, grids: CandidateGrids | None = None, *, n_profiles: int = 1,
+                               first_profile: int = 0, key: int | str = "measured", progress=None,
+                               **grid_values) -> dict:
+    """Re-simulate the physics-side candidates of ``params`` (SI, as ``resimulate``) on ``grids`` (a
+    ``CandidateGrids``, its defaults where None; keyword ``grid_values`` replace single grids): K_2 = r·K_u for r in
+    ``K_2_ratios``, B_bias in ``bias_fields_T``, soft phases with K_u,soft = r·K_u for r in ``soft_K_u_ratios`` and
+    the field tilted by ψ in ``tilts_deg`` (quasi-static protocol only; none for "llg"). ``n_profiles`` disorder
+    profiles averaged per family, from ``first_profile``. Cost: one ``resimulate`` (``n_profiles`` families) per
+    grid value (16 by default). A family is sensitive to K_2 (on the 16×16 test film, K_2 = 0.25 K_u lies between
+    grid families 0.2 and 0.3 K_u that each miss curves badly), so the analysis interpolates between the nodes
+    (``fit_interpolated_effect``) instead of naming the nearest one. ``progress(done, total)``, if given, is called
+    after each family (one more than the grids: the reference).
 
     Common random numbers: every family, and a reference family of ``params`` without any effect,
     is simulated on the same disorder profiles (stream keys (``key``, profile)), so a candidate
@@ -107,9 +122,10 @@ def physics_candidate_families(cfg: dict, params: dict, *, K_2_ratios=(-0.15, 0.
     Returns {"physics_families": {"K_2": {K_2: family}, "bias_field": {B: family}},
     "soft_phase_families": {K_u_soft: family}, "hamiltonian_families": {c: family},
     "physics_reference_family": family without an effect}, ready for ``analyse_residual(..., **this)``."""
-
-
-    tilts_deg = tilts_deg if protocol_name(cfg) == "quasistatic" else ()
+    g = replace(grids or CandidateGrids(), **grid_values)
+    K_2_ratios, bias_fields_T, soft_K_u_ratios = g.K_2_ratios, g.bias_fields_T, g.soft_K_u_ratios
+    K_u_changes = g.K_u_changes
+    tilts_deg = g.tilts_deg if protocol_name(cfg) == "quasistatic" else ()
     K_u = float(params["K_u"])
     # every family to simulate, in the order they were always made: (group, size, the parameters it changes)
     plan = [("K_2", r * K_u, {"K_2": r * K_u}) for r in (K_2_ratios or ())]
@@ -629,11 +645,15 @@ def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int,
     return Choice(chosen, candidates, reduction, reduction_ci)
 
 
-def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, floor_variance, n_profiles: int,
-          saturation_gate: bool, saturation_points, moment_tolerance: float, measured_patches: int = 1,
-          null_structure: dict | None = None) -> Verdict:
+def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, o: "ResidualOptions") -> Verdict:
     """The structure test of the chosen model's residual (``loop.structure``) and the saturation test:
-    the chosen effect, "none", or "unexplained structured residual" (and where it lives)."""
+    the chosen effect, "none", or "unexplained structured residual" (and where it lives). Reads the
+    options' ``noise_sigma``, ``floor_variance``, ``n_profiles``, ``measured_patches``, ``null_structure``
+    (the structure test) and ``saturation_gate``, ``saturation_points``, ``moment_tolerance`` (the
+    saturation test)."""
+    noise_sigma, floor_variance, n_profiles = o.noise_sigma, o.floor_variance, o.n_profiles
+    saturation_gate, saturation_points, moment_tolerance = o.saturation_gate, o.saturation_points, o.moment_tolerance
+    measured_patches, null_structure = o.measured_patches, o.null_structure
 
     measured, base_family, fields = p.measured, p.base_family, p.fields
     records, models = fits.records, fits.models
@@ -666,8 +686,8 @@ def judge(p: ResidualProblem, fits: CandidateFits, chosen: str, *, noise_sigma, 
     return Verdict(verdict, verdict_text, structure, saturation)
 
 
-def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: str, verdict: Verdict, *, seed: int,
-              n_boot: int, min_relative_gain: float, equivalence: float) -> Verdict:
+def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: str, verdict: Verdict,
+              o: "ResidualOptions") -> Verdict:
     """Ambiguity as an answer: the candidates that explain the held-out residual as well as the chosen
     one (``effects.equivalent_candidates``: each beats "none", neither beats the other; nested ones and
     one observable excluded), K_u moved along its neighbourhood included as ``effects.HAMILTONIAN_CHANGE``
@@ -675,7 +695,9 @@ def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: st
     only because K_u's neighbourhood explains the residual as well (and no better) is ambiguous with
     that K_u change (a field tilt, K_2 or thermal activation against the decoded K_u). The verdict is
     then "ambiguous", with the set and, for each member, the measurement that would separate it.
-    Draws on its own bootstrap stream (``ambiguity``), after the choice: the choice is unchanged."""
+    Draws on its own bootstrap stream (``ambiguity`` of ``o.seed``), after the choice: the choice is unchanged;
+    the selection's rule: ``o.n_boot``, ``o.min_relative_gain``, ``o.equivalence``."""
+    seed, n_boot, min_relative_gain, equivalence = o.seed, o.n_boot, o.min_relative_gain, o.equivalence
     rng = stream_rng(seed, "bootstrap", "ambiguity")
     pool = dict(offered.mse)
     if base.knob_mse is not None:
@@ -701,10 +723,11 @@ def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: st
     return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
 
 
-def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, verdict: Verdict, *, seed: int,
-                          n_boot: int, min_relative_gain: float, equivalence: float, sweep_rates: int = 1) -> Verdict:
+def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, verdict: Verdict,
+                          o: "ResidualOptions") -> Verdict:
     """The two answers one FORC family cannot give, made ``ambiguous`` (after ``ambiguity``; the choice is
-    unchanged, its own bootstrap stream ``realisation_ambiguity``):
+    unchanged, its own bootstrap stream ``realisation_ambiguity`` of ``o.seed``; the selection's rule:
+    ``o.n_boot``, ``o.min_relative_gain``, ``o.equivalence``):
 
     - Realisation noise. Nothing was chosen, but the selection would have named X had the realisation
       floor not withheld it: X beats "none" on held-out curves, and its relative gain reaches the largest
@@ -716,7 +739,9 @@ def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, ve
       fields and a switching-field distribution the model draws differently (realisation noise, disorder
       statistics) move the same switching fields on one family: a verdict that names thermal activation,
       alone or in a set, becomes "ambiguous" with ``effects.SWITCHING_FIELD_DISTRIBUTION`` beside it, the
-      separating measurement a FORC family at another sweep rate."""
+      separating measurement a FORC family at another sweep rate (``o.sweep_rates``)."""
+    seed, n_boot, min_relative_gain, equivalence = o.seed, o.n_boot, o.min_relative_gain, o.equivalence
+    sweep_rates = o.sweep_rates
     members = list(verdict.ambiguous) if verdict.verdict == "ambiguous" else []
     if chosen == "none" and verdict.verdict != "ambiguous" and offered.floored:
         rng = stream_rng(seed, "bootstrap", "realisation_ambiguity")
@@ -785,105 +810,25 @@ class Gated:
 
 @dataclass(frozen=True)
 class ResidualOptions:
-    """The keyword options of ``analyse_residual`` and ``gated_candidates`` (their meaning and units: the
-    docstring of ``analyse_residual``), with their defaults. ``physics_candidate_families(cfg, params)``
-    returns a dict of the first three, to be given as keywords."""
+    """The keyword options of ``analyse_residual`` and ``gated_candidates``, with their defaults.
+    ``physics_candidate_families(cfg, params)`` returns a dict of ``physics_families``, ``soft_phase_families``,
+    ``physics_reference_family`` and ``hamiltonian_families``, to be given as keywords. Families are n × n on
+    the grid, m normalized to the saturation moment.
 
-    physics_families: dict | None = None
-    soft_phase_families: dict | None = None
-    measured_candidates: object = None
-    every_k: int = 4
-    cross_fit: bool = True
-    n_boot: int = 2000
-    seed: int = 0
-    min_relative_gain: float = 0.05
-    equivalence: float = 0.05
-    thermal: bool = True
-    noise_sigma: float | None = None
-    floor_variance: object = None
-    n_profiles: int = 1
-    null_gain: dict | None = None
-    null_margin: float = 0.05
-    field_shift: dict | None = None
-    drift: dict | None = None
-    physics_reference_family: object = None
-    hamiltonian_families: dict | None = None
-    moment_tolerance: float = MOMENT_TOLERANCE
-    evidence_suffices: bool = True
-    saturation_gate: bool = True
-    saturation_points: object = None
-    measured_patches: int = 1
-    sweep_rates: int = 1
-    null_structure: dict | None = None
+    ``physics_families``: {name: {size: family}}, e.g. {"K_2": {K_2 (J/m³): family},
+    "bias_field": {B (T): family}}; ``soft_phase_families``: {K_u,soft (J/m³): family of the soft
+    phase}. ``physics_candidate_families(cfg, params)`` builds both (``**`` it in).
+    ``measured_candidates``: names in ``effects.EFFECTS`` (default all: singles and combinations).
+    ``every_k``: every ``every_k``-th curve is held out, the rest fit every candidate; with ``cross_fit`` this
+    is done for each of the ``every_k`` offsets in turn, so every curve is held out once (an
+    effect confined to a few curves, e.g. a bias field moving one avalanche, then still has
+    enough held-out evidence). Reported sizes are fitted on all curves.
 
-
-GATED_OPTIONS = frozenset({"physics_families", "soft_phase_families", "measured_candidates", "every_k", "cross_fit",
-                           "n_boot", "seed", "min_relative_gain", "equivalence", "thermal", "null_gain", "null_margin",
-                           "field_shift", "drift", "physics_reference_family", "hamiltonian_families",
-                           "moment_tolerance", "evidence_suffices", "saturation_gate", "saturation_points"})
-"""The ``ResidualOptions`` fields the gates read (``gated_candidates``); the rest are the verdict's."""
-
-
-def residual_options(options: ResidualOptions | None = None, **overrides) -> ResidualOptions:
-    """``options`` (defaults where None) with the keyword ``overrides`` set (TypeError for an unknown one)."""
-    return replace(options or ResidualOptions(), **overrides)
-
-
-def gated_candidates(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
-                     **overrides) -> Gated:
-    """Every candidate fitted and scored on held-out curves (per-curve mean-square misfit, m in units
-    of the saturation moment) and put through the gates: the first stages of ``analyse_residual``,
-    whose options (``ResidualOptions``, or single ones as keywords) these are. ``refit.refit_ambiguity``
-    reads the candidates offered on the unrefitted prediction from it."""
-    o = residual_options(options, **overrides)
-    p = residual_problem(measured, base_family, fields, order, o.every_k, o.cross_fit)
-    library = candidate_library(p, physics_families=o.physics_families, soft_phase_families=o.soft_phase_families,
-                                measured_candidates=o.measured_candidates, thermal=o.thermal,
-                                physics_reference_family=o.physics_reference_family,
-                                hamiltonian_families=o.hamiltonian_families)
-    fits = fit_candidates(p, library)
-    base = baselines(p, library.hamiltonian_families, o.moment_tolerance)
-    offered = gate_candidates(p, fits, base, GateSettings(
-        seed=o.seed, n_boot=o.n_boot, min_relative_gain=o.min_relative_gain, equivalence=o.equivalence,
-        null_gain=o.null_gain, null_margin=o.null_margin, field_shift=o.field_shift, drift=o.drift,
-        moment_tolerance=o.moment_tolerance, evidence_suffices=o.evidence_suffices,
-        saturation_gate=o.saturation_gate, saturation_points=o.saturation_points))
-    return Gated(p, fits, base, offered)
-
-
-def analyse_residual(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
-                     **overrides) -> dict:
-    """Trace the residual measured − re-simulated to the effect the model lacks.
-
-    All families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal, m normalized to
-    the film's saturation moment. The options below are the fields of ``ResidualOptions`` (``options``), or
-    single ones given as keywords.
+    The selection's rule (``effects.choose_candidate``): ``n_boot`` paired-bootstrap resamples over held-out
+    curves; a candidate earns its place with a held-out error lower by more than ``equivalence`` (relative)
+    and a 5 % bootstrap bound of its relative gain above ``min_relative_gain``.
 
     ``seed``: the config seed; the bootstraps draw from its ``bootstrap`` stream (``core.streams``).
-
-    - ``base_family``: the re-simulation of the predicted Hamiltonian (``resimulate``).
-    - ``order``: measurement clock τ ∈ [0, 1], per curve (n,) or per point (n, n); default
-      ``measurement_clock(n)`` (MicroMag order: highest H_r first, time ∝ points measured).
-    - ``physics_families``: {name: {size: family}}, e.g. {"K_2": {K_2 (J/m³): family},
-      "bias_field": {B (T): family}}; ``soft_phase_families``: {K_u,soft (J/m³): family of the soft
-      phase}. ``physics_candidate_families(cfg, params)`` builds both (``**`` it in).
-    - ``measured_candidates``: names in ``effects.EFFECTS`` (default all: singles and combinations).
-    - every ``every_k``-th curve is held out, the rest fit every candidate; with ``cross_fit`` this
-      is done for each of the ``every_k`` offsets in turn, so every curve is held out once (an
-      effect confined to a few curves, e.g. a bias field moving one avalanche, then still has
-      enough held-out evidence). Reported sizes are fitted on all curves.
-
-    Returns a dict (JSON-ready except ``arrays``):
-    ``chosen`` (name, "none" if nothing earns its place), ``kind`` ("measured", "physics", "none"),
-    ``parameters`` and ``uncertainties`` of the chosen effect (1σ; gridded sizes: half the grid
-    spacing), ``same_observable_as`` (candidates no measurement can tell from the chosen one),
-    ``candidates`` {name: {"kind", "n_parameters", "parameters", "uncertainties", "heldout_rms",
-    "gain_mse", "gain_ci90", "accepted"}}, ``residual_rms_before`` / ``residual_rms_after`` (all
-    points, the chosen model fitted on all curves) and ``per_curve_rms_before`` /
-    ``per_curve_rms_after``, ``heldout_curves``, ``heldout_rms_before``, ``heldout_rms_after``,
-    ``heldout_reduction`` = 1 − after/before and ``heldout_reduction_ci90`` (paired bootstrap over
-    held-out curves, 5 %–95 %), and ``arrays`` {"model", "residual_before", "residual_after"}
-    (numpy n × n).
 
     ``thermal``: offer the ``thermal_activation`` candidate. ``noise_sigma`` (m units; default:
     estimated from the residual), ``floor_variance`` (variance of m between the re-simulation's
@@ -952,6 +897,100 @@ def analyse_residual(measured, base_family, fields, order=None, options: Residua
     ``null_structure`` (``structure.null_structure_floor``): the structure test's statistics on
     effect-free films; a residual is structured only beyond them.
 
+    ``saturation_gate``: test the candidates' residual where the film is saturated (a candidate whose
+    residual there is reversible is not offered) and the verdict's saturation test; ``evidence_suffices``:
+    see ``field_shift``. ``sweep_rates``: the sweep rates the measurement holds (below 2, thermal activation
+    is ambiguous with a switching-field distribution: ``realisation_ambiguity``).
+    """
+
+    physics_families: dict | None = None
+    soft_phase_families: dict | None = None
+    measured_candidates: object = None
+    every_k: int = 4
+    cross_fit: bool = True
+    n_boot: int = 2000
+    seed: int = 0
+    min_relative_gain: float = 0.05
+    equivalence: float = 0.05
+    thermal: bool = True
+    noise_sigma: float | None = None
+    floor_variance: object = None
+    n_profiles: int = 1
+    null_gain: dict | None = None
+    null_margin: float = 0.05
+    field_shift: dict | None = None
+    drift: dict | None = None
+    physics_reference_family: object = None
+    hamiltonian_families: dict | None = None
+    moment_tolerance: float = MOMENT_TOLERANCE
+    evidence_suffices: bool = True
+    saturation_gate: bool = True
+    saturation_points: object = None
+    measured_patches: int = 1
+    sweep_rates: int = 1
+    null_structure: dict | None = None
+
+
+GATED_OPTIONS = frozenset({"physics_families", "soft_phase_families", "measured_candidates", "every_k", "cross_fit",
+                           "n_boot", "seed", "min_relative_gain", "equivalence", "thermal", "null_gain", "null_margin",
+                           "field_shift", "drift", "physics_reference_family", "hamiltonian_families",
+                           "moment_tolerance", "evidence_suffices", "saturation_gate", "saturation_points"})
+"""The ``ResidualOptions`` fields the gates read (``gated_candidates``); the rest are the verdict's."""
+
+
+def residual_options(options: ResidualOptions | None = None, **overrides) -> ResidualOptions:
+    """``options`` (defaults where None) with the keyword ``overrides`` set (TypeError for an unknown one)."""
+    return replace(options or ResidualOptions(), **overrides)
+
+
+def gated_candidates(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
+                     **overrides) -> Gated:
+    """Every candidate fitted and scored on held-out curves (per-curve mean-square misfit, m in units
+    of the saturation moment) and put through the gates: the first stages of ``analyse_residual``,
+    whose options (``ResidualOptions``, or single ones as keywords) these are. ``refit.refit_ambiguity``
+    reads the candidates offered on the unrefitted prediction from it."""
+    o = residual_options(options, **overrides)
+    p = residual_problem(measured, base_family, fields, order, o.every_k, o.cross_fit)
+    library = candidate_library(p, physics_families=o.physics_families, soft_phase_families=o.soft_phase_families,
+                                measured_candidates=o.measured_candidates, thermal=o.thermal,
+                                physics_reference_family=o.physics_reference_family,
+                                hamiltonian_families=o.hamiltonian_families)
+    fits = fit_candidates(p, library)
+    base = baselines(p, library.hamiltonian_families, o.moment_tolerance)
+    offered = gate_candidates(p, fits, base, GateSettings(
+        seed=o.seed, n_boot=o.n_boot, min_relative_gain=o.min_relative_gain, equivalence=o.equivalence,
+        null_gain=o.null_gain, null_margin=o.null_margin, field_shift=o.field_shift, drift=o.drift,
+        moment_tolerance=o.moment_tolerance, evidence_suffices=o.evidence_suffices,
+        saturation_gate=o.saturation_gate, saturation_points=o.saturation_points))
+    return Gated(p, fits, base, offered)
+
+
+def analyse_residual(measured, base_family, fields, order=None, options: ResidualOptions | None = None,
+                     **overrides) -> dict:
+    """Trace the residual measured − re-simulated to the effect the model lacks.
+
+    All families n × n on the grid ``fields`` (μ0H, T), rows H_r, NaN below the diagonal, m normalized to
+    the film's saturation moment. The options are the fields of ``ResidualOptions`` (``options``; its docstring
+    says what each means), or single ones given as keywords.
+
+    ``base_family``: the re-simulation of the predicted Hamiltonian (``resimulate``).
+    ``order``: measurement clock τ ∈ [0, 1], per curve (n,) or per point (n, n); default
+    ``measurement_clock(n)`` (MicroMag order: highest H_r first, time ∝ points measured).
+
+    Returns a dict (JSON-ready except ``arrays``):
+    ``chosen`` (name, "none" if nothing earns its place), ``kind`` ("measured", "physics", "none"),
+    ``parameters`` and ``uncertainties`` of the chosen effect (1σ; gridded sizes: half the grid
+    spacing), ``same_observable_as`` (candidates no measurement can tell from the chosen one),
+    ``candidates`` {name: {"kind", "n_parameters", "parameters", "uncertainties", "heldout_rms",
+    "gain_mse", "gain_ci90", "accepted"}}, ``residual_rms_before`` / ``residual_rms_after`` (all
+    points, the chosen model fitted on all curves) and ``per_curve_rms_before`` /
+    ``per_curve_rms_after``, ``heldout_curves``, ``heldout_rms_before``, ``heldout_rms_after``,
+    ``heldout_reduction`` = 1 − after/before and ``heldout_reduction_ci90`` (paired bootstrap over
+    held-out curves, 5 %–95 %), and ``arrays`` {"model", "residual_before", "residual_after"}
+    (numpy n × n); ``structure`` (the structure test of the chosen model's residual, ``loop.structure``) and
+    ``verdict``: the chosen effect, "none", or "unexplained structured residual" (nothing earns its place but
+    the residual is structured; ``verdict_text`` says where it lives), or "ambiguous".
+
     Two verdicts no single FORC family can settle are answered ``ambiguous`` (``realisation_ambiguity``):
     a candidate the selection would name without the realisation floor but that gains no more than it
     gains on effect-free films ("ambiguous: X, realisation noise"), and thermal activation from a file at
@@ -962,13 +1001,7 @@ def analyse_residual(measured, base_family, fields, order=None, options: Residua
     g = gated_candidates(measured, base_family, fields, order, o)
     p, fits, base, offered = g.problem, g.fits, g.baselines, g.offered
     choice = choose(p, fits, offered, o.seed, o.n_boot, o.min_relative_gain, o.equivalence)
-    verdict = judge(p, fits, choice.chosen, noise_sigma=o.noise_sigma, floor_variance=o.floor_variance,
-                    n_profiles=o.n_profiles, saturation_gate=o.saturation_gate, saturation_points=o.saturation_points,
-                    moment_tolerance=o.moment_tolerance, measured_patches=o.measured_patches,
-                    null_structure=o.null_structure)
-    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, seed=o.seed, n_boot=o.n_boot,
-                        min_relative_gain=o.min_relative_gain, equivalence=o.equivalence)
-    verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, seed=o.seed, n_boot=o.n_boot,
-                                    min_relative_gain=o.min_relative_gain, equivalence=o.equivalence,
-                                    sweep_rates=o.sweep_rates)
+    verdict = judge(p, fits, choice.chosen, o)
+    verdict = ambiguity(fits, base, offered, choice.chosen, verdict, o)
+    verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, o)
     return residual_report(p, fits, base, choice, verdict, o.field_shift, o.drift)

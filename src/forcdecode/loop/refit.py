@@ -27,6 +27,7 @@ and the measurement that would separate them (the keys of ``analyse_residual``'s
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields as dataclass_fields, replace
 
 import numpy as np
 
@@ -51,19 +52,51 @@ def _training_mse(measured, model, rows):
     return float(np.mean((model[ok] - measured[ok]) ** 2)) if ok.any() else float("inf")
 
 
-def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, *, names=("K_u",), relative_bounds: float = 0.3,
-                      n_profiles: int = 1, budget: int = 20, key: str = "refit", effect=None, fields=None, order=None,
-                      progress=None, families: dict | None = None) -> dict:
-    """The search of the module docstring. ``measured``: the grid family (n × n, NaN below the
-    diagonal); ``train_rows``: the curves (rows) fitted; ``effect``: an ``effects.Effect`` fitted on
-    top at every evaluation (needs ``fields``; ``order`` default ``effects.measurement_clock``).
+@dataclass(frozen=True)
+class RefitSearch:
+    """The settings of one Hamiltonian refit (``refit_hamiltonian``).
+
+    ``names``: the parameters refitted (of ``REFITTABLE``), each a multiplier of its predicted value;
+    ``relative_bounds``: b, each multiplier bounded to [1 − b, 1 + b] (dimensionless); ``n_profiles``:
+    disorder profiles averaged in every re-simulation; ``budget``: the most re-simulations of one search;
+    ``key``: the disorder stream's key (common random numbers: every evaluation on the same profiles)."""
+
+    names: tuple = ("K_u",)
+    relative_bounds: float = 0.3
+    n_profiles: int = 1
+    budget: int = 20
+    key: str = "refit"
+
+
+@dataclass(frozen=True)
+class EffectOnTop:
+    """A measured-side effect fitted on top of every evaluation of a refit (``refit_hamiltonian``).
+
+    ``effect``: an ``effects.Effect``; ``fields``: the grid (μ0H, T); ``order``: the measurement clock of
+    the family's points (None: ``effects.measurement_clock``)."""
+
+    effect: object
+    fields: object
+    order: object = None
+
+
+def refit_hamiltonian(cfg: dict, params: dict, measured, train_rows, search: RefitSearch = RefitSearch(), *,
+                      on_top: EffectOnTop | None = None, progress=None, families: dict | None = None) -> dict:
+    """The search of the module docstring, with the settings ``search``. ``measured``: the grid family
+    (n × n, NaN below the diagonal); ``train_rows``: the curves (rows) fitted; ``on_top``: a measured-side
+    effect fitted on top at every evaluation.
     ``families``: a store {multipliers: (re-simulated family, its spread)} shared by searches of the same ``cfg``,
-    ``params``, ``names``, ``n_profiles`` and ``key`` (e.g. on other training curves): a family in it
+    ``params`` and ``search`` (e.g. on other training curves): a family in it
     is not re-simulated again, and each one re-simulated is added (the result is the same without it).
     Returns {"params", "multipliers", "objective", "objective_at_prediction", "evaluations",
     "history" [(multipliers, objective)], "family" (the refitted re-simulation), "spread" (the variance
     of m between its ``n_profiles`` disorder profiles, ddof 1; zeros for one profile), "model" (with the
     effect, if any), "effect_parameters"}. ConfigError for a parameter that cannot be refitted."""
+    names, relative_bounds, n_profiles, budget, key = (search.names, search.relative_bounds, search.n_profiles,
+                                                       search.budget, search.key)
+    effect = fields = order = None
+    if on_top is not None:
+        effect, fields, order = on_top.effect, on_top.fields, on_top.order
     measured = np.asarray(measured, float)
     names = tuple(names)
     for name in names:
@@ -256,54 +289,63 @@ def hamiltonian_change_explains(prediction_mse, refit_mse, rng, floor: dict | No
                 and beats_floor(refit_mse, prediction_mse, floor, null_margin))
 
 
-def crossfit_refit_mse(cfg: dict, params: dict, measured, folds, *, names=("K_u",), relative_bounds: float = 0.3,
-                       n_profiles: int = 1, budget: int = 20, families: dict | None = None) -> np.ndarray:
-    """The Hamiltonian refitted without an effect (``refit_hamiltonian`` from ``params``) on each fold's
-    training curves and scored on its held-out curves: per-curve mean-square misfit (m² in units of the
-    saturation moment), concatenated in the order of ``folds`` (that of ``effects.heldout_mse``).
+def crossfit_refit_mse(cfg: dict, params: dict, measured, folds, search: RefitSearch = RefitSearch(), *,
+                       families: dict | None = None) -> np.ndarray:
+    """The Hamiltonian refitted without an effect (``refit_hamiltonian`` from ``params`` with the settings
+    ``search``) on each fold's training curves and scored on its held-out curves: per-curve mean-square misfit
+    (m² in units of the saturation moment), concatenated in the order of ``folds`` (that of ``effects.heldout_mse``).
     ``families``: the store shared with the refit already made (the grid nodes and most of the search
     are the same in every fold: each fold costs the re-simulations it does not share)."""
     return np.concatenate([
-        _per_curve_mse(measured, refit_hamiltonian(cfg, params, measured, train, names=names,
-                                                   relative_bounds=relative_bounds, n_profiles=n_profiles,
-                                                   budget=budget, families=families)["family"], held)
+        _per_curve_mse(measured, refit_hamiltonian(cfg, params, measured, train, search,
+                                                   families=families)["family"], held)
         for train, held in folds])
 
 
-def _offered_on_prediction(cfg: dict, params: dict, measured, fields, prediction_family, options: dict, *,
-                           physics: bool, physics_grids: dict | None, n_profiles: int):
+@dataclass(frozen=True)
+class PredictedFamily:
+    """The predicted Hamiltonian ``params`` (SI, the simulator's dict) and its re-simulated grid ``family``
+    (n × n, m normalized, NaN below the diagonal)."""
+
+    params: dict
+    family: np.ndarray
+
+
+def _offered_on_prediction(cfg: dict, prediction: PredictedFamily, measured, fields, options: dict,
+                           settings: RefitSettings):
     """The candidates fitted on the unrefitted prediction's family and put through every gate
     (``physics_effects.gated_candidates``), cross-fitted (every curve held out once, the folds of
-    ``crossfit_refit_mse``), with the physics-side families re-simulated around the prediction on the
-    refit's disorder (key "refit": common random numbers) and without K_u's neighbourhood (the refit
-    is the Hamiltonian's change). Cost: one re-simulation per physics grid value, plus one."""
+    ``crossfit_refit_mse``), with the physics-side families (``settings.physics``, ``settings.physics_grids``)
+    re-simulated around the prediction on the refit's disorder (key "refit", ``settings.n_profiles``: common
+    random numbers) and without K_u's neighbourhood (the refit is the Hamiltonian's change). Cost: one
+    re-simulation per physics grid value, plus one."""
 
     accepted = GATED_OPTIONS
     dropped = {"physics_families", "soft_phase_families", "physics_reference_family", "hamiltonian_families"}
     kwargs = {k: v for k, v in options.items() if k in accepted and k not in dropped}
-    if physics:
-        kwargs.update(physics_candidate_families(cfg, params, n_profiles=n_profiles, key="refit",
-                                                 **{**(physics_grids or {}), "K_u_changes": ()}))
+    if settings.physics:
+        kwargs.update(physics_candidate_families(cfg, prediction.params, n_profiles=settings.n_profiles, key="refit",
+                                                 **{**(settings.physics_grids or {}), "K_u_changes": ()}))
         kwargs.pop("hamiltonian_families", None)
-    return gated_candidates(measured, prediction_family, fields, **{**kwargs, "cross_fit": True})
+    return gated_candidates(measured, prediction.family, fields, **{**kwargs, "cross_fit": True})
 
 
-def refit_ambiguity(cfg: dict, params: dict, measured, fields, prediction_family, refit: dict, options: dict, *,
-                    null: dict | None, search: dict, physics: bool = True, physics_grids: dict | None = None,
-                    families: dict | None = None) -> dict:
+def refit_ambiguity(cfg: dict, prediction: PredictedFamily, measured, fields, refit: dict, options: dict,
+                    settings: RefitSettings, *, families: dict | None = None) -> dict:
     """Is the refit's change of the Hamiltonian the only explanation of the prediction's residual?
 
     Against the prediction's family ("none"), on every curve held out once (``options["every_k"]``
     folds; per-curve mean-square misfit, m in units of the saturation moment), the Hamiltonian refitted
-    alone on each fold's training curves (``crossfit_refit_mse`` with the refit's ``search`` settings
-    {"names", "relative_bounds", "n_profiles", "budget"}: the member ``effects.HAMILTONIAN_CHANGE``)
+    alone on each fold's training curves (``crossfit_refit_mse`` with the refit's search settings
+    ``settings.search``: the member ``effects.HAMILTONIAN_CHANGE``)
     and every candidate offered on the unrefitted prediction (``_offered_on_prediction``: the same
     gates, realisation floor included) are compared by ``effects.equivalent_candidates`` with the null
-    gains ``null`` as ``floors``: the members that explain the held-out residual equally within their
-    null gains. The Hamiltonian change's floor is ``null[HAMILTONIAN_CHANGE]`` (K_u moved along its
-    neighbourhood on the null films, ``physics_effects.null_gains(hamiltonian_floor=True)``); none
+    gains ``options["null_gain"]`` as ``floors``: the members that explain the held-out residual equally
+    within their null gains. The Hamiltonian change's floor is ``null_gain[HAMILTONIAN_CHANGE]`` (K_u moved along
+    its neighbourhood on the null films, ``physics_effects.null_gains(hamiltonian_floor=True)``); none
     without it. Only where the refit's change explains the residual (``hamiltonian_change_explains``)
-    are the candidates around the prediction built.
+    are the candidates around the prediction built. ``refit``: the refit on the analysis's split
+    (``refit_hamiltonian``'s dict).
 
     Why cross-fitted: on the refit's single split the gain of a Hamiltonian change sits on the few
     held-out curves that cross the switching field (on the 32-curve test film 2 of 8: K_u 10 % off,
@@ -317,32 +359,31 @@ def refit_ambiguity(cfg: dict, params: dict, measured, fields, prediction_family
     "prediction", "heldout_rms" {name: RMS over the held-out curves}, "offered_on_prediction" [names],
     "beat_the_refit" [those that beat the refit's change beyond the floors: reported, the choice is not
     changed]}."""
-    settings = _selection_settings(options)
+    settings_of_selection = _selection_settings(options)
     null_margin = options.get("null_margin", 0.05)
     rng = stream_rng(options["seed"], "bootstrap", "refit_ambiguity")
     folds = heldout_folds(measured, options.get("every_k", 4), cross_fit=True)
-    prediction_mse = np.concatenate([_per_curve_mse(measured, prediction_family, held) for _, held in folds])
-    refit_mse = crossfit_refit_mse(cfg, params, measured, folds, families=families, **search)
-    floors = dict(null or {})
+    prediction_mse = np.concatenate([_per_curve_mse(measured, prediction.family, held) for _, held in folds])
+    refit_mse = crossfit_refit_mse(cfg, prediction.params, measured, folds, settings.search, families=families)
+    floors = dict(options["null_gain"] or {})
     record = {"reference": "prediction", "members": [], "offered_on_prediction": [], "beat_the_refit": [],
               "hamiltonian_change": {"names": list(refit["multipliers"]), "multipliers": dict(refit["multipliers"])},
               "explains": hamiltonian_change_explains(prediction_mse, refit_mse, rng, floors.get(HAMILTONIAN_CHANGE),
-                                                      null_margin=null_margin, **settings)}
+                                                      null_margin=null_margin, **settings_of_selection)}
     pool = {"none": prediction_mse, HAMILTONIAN_CHANGE: refit_mse}
     if record["explains"]:
-        gated = _offered_on_prediction(cfg, params, measured, fields, prediction_family, options, physics=physics,
-                                       physics_grids=physics_grids, n_profiles=search.get("n_profiles", 1))
+        gated = _offered_on_prediction(cfg, prediction, measured, fields, options, settings)
         offered = {k: v for k, v in gated.offered.mse.items() if k != "none"}
         pool.update(offered)
         record["offered_on_prediction"] = sorted(offered)
         equal = equivalent_candidates(pool, HAMILTONIAN_CHANGE, rng, same_observable=SAME_OBSERVABLE, floors=floors,
-                                      floor_margin=null_margin, **settings)
+                                      floor_margin=null_margin, **settings_of_selection)
         record["members"] = sorted(set(equal) | {HAMILTONIAN_CHANGE}) if equal else []
         # reported, not acted on: an effect on the prediction that explains more than the refit's change
         record["beat_the_refit"] = sorted(
             k for k, v in offered.items()
             if _beats_beyond_floors(v, refit_mse, [floors.get(k), floors.get(HAMILTONIAN_CHANGE)], rng,
-                                    margin=null_margin, **settings))
+                                    margin=null_margin, **settings_of_selection))
     record["heldout_rms"] = {k: float(np.sqrt(np.nanmean(v))) for k, v in pool.items()}
     return record
 
@@ -366,27 +407,23 @@ def with_refit_ambiguity(result: dict, record: dict) -> dict:
     return result
 
 
-def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u",), every_k: int = 4,
-                       relative_bounds: float = 0.3, n_profiles: int = 1, budget: int = 20, physics: bool = True,
-                       physics_grids: dict | None = None, seed: int | None = None, noise_sigma: float | None = None,
-                       null_realisations: int = 0, null_refit: bool = False, field_shift: dict | None = None,
-                       drift: dict | None = None, cross_fit: bool = False, shift_protocol=None,
-                       shift_realisations: int = SHIFT_NULL_REALISATIONS, shift_max_step_T: float = 0.002,
-                       measured_points=None, null_patches: int | None = None, progress=None, **analysis) -> dict:
-    """The held-out selection against the Hamiltonian refitted without the candidate (module
-    docstring). ``physics_grids``: keyword arguments of ``physics_candidate_families`` (its defaults if
-    None); ``analysis``: further keyword arguments of ``analyse_residual``. Returns the analysis dict
-    with ``hamiltonian`` {"prediction", "refit_without_effect", "refit_with_effect" (None unless a
-    measured-side effect is chosen; its ``heldout_rms`` is the held-out error of Hamiltonian and effect
-    fitted together, also ``heldout_rms_after_joint``: the chosen candidate's own ``heldout_rms_after``
-    where no joint refit is made)}, ``refit`` (objective at the prediction and refitted, held-out
-    RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}.
+@dataclass(frozen=True)
+class RefitSettings:
+    """What ``analyse_with_refit`` runs besides the selection's own options (each default is the former
+    keyword's; the longer fields' meaning below).
 
-    Ambiguity: where nothing is chosen against the refitted Hamiltonian (verdict "none", or "ambiguous"
-    with K_u's neighbourhood), ``refit_ambiguity`` compares the refit's change with the candidates on
-    the unrefitted prediction; where one explains the held-out residual as well (within the null gains),
-    the verdict is "ambiguous" (``ambiguous``: the set, the refit's change as ``effects.HAMILTONIAN_CHANGE``;
-    ``separating_measurements``), its record under ``refit_ambiguity`` (None where it did not run).
+    The refit (``search``): ``names`` (the parameters refitted), ``relative_bounds`` (b: multipliers in
+    [1 − b, 1 + b], dimensionless), ``n_profiles`` (disorder profiles per re-simulation), ``budget`` (the most
+    re-simulations of one refit). The split and selection: ``every_k`` (every k-th curve held out), ``seed``
+    (None: the config's), ``physics`` (offer the physics-side candidates), ``physics_grids`` (keyword arguments
+    of ``physics_candidate_families``; None: its defaults). The realisation floor: ``null_realisations`` (R
+    effect-free films; 0: none), ``null_refit`` (each refitted too), ``null_patches`` (patches each null film
+    averages; None: an ``n_profiles`` average). The measurement's evidence: ``noise_sigma`` (the noise, m
+    normalized to the saturation moment; None: unknown), ``field_shift`` and ``drift`` (``signatures``' model-free
+    evidence), ``measured_points`` (``signatures.measured_point_arrays``: the saturation test on the measured
+    points). The shift test's calibration: ``shift_protocol`` (reversal fields, per-curve fields of the file, T;
+    None: not calibrated), ``shift_realisations`` (films simulated), ``shift_max_step_T`` (their sweep's field
+    step, T).
 
     ``null_realisations`` R > 0: the refitted Hamiltonian is also simulated on R other disorder
     realisations (stream key "refit_null"; with ``null_refit`` each refitted from the same start on the
@@ -398,7 +435,7 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     the physics-side candidate families of the real refit reused); a candidate must then beat the gain
     it reaches there, i.e. what a different film of the same Hamiltonian alone gives it
     (``analyse_residual(null_gain=...)``). Cost: R × (budget + 1) more re-simulations. The same films
-    give the structure test its disorder floor (unless ``analysis`` passes ``floor_variance``): the
+    give the structure test its disorder floor (unless the options pass ``floor_variance``): the
     variance v between single realisations, from E[(pseudo − base)²] = 2v/P for two P-profile averages,
     pooled with the spread between the refit's own P profiles (``realisation_floor``; with R = 0 that
     spread alone), so a residual no larger than another film of the same Hamiltonian leaves is not
@@ -421,6 +458,158 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     test's bias and spread on this protocol, which the analytic error model misses. Cost: R sweeps
     of the major loop (on the bench's laptop film ≈ 1–2 s each).
 
+    ``measured_points`` (reversal field, field, m per measured point: ``signatures.measured_point_arrays``):
+    the refitted Hamiltonian's major loop is re-simulated on a 10 mT lattice over the points' window
+    (``resimulate.major_loop_branches``, stream key "refit_major_loop") and the saturation test of
+    ``analyse_residual`` runs on the measured points past its closure
+    (``signatures.saturated_measured_points``) instead of on the grid. Cost: one major loop."""
+
+    names: tuple = ("K_u",)
+    every_k: int = 4
+    relative_bounds: float = 0.3
+    n_profiles: int = 1
+    budget: int = 20
+    physics: bool = True
+    physics_grids: dict | None = None
+    seed: int | None = None
+    noise_sigma: float | None = None
+    null_realisations: int = 0
+    null_refit: bool = False
+    field_shift: dict | None = None
+    drift: dict | None = None
+    shift_protocol: object = None
+    shift_realisations: int = SHIFT_NULL_REALISATIONS
+    shift_max_step_T: float = 0.002
+    measured_points: object = None
+    null_patches: int | None = None
+
+    @property
+    def search(self) -> RefitSearch:
+        """The refit's search settings (disorder key "refit")."""
+        return RefitSearch(self.names, self.relative_bounds, self.n_profiles, self.budget)
+
+
+REFIT_SETTINGS = frozenset(f.name for f in dataclass_fields(RefitSettings))
+"""The keywords of ``analyse_with_refit`` that set a ``RefitSettings`` field (the others go to ``analyse_residual``)."""
+
+
+def refit_settings(settings: RefitSettings | None, options: dict) -> tuple[RefitSettings, dict]:
+    """``settings`` (defaults where None) with the fields named in the keyword ``options`` replaced, and the
+    remaining options (``analyse_residual``'s keyword arguments, in their order)."""
+    chosen = replace(settings or RefitSettings(), **{k: v for k, v in options.items() if k in REFIT_SETTINGS})
+    return chosen, {k: v for k, v in options.items() if k not in REFIT_SETTINGS}
+
+
+def _shift_calibrated(cfg: dict, refitted: dict, s: RefitSettings) -> dict | None:
+    """The field-shift evidence calibrated by simulation on the file's protocol (``signatures.calibrated_shift``
+    with ``simulated_shift_offsets`` of the refitted Hamiltonian), where both the evidence and the protocol
+    are given; else the evidence as it was."""
+    if s.field_shift is None or s.shift_protocol is None:
+        return s.field_shift
+    return calibrated_shift(s.field_shift, simulated_shift_offsets(
+        cfg, refitted, *s.shift_protocol, noise_sigma=s.noise_sigma, realisations=s.shift_realisations,
+        max_step_T=s.shift_max_step_T))
+
+
+def _selection_options(cfg: dict, refitted: dict, s: RefitSettings, cross_fit: bool, analysis: dict) -> dict:
+    """``analyse_residual``'s keyword arguments: the split, the seed, the physics-side candidate families
+    re-simulated around the refitted Hamiltonian (disorder key "refit"; none without ``s.physics``) and the
+    caller's further ``analysis`` options."""
+    candidates = {}
+    if s.physics:
+        candidates = physics_candidate_families(cfg, refitted, n_profiles=s.n_profiles, key="refit",
+                                                **(s.physics_grids or {}))
+    return dict(every_k=s.every_k, cross_fit=cross_fit, seed=cfg["seed"] if s.seed is None else s.seed,
+                n_profiles=s.n_profiles, **candidates, **analysis)
+
+
+def _patch_null_films(cfg: dict, refitted: dict, s: RefitSettings, seed: int):
+    """The null films as averages of ``s.null_patches`` single realisations of the refitted Hamiltonian
+    (``patches.null_films`` over a pool of singles, stream key "refit_null_pool"); None where the null films
+    are ``n_profiles`` averages instead (no ``null_patches`` or no null film)."""
+    if not (s.null_realisations > 0 and s.null_patches is not None):
+        return None
+    pool_size = int(cfg.get("loop", {}).get("patch_pool", POOL_SIZE))
+    pool = single_realisations(cfg, refitted, min(pool_size, max(s.null_patches * s.null_realisations,
+                                                                 PATCH_CHOICES[-1])),
+                               key="refit_null_pool")
+    return null_films(pool, s.null_patches, count=s.null_realisations, seed=seed)
+
+
+def _refit_null_gains(cfg: dict, params: dict, fields, train, refit: dict, s: RefitSettings,
+                      options: dict) -> tuple[dict | None, list]:
+    """(null gains of every candidate, [(pseudo − base)² per null film]) on ``s.null_realisations`` effect-free
+    films of the refitted Hamiltonian (``physics_effects.null_gains``, each film with seed + r; with
+    ``s.null_refit`` each film's own refit from ``params`` on the ``train`` curves is its base); (None, [])
+    without null films. ValueError for ``null_patches`` with ``null_refit``."""
+    if s.null_realisations > 0 and s.null_patches is not None and s.null_refit:
+        raise ValueError("null_patches and null_refit exclude each other")
+    base, squares = refit["family"], []
+    patch_films = _patch_null_films(cfg, refit["params"], s, options["seed"])
+    if not s.null_realisations > 0:
+        return None, squares
+    null = {}
+    for r in range(s.null_realisations):
+        # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
+        # on the same curves (its residual is then the floor after a refit), else against ``base``
+        pseudo = (patch_films[r] if patch_films is not None else
+                  resimulate(cfg, refit["params"], n_profiles=s.n_profiles, key="refit_null",
+                             first_profile=r * s.n_profiles))
+        squares.append((pseudo - base) ** 2)
+        pseudo_base = base
+        if s.null_refit:
+            pseudo_base = refit_hamiltonian(cfg, params, pseudo, train, s.search)["family"]
+        null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=s.noise_sigma,
+                                                 **{k: v for k, v in options.items() if k != "seed"},
+                                                 seed=options["seed"] + r, hamiltonian_floor=True))
+    return null, squares
+
+
+def _joint_refit(cfg: dict, params: dict, measured, fields, split, result: dict, s: RefitSettings) -> dict | None:
+    """Hamiltonian and the chosen measured-side effect refitted together on the training curves of
+    ``split`` (train, held), scored on the held-out ones (its ``heldout_rms``, m normalized; ``generalises``:
+    ``joint_generalises``); None unless a measured-side effect is chosen."""
+    if result["kind"] != "measured":
+        return None
+    train, held = split
+    joint = refit_hamiltonian(cfg, params, measured, train, s.search,
+                              on_top=EffectOnTop(EFFECTS[result["chosen"]], fields))
+    # the model with the effect, Hamiltonian and effect fitted together on the training curves, scored
+    # on the held-out curves: the error "after" when the Hamiltonian is free (the "before" is the
+    # Hamiltonian refitted without the effect, ``heldout_rms_before``)
+    joint_rms = float(np.sqrt(_training_mse(measured, joint["model"], held)))
+    return {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
+            "objective": joint["objective"], "heldout_rms": joint_rms,
+            "generalises": joint_generalises(joint_rms, result["heldout_rms_after"])}
+
+
+def _refit_report(s: RefitSettings, refit: dict, held_rms: float, null: dict | None) -> dict:
+    """The ``refit`` entry of the analysis: the names refitted, their multipliers, the evaluations, the
+    training MSE at the prediction and refitted, the prediction's held-out RMS and the floor's settings."""
+    return {"names": list(s.names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
+            "training_mse_prediction": refit["objective_at_prediction"], "training_mse_refit": refit["objective"],
+            "heldout_rms_prediction": held_rms, "relative_bounds": s.relative_bounds, "n_profiles": s.n_profiles,
+            "null_realisations": s.null_realisations, "null_patches": s.null_patches, "null_gain": null}
+
+
+def analyse_with_refit(cfg: dict, params: dict, measured, fields, settings: RefitSettings | None = None, *,
+                       cross_fit: bool = False, progress=None, **options) -> dict:
+    """The held-out selection against the Hamiltonian refitted without the candidate (module docstring). ``settings``:
+    a ``RefitSettings`` (its defaults where None); keyword ``options`` that name one of its fields replace it
+    (``analyse_with_refit(cfg, params, measured, fields, names=("K_u", "D"))``), the others are further keyword
+    arguments of ``analyse_residual`` (e.g. ``floor_variance``, which replaces the realisation floor). ``progress``:
+    that of the refit. Returns the analysis dict with ``hamiltonian`` {"prediction", "refit_without_effect",
+    "refit_with_effect" (None unless a measured-side effect is chosen; its ``heldout_rms`` is the held-out error of
+    Hamiltonian and effect fitted together, also ``heldout_rms_after_joint``: the chosen candidate's own
+    ``heldout_rms_after`` where no joint refit is made)}, ``refit`` (objective at the prediction and refitted,
+    held-out RMS of the prediction's family, evaluations, multipliers) and ``split`` {"train", "held"}.
+
+    Ambiguity: where nothing is chosen against the refitted Hamiltonian (verdict "none", or "ambiguous"
+    with K_u's neighbourhood), ``refit_ambiguity`` compares the refit's change with the candidates on
+    the unrefitted prediction; where one explains the held-out residual as well (within the null gains),
+    the verdict is "ambiguous" (``ambiguous``: the set, the refit's change as ``effects.HAMILTONIAN_CHANGE``;
+    ``separating_measurements``), its record under ``refit_ambiguity`` (None where it did not run).
+
     ``cross_fit``: judge the candidates on every curve, each held out once (the ``every_k`` folds of
     ``analyse_residual``), not only on the refit's held-out curves (the default). The Hamiltonian is
     refitted once, on the first fold's training curves, so in the other folds the base model "none"
@@ -430,97 +619,45 @@ def analyse_with_refit(cfg: dict, params: dict, measured, fields, *, names=("K_u
     Not the default: on the validation cases of the independent bench (``bench.effects_independent
     .VALIDATION_CASES``) it named 2 of 7 in-library effects against 3 without (a background became an
     "unexplained structured residual"), and earlier the fixed-point test's background came back as background + field
-    offset while the refit could not yet reach K_u (tests/loop/test_fixed_point.py).
-
-    ``measured_points`` (reversal field, field, m per measured point: ``signatures.measured_point_arrays``):
-    the refitted Hamiltonian's major loop is re-simulated on a 10 mT lattice over the points' window
-    (``resimulate.major_loop_branches``, stream key "refit_major_loop") and the saturation test of
-    ``analyse_residual`` runs on the measured points past its closure
-    (``signatures.saturated_measured_points``) instead of on the grid. Cost: one major loop."""
+    offset while the refit could not yet reach K_u (tests/loop/test_fixed_point.py)."""
+    s, analysis = refit_settings(settings, options)
     measured = np.asarray(measured, float)
     fields = np.asarray(fields, float)
-    train, held = heldout_folds(measured, every_k, cross_fit=False)[0]
+    train, held = heldout_folds(measured, s.every_k, cross_fit=False)[0]
     families = {}  # the refit's re-simulations, shared with the ambiguity stage's refits on other folds
-    refit = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
-                              n_profiles=n_profiles, budget=budget, progress=progress, families=families)
-    base = refit["family"]
-    if field_shift is not None and shift_protocol is not None:
-        field_shift = calibrated_shift(field_shift, simulated_shift_offsets(
-            cfg, refit["params"], *shift_protocol, noise_sigma=noise_sigma, realisations=shift_realisations,
-            max_step_T=shift_max_step_T))
-    candidates = {}
-    if physics:
-        candidates = physics_candidate_families(cfg, refit["params"], n_profiles=n_profiles, key="refit",
-                                                **(physics_grids or {}))
-    options = dict(every_k=every_k, cross_fit=cross_fit, seed=cfg["seed"] if seed is None else seed,
-                   n_profiles=n_profiles, **candidates, **analysis)
-    null, squares = None, []
-    if null_realisations > 0 and null_patches is not None and null_refit:
-        raise ValueError("null_patches and null_refit exclude each other")
-    patch_films = None
-    if null_realisations > 0 and null_patches is not None:
-        pool_size = int(cfg.get("loop", {}).get("patch_pool", POOL_SIZE))
-        pool = single_realisations(cfg, refit["params"], min(pool_size, max(null_patches * null_realisations,
-                                                                            PATCH_CHOICES[-1])),
-                                   key="refit_null_pool")
-        patch_films = null_films(pool, null_patches, count=null_realisations, seed=options["seed"])
-    if null_realisations > 0:
-        null = {}
-        for r in range(null_realisations):
-            # another film of the refitted Hamiltonian; with null_refit also refitted from the same start
-            # on the same curves (its residual is then the floor after a refit), else against ``base``
-            pseudo = (patch_films[r] if patch_films is not None else
-                      resimulate(cfg, refit["params"], n_profiles=n_profiles, key="refit_null",
-                                 first_profile=r * n_profiles))
-            squares.append((pseudo - base) ** 2)
-            pseudo_base = base
-            if null_refit:
-                pseudo_base = refit_hamiltonian(cfg, params, pseudo, train, names=names, relative_bounds=relative_bounds,
-                                                n_profiles=n_profiles, budget=budget)["family"]
-            null = merge_null_gains(null, null_gains([pseudo], pseudo_base, fields, noise_sigma=noise_sigma,
-                                                     **{k: v for k, v in options.items() if k != "seed"},
-                                                     seed=options["seed"] + r, hamiltonian_floor=True))
+    refit = refit_hamiltonian(cfg, params, measured, train, s.search, progress=progress, families=families)
+    field_shift = _shift_calibrated(cfg, refit["params"], s)
+    options = _selection_options(cfg, refit["params"], s, cross_fit, analysis)
+    null, squares = _refit_null_gains(cfg, params, fields, train, refit, s, options)
     if "floor_variance" not in options:
-        options["floor_variance"] = realisation_floor(refit["spread"], n_profiles, squares, null_patches=null_patches)
-    if measured_points is not None:
-        options["saturation_points"] = measured_saturation(cfg, refit["params"], measured_points,
+        options["floor_variance"] = realisation_floor(refit["spread"], s.n_profiles, squares,
+                                                      null_patches=s.null_patches)
+    if s.measured_points is not None:
+        options["saturation_points"] = measured_saturation(cfg, refit["params"], s.measured_points,
                                                            key="refit_major_loop")
-    result = analyse_residual(measured, base, fields, noise_sigma=noise_sigma, null_gain=null, field_shift=field_shift,
-                              drift=drift, **options)
-    with_effect = None
-    if result["kind"] == "measured":
-        joint = refit_hamiltonian(cfg, params, measured, train, names=names, relative_bounds=relative_bounds,
-                                  n_profiles=n_profiles, budget=budget, effect=EFFECTS[result["chosen"]], fields=fields)
-        # the model with the effect, Hamiltonian and effect fitted together on the training curves, scored
-        # on the held-out curves: the error "after" when the Hamiltonian is free (the "before" is the
-        # Hamiltonian refitted without the effect, ``heldout_rms_before``)
-        joint_rms = float(np.sqrt(_training_mse(measured, joint["model"], held)))
-        with_effect = {"params": joint["params"], "effect_parameters": joint["effect_parameters"],
-                       "objective": joint["objective"], "heldout_rms": joint_rms,
-                       "generalises": joint_generalises(joint_rms, result["heldout_rms_after"])}
-    prediction_family = resimulate(cfg, params, n_profiles=n_profiles, key="refit")
-    held_rms = float(np.sqrt(_training_mse(measured, prediction_family, held)))
+    result = analyse_residual(measured, refit["family"], fields, noise_sigma=s.noise_sigma, null_gain=null,
+                              field_shift=field_shift, drift=s.drift, **options)
+    with_effect = _joint_refit(cfg, params, measured, fields, (train, held), result, s)
+    prediction = PredictedFamily(params, resimulate(cfg, params, n_profiles=s.n_profiles, key="refit"))
+    held_rms = float(np.sqrt(_training_mse(measured, prediction.family, held)))
     ambiguity = None
     if result["chosen"] == "none" and result["verdict"] in AMBIGUITY_VERDICTS:
-        ambiguity = refit_ambiguity(cfg, params, measured, fields, prediction_family, refit,
-                                    {**options, "field_shift": field_shift, "drift": drift, "null_gain": null},
-                                    null=null, physics=physics, physics_grids=physics_grids, families=families,
-                                    search=dict(names=names, relative_bounds=relative_bounds, n_profiles=n_profiles,
-                                                budget=budget))
+        ambiguity = refit_ambiguity(cfg, prediction, measured, fields, refit,
+                                    {**options, "field_shift": field_shift, "drift": s.drift, "null_gain": null},
+                                    s, families=families)
     result = with_refit_ambiguity(result, ambiguity) if ambiguity else {**result, "refit_ambiguity": None}
     result.update(
         heldout_rms_after_joint=with_effect["heldout_rms"] if with_effect else result["heldout_rms_after"],
         hamiltonian={"prediction": dict(params), "refit_without_effect": refit["params"],
                      "refit_with_effect": with_effect},
-        refit={"names": list(names), "multipliers": refit["multipliers"], "evaluations": refit["evaluations"],
-               "training_mse_prediction": refit["objective_at_prediction"], "training_mse_refit": refit["objective"],
-               "heldout_rms_prediction": held_rms, "relative_bounds": relative_bounds, "n_profiles": n_profiles,
-               "null_realisations": null_realisations, "null_patches": null_patches, "null_gain": null},
+        refit=_refit_report(s, refit, held_rms, null),
         split={"train": list(map(int, train)), "held": list(map(int, held))})
     return result
 
 
-__all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "JOINT_TOLERANCE", "SATURATION_PROFILES", "SHIFT_NULL_REALISATIONS", "analyse_with_refit",
+__all__ = ["AMBIGUITY_VERDICTS", "REFITTABLE", "REFIT_SETTINGS", "JOINT_TOLERANCE", "SATURATION_PROFILES",
+           "SHIFT_NULL_REALISATIONS", "EffectOnTop", "PredictedFamily", "RefitSearch", "RefitSettings",
+           "analyse_with_refit",
            "crossfit_refit_mse", "hamiltonian_change_explains", "joint_generalises", "measured_saturation",
            "realisation_floor",
-           "refit_ambiguity", "refit_hamiltonian", "simulated_shift_offsets", "with_refit_ambiguity"]
+           "refit_ambiguity", "refit_hamiltonian", "refit_settings", "simulated_shift_offsets", "with_refit_ambiguity"]

@@ -432,13 +432,27 @@ def saturation_residual(measured, model, base_family, fields, p_threshold: float
     inside = (sign != 0) & np.isfinite(r) & np.isfinite(model)
     H = np.broadcast_to(fields[None, :], r.shape)
     column = np.broadcast_to(np.arange(r.shape[1])[None, :], r.shape)
-    return _column_test(r[inside], model[inside], H[inside], sign[inside], column[inside], fields, p_threshold,
-                        moment_tolerance, free)
+    return _column_test(r[inside], model[inside], H[inside], sign[inside], column[inside], fields,
+                        SaturationTest(p_threshold, moment_tolerance, free))
 
 
-def _column_test(r, model, H, sign, column, column_fields, p_threshold, moment_tolerance, free) -> dict:
+@dataclass(frozen=True)
+class SaturationTest:
+    """The settings of the saturation test (``saturation_residual``): ``p_threshold``, the chi-square p below
+    which the saturated residual is reversible; ``moment_tolerance``, the relative band (dimensionless) inside
+    which a gain is the normalization's own error and fitted away; ``free``, the terms the candidate fits
+    ("scale", "background"), fitted away in full."""
+
+    p_threshold: float = P_SATURATION
+    moment_tolerance: float = 0.0
+    free: tuple = ()
+
+
+def _column_test(r, model, H, sign, column, column_fields, test: SaturationTest) -> dict:
     """The statistic of ``saturation_residual`` on saturated points given flat: residual ``r``, model,
-    field ``H``, saturation ``sign`` (±1) and ``column`` (index into ``column_fields``, T)."""
+    field ``H``, saturation ``sign`` (±1) and ``column`` (index into ``column_fields``, T), with the settings
+    ``test``."""
+    p_threshold, moment_tolerance, free = test.p_threshold, test.moment_tolerance, test.free
     from scipy.stats import chi2 as chi2_distribution
 
     r, model, H = np.asarray(r, float), np.asarray(model, float), np.asarray(H, float)
@@ -595,7 +609,7 @@ def saturation_residual_points(points: SaturatedPoints, offset_T: float = 0.0, p
     largest. Adds the model's ``closure_T`` and ``points`` = "measured" to the result."""
     model = points.model(offset_T)
     out = _column_test(points.m - model, model, points.field_T, points.sign, points.column, points.column_fields_T,
-                       p_threshold, moment_tolerance, free)
+                       SaturationTest(p_threshold, moment_tolerance, free))
     return {**out, "closure_T": list(points.closure_T), "points": "measured"}
 
 

@@ -22,6 +22,8 @@ paper (ten test samples, input vs re-simulated from the prediction, realisation 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -111,17 +113,32 @@ def choose_samples(table: pd.DataFrame, max_samples: int, seed: int) -> pd.DataF
     return table.iloc[np.sort(rng.choice(len(table), max_samples, replace=False))]
 
 
+@dataclass(frozen=True)
+class ClosedLoopRun:
+    """How many test samples the simulated closed loop re-simulates and how: up to ``max_samples`` samples
+    (a random subset beyond), ``realisations`` shared disorder realisations each (≥ 1), on ``workers``
+    processes."""
+
+    max_samples: int
+    realisations: int = 3
+    workers: int = 1
+
+
 def closed_loop(cfg: dict, table: pd.DataFrame, curves_by_id: dict, truths: pd.DataFrame, medians: dict,
-                max_samples: int, realisations: int = 3, workers: int = 1, progress=None) -> tuple[pd.DataFrame, dict]:
+                run: ClosedLoopRun | None = None, *, progress=None, **options) -> tuple[pd.DataFrame, dict]:
     """Re-simulate up to ``max_samples`` test samples (prediction, floor, null; ``realisations`` shared
-    disorder realisations each). ``table``: ``predicted_hamiltonians``; ``curves_by_id``: input
-    families (n_fields × n_fields); ``truths``: true parameters (SI) indexed by sample id.
+    disorder realisations each): the fields of ``run`` (a ``ClosedLoopRun``; keyword ``options`` set single
+    ones, or make it where None). ``table``: ``predicted_hamiltonians``; ``curves_by_id``: input
+    families (n_fields × n_fields); ``truths``: true parameters (SI) indexed by sample id; ``medians``: the
+    training medians (the null Hamiltonian); ``progress(done, total)``: per re-simulation.
 
     Returns the per-sample table (``rms``, ``rms_floor``, ``rms_null``, their per-realisation lists,
     ``ratio_floor`` = rms/rms_floor, ``ratio_null`` = rms/rms_null, failures) and, per sample id, the
     families of realisation 0 by role. A failed re-simulation is recorded (``failures``) and its
     realisation left out of all three means. Raises DatasetError on no test sample or a family whose
     shape is not the config's field grid, SimulationError when every re-simulation failed."""
+    run = ClosedLoopRun(**options) if run is None else replace(run, **options)
+    max_samples, realisations, workers = run.max_samples, run.realisations, run.workers
     if realisations < 1:
         raise ValueError("realisations must be >= 1")
     if table.empty:
@@ -298,14 +315,24 @@ def _spearman(a, b) -> float:
     return float(value) if np.isfinite(value) else float("nan")
 
 
-def run_stage(config_path, learning_path, dataset_path, prediction_paths, *, out, table, figures, workers: int = 1,
-              log=None) -> dict:
-    """The workflow stage: read the dataset config, the loop section of learning.json, dataset.h5 and
-    the predictions; re-simulate (``closed_loop``); write the per-sample Parquet ``table``, the
-    summary JSON ``out`` and three figures into ``figures``. Returns the summary."""
-    from pathlib import Path
+@dataclass(frozen=True)
+class StageOutputs:
+    """Where the closed-loop stage writes: the summary JSON ``out``, the per-sample Parquet ``table`` and the
+    directory ``figures`` (figure4.png, closed_loop_vs_bob.png, closed_loop_floor_null.png)."""
 
+    out: object
+    table: object
+    figures: object
+
+
+def run_stage(config_path, learning_path, dataset_path, prediction_paths, outputs: StageOutputs, *,
+              workers: int = 1, log=None) -> dict:
+    """The workflow stage: read the dataset config, the loop section of learning.json, dataset.h5 and
+    the predictions; re-simulate (``closed_loop``, on ``workers`` processes); write the per-sample Parquet
+    table, the summary JSON and three figures (``outputs``). Returns the summary."""
     import h5py
+
+    out, table, figures = outputs.out, outputs.table, outputs.figures
 
     started = time.perf_counter()
     cfg = read_config(config_path)
@@ -332,8 +359,9 @@ def run_stage(config_path, learning_path, dataset_path, prediction_paths, *, out
     if log is not None:
         log(f"closed loop: {min(len(predictions), max_samples)} samples x {realisations} "
             f"realisations x {len(ROLES)} Hamiltonians, protocol {protocol_name(cfg)}, {workers} worker(s)")
-    result, families = closed_loop(cfg, predictions, curves, values, medians, max_samples,
-                                   realisations=realisations, workers=workers, progress=progress)
+    result, families = closed_loop(cfg, predictions, curves, values, medians,
+                                   ClosedLoopRun(max_samples, realisations=realisations, workers=workers),
+                                   progress=progress)
     write_parquet(table, result)
     summary = summarize(cfg, result, realisations, n_boot)
     shown_pool = [sid for sid in result["sample_id"] if "prediction" in families.get(int(sid), {})]

@@ -24,6 +24,8 @@ points (the descending major branch, the diagonal) against the return curves abo
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -60,10 +62,21 @@ def _ranges(values, step):
     return out
 
 
+@dataclass(frozen=True)
+class StructureRule:
+    """The thresholds of the structure decision (module docstring): ``min_chi2_ratio``, the mean z² beyond
+    which the residual's size is beyond the noise (dimensionless); ``z_pattern``, the runs / lag-1 z-score beyond
+    which its pattern is (standard deviations)."""
+
+    min_chi2_ratio: float = MIN_CHI2_RATIO
+    z_pattern: float = Z_PATTERN
+
+
 def residual_structure(residual, fields, noise_sigma: float | None = None, floor_variance=None, n_profiles: int = 1,
-                       min_chi2_ratio: float = MIN_CHI2_RATIO, z_pattern: float = Z_PATTERN,
-                       measured_patches: int = 1, null_structure: dict | None = None) -> dict:
-    """The statistics and decision of the module docstring for the n × n ``residual`` on ``fields`` (T).
+                       rule: StructureRule = StructureRule(), measured_patches: int = 1,
+                       null_structure: dict | None = None) -> dict:
+    """The statistics and decision of the module docstring for the n × n ``residual`` on ``fields`` (T), by the
+    thresholds ``rule``.
     ``floor_variance``: v per point (n × n) or a scalar, the variance between single disorder
     realisations; the residual's variance from disorder is v·(1/``measured_patches`` + 1/``n_profiles``)
     (the measurement averages that many independent patches, the re-simulation that many profiles).
@@ -75,6 +88,7 @@ def residual_structure(residual, fields, noise_sigma: float | None = None, floor
     ``noise_sigma``, ``noise_source``, ``chi2_ratio``, ``chi2_p``, ``runs_z``, ``lag1``, ``lag1_z``,
     ``n_points``, ``where`` {``reversal_fields_T`` (ranges), ``fields_T``, ``branch``,
     ``descending_branch_share``}, ``per_curve_chi2`` (None where a curve has no point)."""
+    min_chi2_ratio, z_pattern = rule.min_chi2_ratio, rule.z_pattern
     r = np.asarray(residual, float)
     fields = np.asarray(fields, float)
     n = r.shape[0]
