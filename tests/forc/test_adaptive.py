@@ -5,17 +5,17 @@ import pytest
 
 from forcdecode.forc import quasistatic_family
 from forcdecode.forc.adaptive import SlewRate, adaptive_family
-from forcdecode.micromag import GAMMA_LL, Mesh, disordered_film
+from forcdecode.micromag import GAMMA_LL, FilmMaterial, Mesh, disordered_film
 
-P = dict(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=2)
+P = FilmMaterial(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=2)
 
 
 @pytest.fixture(scope="module")
 def families():
     mesh = Mesh(16, 16, 1, 2e-9, 2e-9, 4e-9)
-    film, m0, _ = disordered_film(mesh, rng=np.random.default_rng(0), pinning="slaved", n_grains=8, **P)
+    film, m0, _ = disordered_film(mesh, P, np.random.default_rng(0), pinning="slaved", n_grains=8)
     llg = adaptive_family(film, m0, n_fields=8, settings=SlewRate(rate_max_T_per_s=2e9))
-    film_q, m0_q, _ = disordered_film(mesh, rng=np.random.default_rng(0), pinning="full", n_grains=8, **P)
+    film_q, m0_q, _ = disordered_film(mesh, P, np.random.default_rng(0), pinning="full", n_grains=8)
     return llg, quasistatic_family(film_q, m0_q, n_fields=8)
 
 

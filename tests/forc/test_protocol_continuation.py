@@ -22,7 +22,7 @@ import pytest
 
 from forcdecode.forc.protocol import quasistatic_family
 from forcdecode.forc.raster import rasterize_grid_family
-from forcdecode.micromag import Mesh, disordered_film
+from forcdecode.micromag import FilmMaterial, Mesh, disordered_film
 from forcdecode.micromag.minimize import fourier_preconditioner, minimize_bb, minimize_bb_fourier
 
 from test_protocol_shortcut import make_film
@@ -58,9 +58,8 @@ def test_continuation_matches_plain_family(name):
 
 def _uniform_film(n=32, A_ex=1.5e-11):
     mesh = Mesh(n, n, 1, 2e-9, 2e-9, 4e-9)
-    film, m0, _ = disordered_film(mesh, Ms=6e5, A_ex=A_ex, K_u=6e5, D=0.0, sigma_K=0.2,
-                                  sigma_theta_rad=np.radians(10.0), n_pin=0, rng=np.random.default_rng(3),
-                                  n_grains=16)
+    material = FilmMaterial(Ms=6e5, A_ex=A_ex, K_u=6e5, D=0.0, sigma_K=0.2, sigma_theta_rad=np.radians(10.0), n_pin=0)
+    film, m0, _ = disordered_film(mesh, material, np.random.default_rng(3), n_grains=16)
     return film, m0
 
 

@@ -27,7 +27,7 @@ import pytest
 
 from forcdecode.forc.protocol import StateMemory, quasistatic_family
 from forcdecode.forc.raster import rasterize_grid_family
-from forcdecode.micromag import Mesh, disordered_film
+from forcdecode.micromag import FilmMaterial, Mesh, disordered_film
 
 STEP = 1 / 127.5  # one 8-bit image step in units of m_z
 TORQUE_TOL_T, MAX_ITERATIONS = 1e-3, 20_000
@@ -47,9 +47,9 @@ def make_film(name, n):
     p = FILMS[name]
     mesh = Mesh(n, n, 1, 2e-9, 2e-9, 4e-9)
     n_pin = int(round(p["N_pin"] * mesh.n_cells / (256 * 256 * 2)))  # the paper's density
-    film, m0, _ = disordered_film(mesh, Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
-                                  sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=n_pin,
-                                  rng=np.random.default_rng(p["seed"]), n_grains=255)
+    material = FilmMaterial(Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
+                            sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=n_pin)
+    film, m0, _ = disordered_film(mesh, material, np.random.default_rng(p["seed"]), n_grains=255)
     return film, m0
 
 

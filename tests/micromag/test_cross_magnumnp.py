@@ -12,7 +12,7 @@ import pytest
 from forcdecode.micromag import MU0, Film, Mesh
 
 pytest.importorskip("magnumnp", reason="magnum.np not installed: pip install -e .[reference]")
-from forcdecode.reference import MagnumFilm  # noqa: E402
+from forcdecode.reference import MagnumFilm, MagnumMaterial  # noqa: E402
 
 pytestmark = [pytest.mark.reference, pytest.mark.slow]  # slow: the `pair` fixture builds magnum.np's kernels, ~30 s
 MESH = Mesh(32, 32, 2, 2e-9, 2.5e-9, 3e-9)
@@ -27,7 +27,7 @@ def pair():
     axis = rng.normal(size=MESH.vector_shape) * 0.2 + np.array([0, 0, 1.0])[:, None, None, None]
     axis /= np.linalg.norm(axis, axis=0)
     ours = Film(MESH, Ms=MS, A_ex=A, K_u=K, easy_axis=axis, D=D)
-    theirs = MagnumFilm(MESH.nx, MESH.ny, MESH.nz, MESH.dx, MESH.dy, MESH.dz, MS, A, K, axis, D, pbc_images=4)
+    theirs = MagnumFilm(MESH, MagnumMaterial(MS, A, K, axis, D), pbc_images=4)
     x = np.arange(MESH.nx) * 2 * np.pi / MESH.nx
     y = np.arange(MESH.ny) * 2 * np.pi / MESH.ny
     m = np.zeros(MESH.vector_shape)
@@ -76,8 +76,7 @@ def test_relaxed_states_agree(pair):
     ours, theirs, m = pair
     local_terms = ("exchange", "anisotropy", "dmi", "zeeman")
     film = ours.with_terms(local_terms)
-    reference = MagnumFilm(MESH.nx, MESH.ny, MESH.nz, MESH.dx, MESH.dy, MESH.dz, MS, A, film.K_u,
-                           film.easy_axis, D, terms=local_terms, pbc_images=1)
+    reference = MagnumFilm(MESH, MagnumMaterial(MS, A, film.K_u, film.easy_axis, D), terms=local_terms, pbc_images=1)
     mine = m.copy()
     assert film.minimize(mine, B_EXT, torque_tol_T=1e-7, max_iterations=100_000).converged
     theirs_m = reference.minimize(m.copy(), B_EXT, max_iterations=20_000)

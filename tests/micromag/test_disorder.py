@@ -13,7 +13,8 @@ from scipy.spatial import cKDTree
 
 from forcdecode.micromag import Mesh
 from forcdecode.micromag.build import REFERENCE_CELLS, build_film, pinning_cells
-from forcdecode.micromag.disorder import PINNING_K_U, disordered_film, draw_disorder, periodic_voronoi_labels
+from forcdecode.micromag.disorder import (PINNING_K_U, FilmMaterial, disordered_film, draw_disorder,
+                                         periodic_voronoi_labels)
 
 K_U = 8e5  # J/m³
 
@@ -125,10 +126,10 @@ def test_pinning_sites_count_stiffness_and_isotropic_start():
     elsewhere; the "frozen" treatment snaps them to the nearest pole."""
     mesh = Mesh(32, 32, 2, 2e-9, 2e-9, 2e-9)
     n_pin, draws = 150, 20
+    material = FilmMaterial(Ms=6e5, A_ex=1e-11, K_u=K_U, D=0.0, sigma_K=0.2, sigma_theta_rad=0.1, n_pin=n_pin)
     initial, in_layer0 = [], 0
     for seed in range(draws):
-        film, m0, d = disordered_film(mesh, Ms=6e5, A_ex=1e-11, K_u=K_U, D=0.0, sigma_K=0.2, sigma_theta_rad=0.1,
-                                      n_pin=n_pin, rng=np.random.default_rng(300 + seed), n_grains=20,
+        film, m0, d = disordered_film(mesh, material, np.random.default_rng(300 + seed), n_grains=20,
                                       terms=("exchange", "anisotropy"))
         mask = d.pinning_mask
         assert mask.sum() == n_pin and d.pinning_initial.shape == (3, n_pin)
@@ -145,8 +146,7 @@ def test_pinning_sites_count_stiffness_and_isotropic_start():
     assert np.all(np.abs(initial.mean(axis=1)) < 4 / np.sqrt(3 * n))
     assert abs(np.mean(initial[2] ** 2) - 1 / 3) < 4 * np.sqrt(4 / 45 / n)
     assert abs(in_layer0 / n - 0.5) < 4 * np.sqrt(0.25 / n)
-    _, m_frozen, d = disordered_film(mesh, Ms=6e5, A_ex=1e-11, K_u=K_U, D=0.0, sigma_K=0.2, sigma_theta_rad=0.1,
-                                     n_pin=n_pin, rng=np.random.default_rng(300), n_grains=20, pinning="frozen",
+    _, m_frozen, d = disordered_film(mesh, material, np.random.default_rng(300), n_grains=20, pinning="frozen",
                                      terms=("exchange", "anisotropy"))
     order = np.argsort(np.ravel_multi_index(d.pinning_index, mesh.shape))
     assert np.array_equal(m_frozen[2][d.pinning_mask], np.sign(d.pinning_initial[2][order]))

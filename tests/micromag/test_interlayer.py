@@ -121,14 +121,15 @@ def test_minor_loop_of_soft_layer_is_shifted_by_coupling(J, n_soft_layers):
 def test_slaved_pinning_next_to_the_spacer_matches_full_treatment():
     """Pinning cells on both sides of the spacer, slaved (held at their local equilibrium in their
     neighbours' field, interlayer field included) relax to the same states as the full treatment."""
-    from forcdecode.micromag import disordered_film
+    from forcdecode.micromag import FilmExtras, FilmMaterial, disordered_film
 
     mesh = Mesh(12, 12, 2, 2e-9, 2e-9, 3e-9)
-    params = dict(Ms=8e5, A_ex=1.2e-11, K_u=6e5, D=1e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5), n_pin=12,
-                  n_grains=5, spacer_after_layer=0, interlayer_coupling_J_m2=5e-4, layer_K_u_factor=(1.0, 0.7))
+    material = FilmMaterial(Ms=8e5, A_ex=1.2e-11, K_u=6e5, D=1e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5), n_pin=12)
+    extras = FilmExtras(spacer_after_layer=0, interlayer_coupling_J_m2=5e-4, layer_K_u_factor=(1.0, 0.7))
     loops = {}
     for pinning in ("full", "slaved"):
-        film, m, _ = disordered_film(mesh, rng=np.random.default_rng(2), pinning=pinning, **params)
+        film, m, _ = disordered_film(mesh, material, np.random.default_rng(2), n_grains=5, pinning=pinning,
+                                     extras=extras)
         mz = []
         for B in (0.8, -0.2, -0.5, -1.0):
             assert film.minimize(m, B, torque_tol_T=1e-6, max_iterations=200_000).converged

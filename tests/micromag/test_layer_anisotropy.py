@@ -4,18 +4,19 @@ import numpy as np
 import pytest
 
 from forcdecode.dataset.simulate import build_film
-from forcdecode.micromag import MU0, Mesh, disordered_film
+from forcdecode.micromag import MU0, FilmExtras, FilmMaterial, Mesh, disordered_film
 from forcdecode.micromag.disorder import PINNING_K_U
 
 MS, A_EX, K_HARD, SOFT_FACTOR = 6e5, 1e-11, 5e5, 0.6
 MESH = Mesh(4, 4, 2, 2e-9, 2e-9, 2e-9)
+UNIFORM = FilmMaterial(Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.0, sigma_theta_rad=0.0, n_pin=0)
+GRAINY = FilmMaterial(Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.2, sigma_theta_rad=0.1, n_pin=3)
 
 
 def uniform_bilayer(**kwargs):
     """Two uniform layers (one grain, no disorder, no pinning), layer 1 with K_u × SOFT_FACTOR."""
-    film, _, _ = disordered_film(MESH, Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.0, sigma_theta_rad=0.0,
-                                 n_pin=0, rng=np.random.default_rng(0), n_grains=1,
-                                 layer_K_u_factor=(1.0, SOFT_FACTOR), **kwargs)
+    film, _, _ = disordered_film(MESH, UNIFORM, np.random.default_rng(0), n_grains=1,
+                                 extras=FilmExtras(layer_K_u_factor=(1.0, SOFT_FACTOR), **kwargs))
     return film
 
 
@@ -41,19 +42,17 @@ def thin_film_switching_field(K):
 
 
 def test_layer_factor_scales_grains_not_pinning_sites():
-    base, _, base_disorder = disordered_film(MESH, Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.2,
-                                             sigma_theta_rad=0.1, n_pin=3, rng=np.random.default_rng(4), n_grains=3)
-    scaled, _, disorder = disordered_film(MESH, Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.2,
-                                          sigma_theta_rad=0.1, n_pin=3, rng=np.random.default_rng(4), n_grains=3,
-                                          layer_K_u_factor=(1.0, 0.25))
+    base, _, base_disorder = disordered_film(MESH, GRAINY, np.random.default_rng(4), n_grains=3)
+    scaled, _, disorder = disordered_film(MESH, GRAINY, np.random.default_rng(4), n_grains=3,
+                                          extras=FilmExtras(layer_K_u_factor=(1.0, 0.25)))
     pin = disorder.pinning_mask
     assert np.array_equal(pin, base_disorder.pinning_mask)
     expected = base.K_u * np.array([1.0, 0.25])[:, None, None]
     assert np.allclose(scaled.K_u[~pin], expected[~pin], rtol=1e-15)
     assert np.all(scaled.K_u[pin] == PINNING_K_U)
     with pytest.raises(ValueError, match="one factor per layer"):
-        disordered_film(MESH, Ms=MS, A_ex=A_EX, K_u=K_HARD, D=0.0, sigma_K=0.0, sigma_theta_rad=0.0, n_pin=0,
-                        rng=np.random.default_rng(0), n_grains=1, layer_K_u_factor=(1.0, 0.5, 0.5))
+        disordered_film(MESH, UNIFORM, np.random.default_rng(0), n_grains=1,
+                        extras=FilmExtras(layer_K_u_factor=(1.0, 0.5, 0.5)))
 
 
 def test_build_film_passes_layer_options_through():

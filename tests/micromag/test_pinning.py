@@ -9,15 +9,15 @@ order B_ex·sin θ on its neighbours, comparable with their anisotropy field).
 import numpy as np
 import pytest
 
-from forcdecode.micromag import Mesh, disordered_film
+from forcdecode.micromag import FilmMaterial, Mesh, disordered_film
 
-PARAMS = dict(Ms=8e5, A_ex=1.2e-11, K_u=6e5, D=1e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5), n_pin=25,
-              n_grains=12)
+MATERIAL = FilmMaterial(Ms=8e5, A_ex=1.2e-11, K_u=6e5, D=1e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5), n_pin=25)
+N_GRAINS = 12
 MESH = Mesh(32, 32, 1, 2e-9, 2e-9, 4e-9)
 
 
 def half_loop(pinning, fields, seed):
-    film, m, disorder = disordered_film(MESH, rng=np.random.default_rng(seed), pinning=pinning, **PARAMS)
+    film, m, disorder = disordered_film(MESH, MATERIAL, np.random.default_rng(seed), n_grains=N_GRAINS, pinning=pinning)
     mz = []
     for B in fields:
         assert film.minimize(m, B, torque_tol_T=1e-4, max_iterations=200_000).converged
@@ -39,9 +39,9 @@ def test_slaved_pinning_reproduces_full_treatment(seed):
 def test_slaved_pinning_in_llg_matches_full_with_fewer_steps():
     """Damped LLG relaxation after a field step from the same relaxed state: same end state, larger
     steps without the ~THz precession of the pinning cells."""
-    full_film, m, _ = disordered_film(MESH, rng=np.random.default_rng(3), pinning="full", **PARAMS)
+    full_film, m, _ = disordered_film(MESH, MATERIAL, np.random.default_rng(3), n_grains=N_GRAINS, pinning="full")
     assert full_film.minimize(m, 0.5, torque_tol_T=1e-6).converged
-    slaved_film, _, _ = disordered_film(MESH, rng=np.random.default_rng(3), pinning="slaved", **PARAMS)
+    slaved_film, _, _ = disordered_film(MESH, MATERIAL, np.random.default_rng(3), n_grains=N_GRAINS, pinning="slaved")
     results = {}
     for name, film in (("full", full_film), ("slaved", slaved_film)):
         state = m.copy()

@@ -18,13 +18,13 @@ from ..dataset.params import draw_parameters
 from ..forc.adaptive import adaptive_family
 from ..forc.protocol import quasistatic_family
 from ..forc.raster import rasterize_grid_family
-from ..micromag import Mesh, disordered_film
+from ..micromag import FilmMaterial, Mesh, disordered_film
 from ..micromag.build import sweep_options
 from ..micromag.effective_field import compute_effective_field
-from ..reference.magnumnp_film import MagnumFilm
+from ..reference.magnumnp_film import MagnumFilm, MagnumMaterial
 
 # A representative sample of the seed paper's parameter space
-SAMPLE = dict(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=100)
+SAMPLE = FilmMaterial(Ms=8e5, A_ex=1.2e-11, K_u=8e5, D=1.0e-3, sigma_K=0.1, sigma_theta_rad=np.radians(5.0), n_pin=100)
 GRIDS = {"64": (64, 64, 1), "256": (256, 256, 2)}
 CELL = (2e-9, 2e-9, 4e-9)
 
@@ -32,8 +32,8 @@ CELL = (2e-9, 2e-9, 4e-9)
 def _film(grid, pinning="full", seed=0, n_grains=255):
     nx, ny, nz = GRIDS[grid]
     mesh = Mesh(nx, ny, nz, *CELL)
-    return disordered_film(mesh, rng=stream_rng(seed, "bench_film", "engine", grid), pinning=pinning,
-                           n_grains=n_grains, **SAMPLE)
+    return disordered_film(mesh, SAMPLE, stream_rng(seed, "bench_film", "engine", grid), pinning=pinning,
+                           n_grains=n_grains)
 
 
 def _tilted_state(mesh, seed=1):
@@ -74,8 +74,8 @@ def time_magnumnp(grid: str, cache_dir: str | None, repeats: int = 10, compile: 
     mesh = film.mesh
     m = _tilted_state(mesh)
     start = time.perf_counter()
-    reference = MagnumFilm(mesh.nx, mesh.ny, mesh.nz, mesh.dx, mesh.dy, mesh.dz, film.Ms, film.A_ex, film.K_u,
-                           film.easy_axis, film.D, cache_dir=cache_dir, alpha=0.1, compile=compile)
+    material = MagnumMaterial(film.Ms, film.A_ex, film.K_u, film.easy_axis, film.D, alpha=0.1)
+    reference = MagnumFilm(mesh, material, cache_dir=cache_dir, compile=compile)
     reference.effective_field_T(m, 0.1)  # first call compiles (torch.compile); not timed
     setup_s = time.perf_counter() - start
     field_s = reference.time_field_evaluation(m, repeats=repeats, B_ext_T=0.1)
@@ -172,14 +172,17 @@ def compare_protocols(n_samples: int = 3, grid: int = 32, n_fields: int = 16, se
         sample_id += 1
         if p["K_u"] < 2e5 or p["Ms"] > 1.0e6:  # keep perpendicular, switchable samples (cheap screen)
             continue
-        kwargs = dict(Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
-                      sigma_theta_rad=np.radians(p["sigma_theta_deg"]), n_pin=int(round(p["N_pin"] * mesh.n_cells / 131072)),
-                      n_grains=max(4, 255 * mesh.n_cells // 131072))
-        film, m0, _ = disordered_film(mesh, rng=stream_rng(seed, "disorder", sample_id - 1), pinning="full", **kwargs)
+        material = FilmMaterial(Ms=p["Ms"], A_ex=p["A_ex"], K_u=p["K_u"], D=p["D"], sigma_K=p["sigma_K"],
+                                sigma_theta_rad=np.radians(p["sigma_theta_deg"]),
+                                n_pin=int(round(p["N_pin"] * mesh.n_cells / 131072)))
+        n_grains = max(4, 255 * mesh.n_cells // 131072)
+        film, m0, _ = disordered_film(mesh, material, stream_rng(seed, "disorder", sample_id - 1), pinning="full",
+                                      n_grains=n_grains)
         start = time.perf_counter()
         quasi = quasistatic_family(film, m0, n_fields=n_fields)
         t_quasi = time.perf_counter() - start
-        film, m0, _ = disordered_film(mesh, rng=stream_rng(seed, "disorder", sample_id - 1), pinning="slaved", **kwargs)
+        film, m0, _ = disordered_film(mesh, material, stream_rng(seed, "disorder", sample_id - 1), pinning="slaved",
+                                      n_grains=n_grains)
         start = time.perf_counter()
         llg = adaptive_family(film, m0, n_fields=n_fields)
         t_llg = time.perf_counter() - start

@@ -7,8 +7,9 @@ disorder (``disorder``) and the user-facing ``Film``.
 """
 
 from .constants import GAMMA_LL, MU0
-from .disorder import disordered_film, draw_disorder
+from .disorder import FilmExtras, FilmMaterial, disordered_film, draw_disorder
 from .film import TERMS, Film, SimulationError
 from .mesh import Mesh
 
-__all__ = ["GAMMA_LL", "MU0", "TERMS", "Film", "Mesh", "SimulationError", "disordered_film", "draw_disorder"]
+__all__ = ["GAMMA_LL", "MU0", "TERMS", "Film", "FilmExtras", "FilmMaterial", "Mesh", "SimulationError", "disordered_film",
+           "draw_disorder"]

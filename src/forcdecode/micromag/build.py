@@ -12,7 +12,7 @@ import numpy as np
 
 from ..config import defaults
 from ..core.streams import stream_rng
-from .disorder import disordered_film
+from .disorder import FilmExtras, FilmMaterial, disordered_film
 from .mesh import Mesh
 
 REFERENCE_CELLS = 256 * 256 * 2
@@ -63,16 +63,16 @@ def build_film(cfg: dict, params: dict, sample_id: int | None = None, pinning: s
     mesh = mesh_from_config(cfg)
     spacer = params.get("spacer_after_layer")
     interlayer_J = params.get("interlayer_coupling_J_m2")
-    film, m0, disorder = disordered_film(
-        mesh, Ms=params["Ms"], A_ex=params["A_ex"], K_u=params["K_u"], D=params["D"],
-        sigma_K=params["sigma_K"], sigma_theta_rad=np.radians(params["sigma_theta_deg"]),
-        n_pin=pinning_cells(params["N_pin"], mesh, cfg), rng=rng, n_grains=cfg["n_grains"],
-        pinning=pinning or cfg["pinning"]["treatment"], kernel_cache_dir=cfg.get("kernel_cache_dir"),
-        K_2=float(params.get("K_2", 0.0)), B_bias_T=(0.0, 0.0, float(params.get("B_bias_T", 0.0))),
-        layer_K_u_factor=_layer_K_u_factor(params.get("layer_K_u_factor")),
-        spacer_after_layer=None if _missing(spacer) else int(spacer),
-        interlayer_coupling_J_m2=0.0 if _missing(interlayer_J) else float(interlayer_J),
-    )
+    material = FilmMaterial(Ms=params["Ms"], A_ex=params["A_ex"], K_u=params["K_u"], D=params["D"],
+                            sigma_K=params["sigma_K"], sigma_theta_rad=np.radians(params["sigma_theta_deg"]),
+                            n_pin=pinning_cells(params["N_pin"], mesh, cfg))
+    extras = FilmExtras(K_2=float(params.get("K_2", 0.0)), B_bias_T=(0.0, 0.0, float(params.get("B_bias_T", 0.0))),
+                        layer_K_u_factor=_layer_K_u_factor(params.get("layer_K_u_factor")),
+                        spacer_after_layer=None if _missing(spacer) else int(spacer),
+                        interlayer_coupling_J_m2=0.0 if _missing(interlayer_J) else float(interlayer_J))
+    film, m0, disorder = disordered_film(mesh, material, rng, n_grains=cfg["n_grains"],
+                                         pinning=pinning or cfg["pinning"]["treatment"], extras=extras,
+                                         kernel_cache_dir=cfg.get("kernel_cache_dir"))
     film.preconditioner = cfg.get("minimizer", {}).get("preconditioner", "diagonal")
     return film, m0, disorder
 

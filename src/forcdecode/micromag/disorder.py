@@ -99,23 +99,66 @@ def draw_disorder(mesh: Mesh, K_u: float, sigma_K: float, sigma_theta_rad: float
     return Disorder(K, axis, labels, mask, initial, index)
 
 
-def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, sigma_K: float,
-                    sigma_theta_rad: float, n_pin: int, rng: np.random.Generator, n_grains: int = 255,
-                    pinning: str = "full", terms=TERMS, kernel_cache_dir=None, K_2: float = 0.0,
-                    B_bias_T=(0.0, 0.0, 0.0), layer_K_u_factor=None, interlayer_coupling_J_m2: float = 0.0,
-                    spacer_after_layer: int | None = None):
+@dataclass(frozen=True)
+class FilmMaterial:
+    """The film quantities of the Hamiltonian that ``disordered_film`` builds a sample from (SI).
+
+    - ``Ms``: saturation magnetization M_s (A/m);
+    - ``A_ex``: exchange stiffness (J/m);
+    - ``K_u``: mean uniaxial anisotropy of the grains (J/m³);
+    - ``D``: interfacial DMI constant (J/m², mumax3 ``Dind`` convention, see ``Film``);
+    - ``sigma_K``: standard deviation of the grains' relative K_u spread Δ (a fraction: 0.2 = 20 %);
+    - ``sigma_theta_rad``: standard deviation of the grains' easy-axis tilt from z (rad);
+    - ``n_pin``: number of pinning cells placed on this mesh (a count, not the paper's N_pin density:
+      see ``build.pinning_cells``).
+    """
+
+    Ms: float
+    A_ex: float
+    K_u: float
+    D: float
+    sigma_K: float
+    sigma_theta_rad: float
+    n_pin: int
+
+
+@dataclass(frozen=True)
+class FilmExtras:
+    """Optional energy terms and layering of a film beyond ``FilmMaterial``; the defaults are off.
+
+    - ``K_2``: second-order uniaxial anisotropy −K_2 (u·m)⁴ along the grains' axes (J/m³; 0: off);
+    - ``B_bias_T``: a uniform bias field (T), a 3-vector (x, y, z) added to the applied field;
+    - ``layer_K_u_factor``: per-layer K_u multipliers, one per layer (nz), or None for none (see
+      ``draw_disorder``; pinning cells keep ``PINNING_K_U``);
+    - ``interlayer_coupling_J_m2``: coupling J across the spacer (J/m², > 0 ferromagnetic; see ``Film``);
+    - ``spacer_after_layer``: index k of the layer below a non-magnetic spacer between layers k and
+      k + 1, or None for no spacer.
+    """
+
+    K_2: float = 0.0
+    B_bias_T: tuple = (0.0, 0.0, 0.0)
+    layer_K_u_factor: tuple | None = None
+    interlayer_coupling_J_m2: float = 0.0
+    spacer_after_layer: int | None = None
+
+
+def disordered_film(mesh: Mesh, material: FilmMaterial, rng: np.random.Generator, *, n_grains: int = 255,
+                    pinning: str = "full", extras: FilmExtras = FilmExtras(), terms=TERMS, kernel_cache_dir=None):
     """Build the seed paper's film and its initial magnetization.
 
-    Optional: ``layer_K_u_factor`` (per-layer K_u multipliers, see ``draw_disorder``), and a spacer
-    after layer ``spacer_after_layer`` with interlayer coupling ``interlayer_coupling_J_m2`` (J/m²,
-    see ``Film``).
+    ``material``: the Hamiltonian's film quantities (``FilmMaterial``); grains and pinning cells are
+    drawn from ``rng`` (``draw_disorder``) over ``n_grains`` grains. ``pinning``: "full", "slaved" or
+    "frozen" (module docstring). ``extras``: optional terms (``FilmExtras``: K_2, a bias field,
+    per-layer K_u factors, a spacer with interlayer coupling). ``terms``: the energy terms on (subset
+    of ``TERMS``); ``kernel_cache_dir``: where the demag kernel is cached (None: not cached).
 
     Returns (film, m0, disorder): m0 is +z everywhere except the pinning cells, which hold their
     random orientation (snapped to the nearest pole ±z for ``pinning="frozen"``).
     """
     if pinning not in ("slaved", "frozen", "full"):
         raise ValueError(f"pinning must be 'slaved', 'frozen' or 'full', got {pinning!r}")
-    disorder = draw_disorder(mesh, K_u, sigma_K, sigma_theta_rad, n_pin, rng, n_grains, layer_K_u_factor)
+    disorder = draw_disorder(mesh, material.K_u, material.sigma_K, material.sigma_theta_rad, material.n_pin, rng,
+                             n_grains, extras.layer_K_u_factor)
     m0 = np.zeros(mesh.vector_shape)
     m0[2] = 1.0
     pin = disorder.pinning_initial
@@ -124,9 +167,10 @@ def disordered_film(mesh: Mesh, Ms: float, A_ex: float, K_u: float, D: float, si
         pin[2] = np.where(disorder.pinning_initial[2] >= 0, 1.0, -1.0)
     for c in range(3):
         m0[c][disorder.pinning_index] = pin[c]
-    film = Film(mesh, Ms, A_ex, disorder.K_u, disorder.easy_axis, D,
+    film = Film(mesh, material.Ms, material.A_ex, disorder.K_u, disorder.easy_axis, material.D,
                 frozen=disorder.pinning_mask if pinning == "frozen" else None,
                 slaved=disorder.pinning_mask if pinning == "slaved" else None, terms=tuple(terms),
-                kernel_cache_dir=kernel_cache_dir, K_2=K_2, B_bias_T=B_bias_T,
-                interlayer_coupling_J_m2=interlayer_coupling_J_m2, spacer_after_layer=spacer_after_layer)
+                kernel_cache_dir=kernel_cache_dir, K_2=extras.K_2, B_bias_T=extras.B_bias_T,
+                interlayer_coupling_J_m2=extras.interlayer_coupling_J_m2,
+                spacer_after_layer=extras.spacer_after_layer)
     return film, m0, disorder

@@ -5,6 +5,6 @@ this package is cheap; the reference code itself (magnum.np, PyTorch) is importe
 adapter object is constructed.
 """
 
-from .magnumnp_film import MagnumFilm, magnumnp_available
+from .magnumnp_film import MagnumFilm, MagnumGrid, MagnumMaterial, magnumnp_available
 
-__all__ = ["MagnumFilm", "magnumnp_available"]
+__all__ = ["MagnumFilm", "MagnumGrid", "MagnumMaterial", "magnumnp_available"]

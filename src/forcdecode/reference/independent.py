@@ -77,7 +77,7 @@ from pathlib import Path
 import numpy as np
 
 from ..measured.writers import write_lakeshore_csv, write_micromag_0015
-from .magnumnp_film import MagnumFilm
+from .magnumnp_film import MagnumFilm, MagnumGrid, MagnumMaterial
 
 PIN_K_U = 5e7
 """Anisotropy of a pinning cell (J/m³, along z): the seed paper's 50 MJ/m³."""
@@ -268,9 +268,10 @@ def _disordered_sample(params: dict, film: IndependentFilm, seed: int, physics: 
         axis = np.array(axis, copy=True)
         axis[:, 0, j, i] = np.array([0.0, 0.0, 1.0])[:, None]
     d = film.cell_nm * 1e-9
-    sample = MagnumFilm(film.nx, film.ny, 1, d, d, film.thickness_nm * 1e-9, float(params["Ms"]), float(params["A_ex"]),
-                        K_u=K_cells, easy_axis=axis, D=float(params["D"]), pbc_images=film.pbc_images,
-                        cache_dir=cache_dir, alpha=1.0)
+    grid = MagnumGrid(film.nx, film.ny, 1, d, d, film.thickness_nm * 1e-9)
+    material = MagnumMaterial(float(params["Ms"]), float(params["A_ex"]), K_u=K_cells, easy_axis=axis,
+                              D=float(params["D"]), alpha=1.0)
+    sample = MagnumFilm(grid, material, pbc_images=film.pbc_images, cache_dir=cache_dir)
     if physics.K_2:
         _add_second_order_anisotropy(sample, physics.K_2)
     m = np.zeros((3, 1, film.ny, film.nx))

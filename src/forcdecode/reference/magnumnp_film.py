@@ -43,6 +43,7 @@ from __future__ import annotations
 import os
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,40 @@ def magnumnp_available() -> bool:
     return importlib.util.find_spec("magnumnp") is not None
 
 
+@dataclass(frozen=True)
+class MagnumGrid:
+    """The film's finite-difference grid for :class:`MagnumFilm`: ``nx`` × ``ny`` × ``nz`` cells (x, y
+    periodic, z open) of ``dx`` × ``dy`` × ``dz`` metres. Any object with these six attributes will do
+    (``forcdecode.micromag.Mesh`` has them)."""
+
+    nx: int
+    ny: int
+    nz: int
+    dx: float
+    dy: float
+    dz: float
+
+
+@dataclass(frozen=True)
+class MagnumMaterial:
+    """The film's material for :class:`MagnumFilm` (SI).
+
+    - ``Ms``: saturation magnetization (A/m, scalar, > 0);
+    - ``A_ex``: exchange stiffness (J/m, scalar);
+    - ``K_u``: uniaxial anisotropy (J/m³), scalar or per-cell array (nz, ny, nx);
+    - ``easy_axis``: anisotropy axis, 3-vector or per-cell array (3, nz, ny, nx); normalized by the film;
+    - ``D``: interfacial DMI (J/m²) in mumax3's ``Dind`` convention (see the module docstring);
+    - ``alpha``: Gilbert damping (dimensionless), used by :meth:`MagnumFilm.time_llg_step`.
+    """
+
+    Ms: float
+    A_ex: float
+    K_u: float | np.ndarray = 0.0
+    easy_axis: tuple | np.ndarray = (0.0, 0.0, 1.0)
+    D: float = 0.0
+    alpha: float = 1.0
+
+
 class MagnumFilm:
     """magnum.np model of a film periodic in x, y (pseudo-PBC images) and open in z.
 
@@ -87,10 +122,10 @@ class MagnumFilm:
 
     Parameters
     ----------
-    nx, ny, nz : cells; dx, dy, dz : cell size (m).
-    Ms : A/m (scalar). A_ex : J/m (scalar). K_u : J/m³, scalar or array (nz, ny, nx).
-    easy_axis : 3-vector or array (3, nz, ny, nx); normalized here.
-    D : J/m², interfacial DMI in mumax3's ``Dind`` convention (see module docstring).
+    grid : :class:`MagnumGrid` (cells nx, ny, nz; cell size dx, dy, dz in m), or any object with those
+        attributes (``forcdecode.micromag.Mesh``).
+    material : :class:`MagnumMaterial` (Ms A/m, A_ex J/m, K_u J/m³ scalar or (nz, ny, nx), easy_axis
+        3-vector or (3, nz, ny, nx), D J/m², Gilbert damping alpha).
     terms : subset of :data:`TERMS`.
     pbc_images : number P ≥ 1 of periodic images on each side in x and y for the demag sum
         (magnum.np ``Mesh(pbc=(P, P, 0))``; any P ≥ 1 makes exchange/DMI periodic in x, y). The
@@ -98,7 +133,6 @@ class MagnumFilm:
     cache_dir : directory for the demag kernel (magnum.np's own ``DemagField(cache_dir=...)``
         mechanism; the adapter uses the subfolder ``magnumnp-<version>-p<near>`` because magnum.np's
         file name ``N_<mesh>.pt`` only encodes n, dx (6 digits) and pbc, not p or the version).
-    alpha : Gilbert damping used by :meth:`time_llg_step`.
     compile : let magnum.np use ``torch.compile`` for exchange/anisotropy/DMI (needs a C compiler;
         the first call in a fresh process costs ~30 s of compilation, ~3-5 s when TorchInductor's
         on-disk cache is warm, and again for every new grid shape; afterwards the total field is
@@ -111,9 +145,8 @@ class MagnumFilm:
     log_level : level for magnum.np's logger (``logging.WARNING`` silences its INFO chatter).
     """
 
-    def __init__(self, nx, ny, nz, dx, dy, dz, Ms, A_ex, K_u=0.0, easy_axis=(0.0, 0.0, 1.0), D=0.0,
-                 terms=TERMS, pbc_images=10, cache_dir=None, alpha=1.0, *, compile=False,
-                 demag_near_p=20, log_level=30):
+    def __init__(self, grid: MagnumGrid, material: MagnumMaterial, *, terms=TERMS, pbc_images=10, cache_dir=None,
+                 compile=False, demag_near_p=20, log_level=30):
         mnp = _import_magnumnp()
         import torch  # noqa: PLC0415
 
@@ -121,9 +154,10 @@ class MagnumFilm:
         self._torch = torch
         mnp.set_log_level(log_level)
 
-        self.nx, self.ny, self.nz = int(nx), int(ny), int(nz)
-        self.dx, self.dy, self.dz = float(dx), float(dy), float(dz)
-        self.Ms, self.A_ex, self.D, self.alpha = float(Ms), float(A_ex), float(D), float(alpha)
+        self.nx, self.ny, self.nz = int(grid.nx), int(grid.ny), int(grid.nz)
+        self.dx, self.dy, self.dz = float(grid.dx), float(grid.dy), float(grid.dz)
+        self.Ms, self.A_ex = float(material.Ms), float(material.A_ex)
+        self.D, self.alpha = float(material.D), float(material.alpha)
         self.pbc_images = int(pbc_images)
         self.compile = bool(compile)
         unknown = set(terms) - set(TERMS)
@@ -149,8 +183,8 @@ class MagnumFilm:
             state = mnp.State(mesh)
             self.device = state.device
 
-            K_u = np.broadcast_to(np.asarray(K_u, dtype=np.float64), shape_zyx)
-            axis = np.asarray(easy_axis, dtype=np.float64)
+            K_u = np.broadcast_to(np.asarray(material.K_u, dtype=np.float64), shape_zyx)
+            axis = np.asarray(material.easy_axis, dtype=np.float64)
             if axis.shape == (3,):
                 axis = axis[:, None, None, None]
             axis = np.broadcast_to(axis, (3,) + shape_zyx)
@@ -159,7 +193,7 @@ class MagnumFilm:
                 raise ValueError("easy_axis has zero-length vectors")
             axis = axis / norm
 
-            material = {
+            mnp_material = {
                 "Ms": self.Ms,
                 "A": self.A_ex,
                 "Ku": self._to_mnp_scalar_field(K_u),
@@ -171,8 +205,8 @@ class MagnumFilm:
             if split_dmi:
                 # magnum.np 2.2.0 averages D over the periodic y link with dx instead of dy
                 # (D_avg = 2D/(dy + dx)); a rescaled D makes the y part come out as D/dy.
-                material["Di_y"] = DMI_SIGN * self.D * (self.dx + self.dy) / (2.0 * self.dy)
-            state.material = material
+                mnp_material["Di_y"] = DMI_SIGN * self.D * (self.dx + self.dy) / (2.0 * self.dy)
+            state.material = mnp_material
             state.m = state.Constant([0.0, 0.0, 1.0])
             self._state = state
 
