@@ -11,7 +11,10 @@ is a plain loop in this process.
 
 Workers are spawned (not forked: numba and FFT threads do not survive a fork), run one numba thread
 each, and load the compiled kernels from numba's on-disk cache; ``fn`` must be a module-level function
-and its arguments picklable.
+and its arguments picklable. A spawned worker imports the calling program's main module again, so a
+script that opens a pool (``close_loop_on_file(..., workers=2)``) needs the ``if __name__ ==
+"__main__":`` guard; the ``forcdecode`` command, pytest and Snakemake's rules (which call the command)
+have it.
 
     with using_workers(2):
         families = map_in_order(simulate_one, [(cfg, params, k) for k in range(16)])
