@@ -156,7 +156,8 @@ def test_a_film_measured_in_a_narrower_window_is_usable_and_its_own_protocol_is_
 @pytest.mark.parametrize("option,value,message", [("--moment-tolerance", "-0.01", "moment tolerance"),
                                                   ("--moment-tolerance", "1.5", "moment tolerance"),
                                                   ("--measured-max-step-mT", "0", "measured-protocol field step"),
-                                                  ("--measured-max-step-mT", "-2", "measured-protocol field step")])
+                                                  ("--measured-max-step-mT", "-2", "measured-protocol field step"),
+                                                  ("--workers", "0", "at least one process")])
 def test_an_option_outside_its_range_is_refused_before_any_work(tmp_path, capsys, option, value, message):
     code = main(["loop", str(MEASURED / "UB199BF.frc"), "--out", str(tmp_path / "loop"), option, value])
     assert code != 0

@@ -14,14 +14,12 @@ parameter ``field_tilt_deg`` applies the field at that angle from the normal (a 
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._runtime import limit_blas_threads, tune_allocator
 from ..core.errors import ConfigError
-from ..core.parallel import map_in_order
+from ..core.parallel import map_in_order, using_workers
 from ..core.streams import stream_rng
 from ..forc.measured_protocol import field_direction, grid_protocol, measured_protocol_family, protocol_to_grid
 from ..forc.simulate import protocol_name, simulate_family as simulate_grid_family
@@ -180,39 +178,15 @@ def _simulate_task(cfg: dict, params: dict, sample_id: int, realisation: int):
     return curves, ""
 
 
-def _init_worker() -> None:
-    """One numba thread per worker process and the CLI's allocator tuning."""
-
-    import numba
-
-    tune_allocator()
-    limit_blas_threads()
-    numba.set_num_threads(1)
-
-
 def run_tasks(cfg: dict, tasks: list, workers: int = 1, progress=None) -> list:
-    """Run ``_simulate_task`` for each (params, sample_id, realisation); ``workers`` > 1 uses a process
-    pool (spawned processes: a calling script needs the ``if __name__ == "__main__":`` guard). Results
-    in task order; the outcome does not depend on ``workers``."""
+    """Run ``_simulate_task`` for each (params, sample_id, realisation) on ``workers`` processes
+    (``core.parallel``: spawned, so a calling script needs the ``if __name__ == "__main__":`` guard; inside
+    an open ``using_workers`` block its pool serves). Results in task order; the outcome does not depend
+    on ``workers``."""
     if workers < 1:
         raise ValueError("workers must be >= 1")
-    results = [None] * len(tasks)
-    if workers == 1 or len(tasks) <= 1:
-        for k, task in enumerate(tasks):
-            results[k] = _simulate_task(cfg, *task)
-            if progress is not None:
-                progress(k + 1, len(tasks))
-        return results
-    import multiprocessing
-
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_init_worker) as pool:
-        futures = {pool.submit(_simulate_task, cfg, *task): k for k, task in enumerate(tasks)}
-        for done, future in enumerate(as_completed(futures), start=1):
-            results[futures[future]] = future.result()
-            if progress is not None:
-                progress(done, len(tasks))
-    return results
+    with using_workers(min(workers, max(len(tasks), 1))):
+        return map_in_order(_simulate_task, [(cfg, *task) for task in tasks], progress=progress)
 
 
 def observation_error(reference: np.ndarray, candidate: np.ndarray) -> dict:

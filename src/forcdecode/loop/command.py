@@ -168,7 +168,7 @@ def run(args) -> int:
                                 refine_workers=args.refine_workers, refine_method=args.refine_method,
                                 predictive_reference=args.predictive_reference, refine_extend=args.refine_extend_prior,
                                 training_dataset=args.dataset,
-                                workers=args.workers or min(available_cores(), MAX_DEFAULT_WORKERS),
+                                workers=min(available_cores(), MAX_DEFAULT_WORKERS) if args.workers is None else args.workers,
                                 report_extras=extras,
                                 **({} if args.moment_tolerance is None else {"moment_tolerance": args.moment_tolerance}))
     if choice is not None and not args.json:

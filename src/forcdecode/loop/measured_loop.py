@@ -365,6 +365,8 @@ def check_options(s: LoopSettings) -> RefineSetup:
     refine_round_size, refine_workers, refine_method = s.refine_round_size, s.refine_workers, s.refine_method
     predictive_reference, moment_tolerance, measured_max_step_T = (s.predictive_reference, s.moment_tolerance,
                                                                    s.measured_max_step_T)
+    if s.workers < 1:
+        raise ConfigError(f"--workers {s.workers}: the loop needs at least one process")
     if fixed_point and not refit:
         raise ConfigError("the fixed-point iteration needs a Hamiltonian refit (refit names, --refit)")
     if refine_budget and (estimator != "posterior" or s.params is not None):
