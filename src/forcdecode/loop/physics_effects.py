@@ -134,14 +134,19 @@ def physics_candidate_families(cfg: dict, params: dict, grids: CandidateGrids | 
     plan += [("soft", r * K_u, {"K_u": r * K_u}) for r in soft_K_u_ratios]
     plan += [("neighbourhood", float(c), {"K_u": (1 + c) * K_u}) for c in (K_u_changes or ())]
     plan += [("reference", None, {})]
-    families = map_in_order(resimulate, [(cfg, {**params, **extra}, n_profiles, first_profile, None, key)
-                                         for _, _, extra in plan], progress=progress)
+    families = map_in_order(_candidate_family, [(cfg, {**params, **extra}, n_profiles, first_profile, key)
+                                                for _, _, extra in plan], progress=progress)
     groups: dict = {}
     for (group, size, _), family in zip(plan, families):
         groups.setdefault(group, {})[size] = family
     physics = {name: groups[name] for name in ("K_2", "bias_field", "field_tilt") if name in groups}
     return {"physics_families": physics, "soft_phase_families": groups.get("soft", {}),
             "hamiltonian_families": groups.get("neighbourhood", {}), "physics_reference_family": groups["reference"][None]}
+
+
+def _candidate_family(cfg: dict, params: dict, n_profiles: int, first_profile: int, key) -> np.ndarray:
+    """One candidate's family (``resimulate`` of ``params``): a module-level worker of ``map_in_order``."""
+    return resimulate(cfg, params, n_profiles=n_profiles, first_profile=first_profile, key=key)
 
 
 def fit_interpolated_effect(measured, families: dict, base_family, train) -> dict:
