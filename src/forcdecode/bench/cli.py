@@ -18,7 +18,7 @@ from ..infer.refine import add_refinement_arguments, beyond_prior_lines, fit_fun
 from ..learn.data import load_dataset
 from ..learn.shipped import resolve_models
 from ..learn.splits import assign_splits
-from . import engine, film_learning, films, prior_learning, realisations
+from . import engine, film_family, film_learning, films, prior_learning, realisations
 from .effects import effects_confusion, n_cases
 from .effects import summary_lines as effects_lines
 from .effects_independent import (SAMPLE_CURVES, USER_LOOP_ARGS, CaseSettings, check_estimator, check_loop_args,
@@ -110,6 +110,10 @@ def _add_engine_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=2.0, help="minimum timing window per figure")
     parser.add_argument("--eager-magnumnp", action="store_true",
                         help="run magnum.np without torch.compile (default: compiled, its fastest)")
+    parser.add_argument("--film-draws", type=int, default=0,
+                        help="engine: also the 128x128x2 film's family on this many screened prior draws, the "
+                             "reference minimizer against the Fourier-preconditioned one with the image check "
+                             "(family_128x2_s; minutes per labyrinth draw; default 0: skipped)")
 
 
 def _add_thickness_arguments(parser: argparse.ArgumentParser) -> None:
@@ -240,6 +244,14 @@ def _bench_engine(args, say) -> int:
                                      magnumnp=not args.skip_magnumnp, cache_dir=args.cache_dir,
                                      compile=not args.eager_magnumnp, say=say,
                                      progress=counter("family", "curves"))
+    if args.film_draws > 0:
+        say(f"[film box128_8nm] {args.film_draws} screened draws, reference and candidate families:")
+        check = film_family.film_family_check(args.film_draws, "box128_8nm", say=say)
+        say(film_family.summary_line(check))
+        report["film_128x2"] = check
+        report["family_128x2_s"] = check["candidate_family_mean_s"]
+        report["family_128x2_reference_s"] = check["reference_family_mean_s"]
+        report["family_128x2_check_passed"] = f"{check['passed']}/{check['n']}"
     if args.json:
         print(json.dumps(report))
     return 0

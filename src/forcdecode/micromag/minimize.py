@@ -188,15 +188,17 @@ def minimize_bb(m, model, B_ext, torque_tol_T, max_iterations, max_rotation_rad,
 
 
 # ---------------------------------------------------------------- Fourier-preconditioned variant
-FourierPreconditioner = namedtuple("FourierPreconditioner", ["filt", "scale", "stiffness_T"])
+FourierPreconditioner = namedtuple("FourierPreconditioner", ["filt", "scale", "stiffness_T", "inverse_scale"])
 """P = D^{1/2} F D^{1/2} of ``minimize_bb_fourier`` (a namedtuple: numba passes it into compiled
 code): ``filt`` the in-plane exchange filter F(k) (``exchange_filter``), ``scale`` the cell-local
-D^{1/2} (``local_scale``) and ``stiffness_T`` the shared stiffness S (T) both were built with."""
+D^{1/2} (``local_scale``), ``stiffness_T`` the shared stiffness S (T) both were built with, and
+``inverse_scale`` = D^{-1/2} (for the metric s·P⁻¹s)."""
 
 
 def fourier_preconditioner(model, stiffness_T: float = 1.0) -> FourierPreconditioner:
     """The ``FourierPreconditioner`` of ``model`` for the shared stiffness ``stiffness_T`` (T)."""
-    return FourierPreconditioner(exchange_filter(model, stiffness_T), local_scale(model, stiffness_T), stiffness_T)
+    scale = local_scale(model, stiffness_T)
+    return FourierPreconditioner(exchange_filter(model, stiffness_T), scale, stiffness_T, 1.0 / scale)
 
 
 def exchange_filter(model, stiffness_T: float = 1.0) -> np.ndarray:
@@ -246,57 +248,75 @@ def _apply_filter(v4, scale, filt, out4):
                     out4[c, k, a, b] = sc[k, a, b] * back[a, b]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(**_KERNEL)
 def _tangent_and_max(m4, d4, frozen3, out4):
-    """out = d − (m·d) m (zero on frozen cells); returns max |out|."""
+    """out = d − (m·d) m (zero on frozen cells); returns max |out|. Branch-free (a 0/1 factor per
+    cell) and the maximum in its own pass, so both loops vectorize."""
     m = m4.reshape(3, -1)
     d = d4.reshape(3, -1)
     out = out4.reshape(3, -1)
     frozen = frozen3.reshape(-1)
+    mx, my, mz, dx, dy, dz = m[0], m[1], m[2], d[0], d[1], d[2]
+    ox, oy, oz = out[0], out[1], out[2]
+    for n in range(mx.shape[0]):
+        p = mx[n] * dx[n] + my[n] * dy[n] + mz[n] * dz[n]
+        keep = 0.0 if frozen[n] else 1.0
+        ox[n] = keep * (dx[n] - p * mx[n])
+        oy[n] = keep * (dy[n] - p * my[n])
+        oz[n] = keep * (dz[n] - p * mz[n])
     best = 0.0
-    for n in range(m.shape[1]):
-        if frozen[n]:
-            out[0, n] = 0.0
-            out[1, n] = 0.0
-            out[2, n] = 0.0
-            continue
-        p = m[0, n] * d[0, n] + m[1, n] * d[1, n] + m[2, n] * d[2, n]
-        x, y, z = d[0, n] - p * m[0, n], d[1, n] - p * m[1, n], d[2, n] - p * m[2, n]
-        out[0, n] = x
-        out[1, n] = y
-        out[2, n] = z
-        best = max(best, x * x + y * y + z * z)
+    for n in range(mx.shape[0]):
+        best = max(best, ox[n] * ox[n] + oy[n] * oy[n] + oz[n] * oz[n])
     return np.sqrt(best)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _inverse_metric(s4, scale, c_x, c_y, stiffness):
+@numba.njit(**_KERNEL)
+def _inverse_metric(s4, inverse_scale, c_x, c_y, stiffness):
     """s·P⁻¹s = w·F⁻¹w with w = D^{-1/2}s and F⁻¹ = 1 + L/S: |w|² + (1/S) Σ_bonds c (w_i − w_j)²/Δ²
-    over the periodic in-plane bonds (c_x = 2A/(M_s dx²), c_y likewise)."""
+    over the periodic in-plane bonds (c_x = 2A/(M_s dx²), c_y likewise). ``inverse_scale``: D^{-1/2}
+    per cell. One row of w at a time, so the inner loops are plain and vectorize."""
     _, nz, ny, nx = s4.shape
-    sc = scale.reshape(nz, ny, nx)
+    isc = inverse_scale.reshape(nz, ny, nx)
+    w = np.empty((ny, nx))
     total = 0.0
     for c in range(3):
         for k in range(nz):
             for a in range(ny):
-                ap = a + 1 if a + 1 < ny else 0
                 for b in range(nx):
-                    bp = b + 1 if b + 1 < nx else 0
-                    w = s4[c, k, a, b] / sc[k, a, b]
-                    wx = s4[c, k, a, bp] / sc[k, a, bp]
-                    wy = s4[c, k, ap, b] / sc[k, ap, b]
-                    total += w * w + (c_x * (w - wx) ** 2 + c_y * (w - wy) ** 2) / stiffness
+                    w[a, b] = s4[c, k, a, b] * isc[k, a, b]
+            squares = 0.0
+            bonds_x = 0.0
+            bonds_y = 0.0
+            for a in range(ny):
+                ap = a + 1 if a + 1 < ny else 0
+                row, up = w[a], w[ap]
+                for b in range(nx - 1):
+                    squares += row[b] * row[b]
+                    bonds_x += (row[b] - row[b + 1]) ** 2
+                    bonds_y += (row[b] - up[b]) ** 2
+                b = nx - 1
+                squares += row[b] * row[b]
+                bonds_x += (row[b] - row[0]) ** 2
+                bonds_y += (row[b] - up[b]) ** 2
+            total += squares + (c_x * bonds_x + c_y * bonds_y) / stiffness
     return total
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _dot(a4, b4):
-    a = a4.reshape(-1)
-    b = b4.reshape(-1)
-    total = 0.0
-    for n in range(a.shape[0]):
-        total += a[n] * b[n]
-    return total
+@numba.njit(**_KERNEL)
+def _bb_sums_fourier(step4, torque_old4, torque4, ptau_old4, ptau4):
+    """With y = τ_old − τ and P y = Pτ_old − Pτ: s·y and y·P y = τ_old·Pτ_old − 2 τ_old·Pτ + τ·Pτ
+    (P symmetric), in one pass over the cells."""
+    step = step4.reshape(-1)
+    old = torque_old4.reshape(-1)
+    new = torque4.reshape(-1)
+    p_old = ptau_old4.reshape(-1)
+    p_new = ptau4.reshape(-1)
+    sy = 0.0
+    yPy = 0.0
+    for n in range(step.shape[0]):
+        sy += step[n] * (old[n] - new[n])
+        yPy += old[n] * p_old[n] - 2.0 * old[n] * p_new[n] + new[n] * p_new[n]
+    return sy, yPy
 
 
 @numba.njit(cache=True)
@@ -340,13 +360,11 @@ def minimize_bb_fourier(m, model, B_ext, torque_tol_T, max_iterations, max_rotat
             return iteration, max_torque, False, 0.0
         _apply_filter(torque, scale, filt, ptau)
         max_dir = _tangent_and_max(m, ptau, model.frozen, direction)
-        # y = τ_old − τ, P y = Pτ_old − Pτ
-        sy = _dot(step, torque_old) - _dot(step, torque)
-        yPy = (_dot(torque_old, ptau_old) - 2.0 * _dot(torque_old, ptau) + _dot(torque, ptau))
+        sy, yPy = _bb_sums_fourier(step, torque_old, torque, ptau_old, ptau)
         if sy <= 0.0:
             h = max_rotation_rad / max(max_dir, 1e-30)
         elif iteration % 2 == 0:
-            h = _inverse_metric(step, scale, c_x, c_y, stiffness) / sy
+            h = _inverse_metric(step, preconditioner.inverse_scale, c_x, c_y, stiffness) / sy
         else:
             h = sy / yPy
     return max_iterations, max_torque, False, h
