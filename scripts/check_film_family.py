@@ -11,7 +11,6 @@ One core: run it with NUMBA_NUM_THREADS=1 (set below before numba loads). Minute
 from __future__ import annotations
 
 import argparse
-import json
 import os
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
