@@ -68,6 +68,12 @@ def test_loop_json_carries_each_flag_and_the_combinations(measured, tmp_path, ca
     text = (out / "report.md").read_text()
     assert f"| D | {PRIOR_ONLY}" in text and "Derived combinations" in text and "| Q |" in text
     assert f"- A_ex: {PREDATES}" in text
+    # the realisation floor, film by film: the candidates' floor is the largest over the films
+    per_film = report["patches"]["null_gain_per_film"]
+    assert len(per_film) == report["patches"]["null_films"] >= 2
+    for name, record in report["analysis"]["candidates"].items():
+        if "null_gain" in record:
+            assert record["null_gain"]["relative"] == max(g[name]["relative"] for g in per_film)
 
 
 def test_loop_prints_the_decoded_hamiltonian_with_its_flags(measured, tmp_path, capsys):

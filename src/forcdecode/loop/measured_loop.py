@@ -348,6 +348,10 @@ class FileFloor:
     null_gain: dict | None = None
     null_squares: list = field(default_factory=list)
     null_residuals: list = field(default_factory=list)
+    null_gain_per_film: list = field(default_factory=list)
+    """Each null film's own gains (mirrored), in the films' order: ``null_gain`` is their maximum, and the
+    floor of the first k films is the maximum of the first k (the floor size can be studied on the bench's
+    rows without re-running the loop)."""
 
 
 @dataclass
@@ -640,7 +644,7 @@ def null_floor(cfg: dict, s: LoopSettings, m: Measurement, resim: np.ndarray, r:
         null = merge_null_gains(null, film_gains)
     noise = stream_rng(cfg["seed"], "null_noise", "structure_floor")
     residuals = [film - resim + (r.noise or 0.0) * noise.normal(size=film.shape) for film in films]
-    return FileFloor(floor.patches, floor.pool, null, [(film - resim) ** 2 for film in films], residuals)
+    return FileFloor(floor.patches, floor.pool, null, [(film - resim) ** 2 for film in films], residuals, gains)
 
 
 def _null_film_gains(film, resim, fields, noise_sigma, seed: int, s: LoopSettings, candidates: dict) -> dict:
@@ -769,6 +773,7 @@ def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup,
     else:  # candidates, the realisation floor, judge
         candidates = physics_candidates(cfg, s, hamiltonian.params)
         floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
+        report["patches"]["null_gain_per_film"] = floor.null_gain_per_film
         judgement = judge_residual(cfg, s, measurement, hamiltonian.params, spread, residual, candidates, floor)
     return write_report(out, path, cfg, s, measurement, residual, judgement, report)  # report
 
