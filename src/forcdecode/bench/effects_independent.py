@@ -1013,7 +1013,8 @@ def user_row(case: dict, report: dict, argv=(), estimator: str = "", sample_s: f
             "heldout_reduction": reductions, "sample_s": sample_s, "loop_s": loop_s,
             "patches": int(case.get("patches", 1)), "pinned": bool(case["hamiltonian"].get("N_pin", 0)),
             "variant": (case.get("sample") or {}).get("variant", "standard"),
-            "patch_estimate": (report.get("patches") or {}).get("estimate")}
+            "patch_estimate": (report.get("patches") or {}).get("estimate"),
+            "null_gain_per_film": (report.get("patches") or {}).get("null_gain_per_film")}
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.9):
