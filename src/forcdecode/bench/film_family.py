@@ -1,8 +1,8 @@
 """The informative film's FORC family: its cost per prior draw, and a faster minimizer checked
 against the reference on the same draws (issue 62 item 1).
 
-For each of the first ``draws`` dataset draws that pass the laptop screening (the Hamiltonians the
-main job would simulate), on the film of ``information_films.FILMS`` (default ``box128_8nm``:
+For each of the first ``draws`` dataset draws of the main config's prior class that pass the laptop
+screening (the Hamiltonians the main job would simulate), on the film of ``information_films.FILMS`` (default ``box128_8nm``:
 128 × 128 × 2 cells of 2 × 2 × 4 nm, 64 grains), one disorder realisation, three families:
 
 - **reference**: the film's configured protocol as the information map ran it (float64 fields,
@@ -89,7 +89,7 @@ def _warm_up(base_cfg: dict, candidate: dict) -> None:
     """Compile both minimizers on the small laptop film, outside every timing."""
     cfg = film_config(base_cfg, "laptop", FILMS)
     cfg["field"] = {**cfg["field"], "n_fields": 4}
-    params = pick_hamiltonians(cfg, 1)[0]
+    params = pick_hamiltonians(cfg, 1, prior=cfg.get("prior"))[0]
     for options in ({}, candidate):
         _family(cfg, _hamiltonian(params), ("bench_film", "film_family", "warm_up"), options)
 
@@ -136,7 +136,7 @@ def film_family_check(draws: int = 8, film: str = "box128_8nm", candidate: dict 
     cfg = film_config(base, film, FILMS)
     _warm_up(base, candidate)
     rows = []
-    for row in pick_hamiltonians(base, draws):
+    for row in pick_hamiltonians(base, draws, prior=base.get("prior")):
         result = check_draw(cfg, film, row, candidate, with_floor)
         rows.append(result)
         say(draw_line(result))

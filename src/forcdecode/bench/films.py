@@ -66,11 +66,14 @@ def film_config(base_cfg: dict, film: str, films: dict | None = None) -> dict:
     return cfg
 
 
-def pick_hamiltonians(cfg: dict, n: int, first_id: int = 0, progress=None) -> list[dict]:
-    """The first ``n`` dataset draws (ids from ``first_id``) that pass the laptop screening."""
+def pick_hamiltonians(cfg: dict, n: int, first_id: int = 0, progress=None, prior: str | None = None) -> list[dict]:
+    """The first ``n`` dataset draws (ids from ``first_id``) that pass the laptop screening, under the
+    prior class ``prior`` (None: ``dataset.params``' default class, as the films bench has always drawn;
+    ``cfg["prior"]`` gives the draws of the config's own main job)."""
     picked, sample_id = [], first_id
+    prior_class = {} if prior is None else {"prior": prior}
     while len(picked) < n:
-        params = draw_parameters(cfg["seed"], sample_id)
+        params = draw_parameters(cfg["seed"], sample_id, **prior_class)
         if screen(film_config(cfg, "laptop"), params, sample_id)["screen_status"] == "passed":
             picked.append({"sample_id": sample_id, **params})
             if progress is not None:
