@@ -134,3 +134,28 @@ def test_a_two_patch_pinned_film_with_its_true_hamiltonian_gets_no_effect(tmp_pa
     assert floors and all("null_gain" in c for c in floors)
     text = (out / "report.md").read_text()
     assert "patches" in text and "(floor)" in text
+
+
+def test_singles_that_do_not_saturate_in_the_window_stand_in_as_grid_families_of_their_own_disorder(tmp_path):
+    """A file measured in a window (±0.3 T) narrower than its film's switching (a hard film, K_u 1.2
+    MJ/m³): a single of the pool that does not saturate there is replaced by the grid family of the same
+    disorder (key, k), in order, simulated on the workers as the rest (``fallbacks`` counts them)."""
+    from forcdecode.infer.resimulate import grid_single
+    from forcdecode.loop.patches import rasterized_singles
+    from forcdecode.measured.reader import read_forc
+    from forcdecode.measured.writers import write_micromag_0015
+
+    cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
+    params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 1.2e6, "D": 0.0, "N_pin": 0, "sigma_theta_deg": 2.0, "sigma_K": 0.05}
+    reversal = np.linspace(-0.3, 0.3, 6)
+    curves = [(np.linspace(h, 0.3, 4), np.ones(4) * 1e-9) for h in reversal]
+    path = write_micromag_0015(tmp_path / "narrow.frc", reversal, curves, calibration_moments_Am2=np.ones(6) * 1e-9,
+                               calibration_field_T=0.3)
+    data = read_forc(path)
+    pool = rasterized_singles(cfg, params, data, 1e-9, 0.0, count=3, key="loop_null", max_step_T=0.02)
+    assert len(pool) == 3 and pool.fallbacks >= 2
+    # the stand-ins are the grid families of their own k (in order); the others are the file's protocol put
+    # on the grid, which differ from any grid family
+    same = [np.array_equal(single, grid_single(cfg, params, "loop_null", k), equal_nan=True) for k, single in enumerate(pool)]
+    assert sum(same) == pool.fallbacks
+    assert not np.array_equal(pool[0], pool[1], equal_nan=True)  # each its own disorder

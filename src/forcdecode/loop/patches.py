@@ -30,7 +30,8 @@ import numpy as np
 from ..core.streams import stream_rng
 from ..forc.raster import measurement_on_grid
 from ..core.parallel import map_in_order
-from ..infer.resimulate import DISORDER_STREAM, grid_single, measured_single, simulate_family
+from ..core.progress import counter
+from ..infer.resimulate import grid_single, measured_single
 
 PATCH_CHOICES = (1, 2, 4, 8)
 """Patch numbers the estimate tells apart; a family smoother than 8-patch averages of the decoded
@@ -100,23 +101,27 @@ def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: flo
     reversal = [float(c.reversal_field_T) for c in data.curves]
     fields = [np.concatenate([[h], np.asarray(c.field_T, float)[1:]]) if abs(float(c.field_T[0]) - h) < 1e-9
               else np.asarray(c.field_T, float) for h, c in zip(reversal, data.curves)]
-    singles = _Pool()
     families = map_in_order(measured_single, [(cfg, params, key, k, reversal, fields, max_step_T) for k in range(count)],
                             progress=progress)
+    on_grid: dict[int, np.ndarray] = {}
     for k, family in enumerate(families):
         pseudo = replace(data, curves=[replace(c, moment_Am2=moment_offset_Am2 + moment_saturation_Am2 * np.asarray(v))
                                        for c, v in zip(data.curves, family.curves)])
         _, grid, note, saturation, domain = measurement_on_grid(pseudo, B_max, n, with_domain=True)
-        if note is not None or not saturation > 0:
-            # this realisation does not saturate in the file's window: its own normalization would mean
-            # nothing; the grid family of the same disorder stands in (``fallbacks``)
-            singles.append(simulate_family(cfg, params, stream_rng(cfg["seed"], DISORDER_STREAM, key, k)))
-            singles.fallbacks += 1
-        else:
+        if note is None and saturation > 0:
             # back to the simulation's units (m = (M − M_0)/M_sat with the given M_0, M_sat), as the
             # re-simulation it is compared with
-            singles.append(grid * (saturation / moment_saturation_Am2)
-                           + (domain.moment_offset_Am2 - moment_offset_Am2) / moment_saturation_Am2)
+            on_grid[k] = (grid * (saturation / moment_saturation_Am2)
+                          + (domain.moment_offset_Am2 - moment_offset_Am2) / moment_saturation_Am2)
+    # a realisation that does not saturate in the file's window: its own normalization would mean nothing;
+    # the grid family of the same disorder stands in (``fallbacks``), simulated on the workers as the rest
+    missing = [k for k in range(count) if k not in on_grid]
+    grids = map_in_order(grid_single, [(cfg, params, key, k) for k in missing],
+                         progress=counter("singles on the grid (not saturated in the file's window)", "families")
+                         if missing else None)
+    on_grid.update(zip(missing, grids))
+    singles = _Pool(on_grid[k] for k in range(count))
+    singles.fallbacks = len(missing)
     return singles
 
 
