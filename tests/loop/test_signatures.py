@@ -510,3 +510,100 @@ def test_a_bias_field_is_held_to_the_saturation_test_as_an_offset_is():
                               physics_families={"bias_field": bias}, saturation_points=clean)
     bias_fit = result["candidates"]["bias_field"]
     assert not bias_fit["saturation_evidence"]["reversible"], (bias_fit["parameters"], bias_fit["saturation_evidence"])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_background_is_seen_in_the_saturated_film_and_a_late_saturation_is_not(seed):
+    """``background_evidence`` on the measured points past the closure: a 0.05/T background is significant
+    with χ within its error of the truth (also under a 3 % gain); noise, a paramagnet (curved: the line's
+    form leaves it) and a sample still saturating where the model already is (a residual decaying over
+    0.1 T on both sides, curved) are not; the two sides must agree."""
+    from forcdecode.loop.signatures import Z_BACKGROUND, background_evidence, saturated_measured_points
+
+    def evidence(extra, gain=1.0):
+        r, h, m = measured_protocol_points(extra, seed=seed)
+        return background_evidence(saturated_measured_points((r, h, gain * m), *major_loop(0.25)), moment_tolerance=0.05)
+
+    for gain in (1.0, 1.03):
+        found = evidence(lambda h: 0.05 * h, gain)
+        assert found["significant"] and found["sides_agree"], found
+        assert abs(found["chi_per_T"] - 0.05 * gain) < Z_BACKGROUND * found["se_per_T"], found
+        assert set(found["sides"]) == {"positive", "negative"}
+    assert not evidence(lambda h: 0.0 * h)["significant"]
+    assert not evidence(lambda h: 0.05 * langevin(h / 0.08))["significant"]
+    late = evidence(lambda h: -np.sign(h) * 0.03 * np.exp(-(np.abs(h) - 0.35) / 0.1))
+    assert not late["significant"], late
+    # a diamagnetic substrate: the same evidence with the other sign
+    diamagnet = evidence(lambda h: -0.02 * h)
+    assert diamagnet["significant"] and diamagnet["chi_per_T"] < 0, diamagnet
+
+
+def test_a_background_in_the_saturated_film_is_named_where_the_heldout_curves_barely_see_it():
+    """A film of coercivity 0.36 T decoded as 0.30 T (the held-out residual is that switching misfit, 0.21
+    RMS) with a 0.02/T background: fitted on the family, the background's χ follows the misfit and its
+    held-out gain is negative, so without the measured points nothing is named. With them the saturated
+    film's slope decides (``decisive``): the background is named with χ read there (within its error of
+    the truth), not made ambiguous by what explains the held-out curves equally. Without a background in
+    the file the background is refused by its own test."""
+    from forcdecode.loop.signatures import Z_BACKGROUND, saturated_measured_points
+
+    fields, base = family(0.3)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    film = family(0.36)[1] + 0.002 * np.random.default_rng(4).normal(size=base.shape)
+    static = ("scale", "background", "field_offset")
+    measured = film + 0.02 * H
+    points = saturated_measured_points(measured_protocol_points(lambda h: 0.02 * h, seed=4), *major_loop(0.25))
+    blind = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=static)
+    assert blind["chosen"] == "none" and blind["candidates"]["background"]["relative_gain"] < 0
+    seen = analyse_residual(measured, base, fields, thermal=False, n_boot=300, measured_candidates=static,
+                            saturation_points=points)
+    record = seen["candidates"]["background"]
+    assert record["background_evidence"]["significant"] and record["chi_source"].startswith("the saturated film")
+    assert seen["chosen"] == "background" and seen["verdict"] == "background", seen["verdict_text"]
+    assert abs(record["parameters"]["chi_per_T"] - 0.02) < Z_BACKGROUND * record["uncertainties"]["chi_per_T"]
+    clean = saturated_measured_points(measured_protocol_points(lambda h: 0.0 * h, seed=4), *major_loop(0.25))
+    without = analyse_residual(film, base, fields, thermal=False, n_boot=300, measured_candidates=static,
+                               saturation_points=clean)
+    assert without["chosen"] != "background"
+    assert not without["candidates"]["background"]["background_evidence"]["significant"]
+
+
+def switching_forc_points(low=0.2, high=0.32, n_curves=40, step=0.02, noise=0.002, seed=0):
+    """Flat (reversal field, field, m) of a FORC file over ±1 T of non-interacting grains whose switching
+    fields s are spread evenly over [``low``, ``high``] T (down at −s, up at +s): on a curve reversed at
+    H_r the grains with s ≤ −H_r are down and switch up as H passes s, so the loop closes at ±``high``.
+    The saturated film approaches ±1 as ``saturated_film``."""
+    rng = np.random.default_rng(seed)
+    switched = lambda x: np.clip((np.asarray(x, float) - low) / (high - low), 0.0, 1.0)  # noqa: E731
+    reversal, field, m = [], [], []
+    for h_r in np.linspace(-1.0, 1.0, n_curves):
+        h = np.round(np.arange(h_r, 1.0 + 1e-9, step), 12)
+        down = np.maximum(switched(-h_r) - switched(h), 0.0)
+        reversal.append(np.full(h.size, h_r))
+        field.append(h)
+        m.append(np.abs(saturated_film(h)) * (1 - 2 * down) + noise * rng.normal(size=h.size))
+    return np.concatenate(reversal), np.concatenate(field), np.concatenate(m)
+
+
+def test_the_files_own_closure_keeps_a_still_switching_sample_out_of_the_saturated_points():
+    """A decoded film softer than the sample closes its loop at ±0.15 T, the sample at ±0.32 T (switching
+    fields spread over 0.20–0.32 T): past the model's closure (+0.1 T) the sample is still switching. With
+    the file's own closure (the reversal points against the lowest curve) the saturated points start 0.1 T
+    past ±0.32 T, and the sample there is the saturated film (the bare test passes); with the model's
+    closure alone the still-switching points fail it."""
+    from forcdecode.loop.signatures import measured_loop_closure, saturated_measured_points, saturation_residual_points
+
+    points = switching_forc_points()
+    negative, positive = measured_loop_closure(points)
+    assert -0.32 - 0.06 <= negative <= -0.3 and 0.3 <= positive <= 0.32 + 0.06, (negative, positive)
+    soft_model = major_loop(0.15)
+    own = saturated_measured_points(points, *soft_model, measured_closure=True)
+    assert np.all(np.abs(own.field_T) >= 0.4 - 1e-9) and own.closure_T == (negative, positive)
+    assert not saturation_residual_points(own)["reversible"]
+    models_only = saturated_measured_points(points, *soft_model)
+    assert models_only.closure_T == pytest.approx((-0.15, 0.15))
+    assert saturation_residual_points(models_only)["reversible"]
+    # a file whose loop closes only at the window's edge has no saturated point left
+    wide = switching_forc_points(0.5, 1.5)
+    assert measured_loop_closure(wide) == pytest.approx((-1.0, 1.0))
+    assert saturated_measured_points(wide, *soft_model, measured_closure=True).field_T.size == 0

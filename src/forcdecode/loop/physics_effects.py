@@ -49,7 +49,8 @@ from .effects import (EFFECTS, HAMILTONIAN_CHANGE, REALISATION_NOISE, SWITCHING_
                       _grid_resolution, beats_null_gain, bootstrap_resamples, choose_candidate,
                       equivalent_candidates, fit_effect, heldout_folds, heldout_mse, measurement_clock,
                       separating_measurements)
-from .signatures import (candidate_shift, drift_agreement, saturation_gated, saturation_residual,
+from .signatures import (background_agreement, background_evidence, candidate_shift, drift_agreement,
+                         saturation_gated, saturation_residual,
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .structure import describe, residual_structure
 
@@ -411,6 +412,7 @@ class Offered:
     mse: dict
     evidenced: set
     floored: dict = field(default_factory=dict)
+    decisive: set = field(default_factory=set)
 
 
 @dataclass
@@ -535,6 +537,20 @@ def baselines(p: ResidualProblem, hamiltonian_families: dict, moment_tolerance: 
     return Baselines(nuisance_mse, knob_mse, hamiltonian)
 
 
+def _background_from_saturation(p: ResidualProblem, fits: CandidateFits, evidence: dict) -> None:
+    """The "background" candidate with its gain and χ read off the saturated film
+    (``signatures.background_evidence``: the background's form fitted on the saturated points) instead of
+    fitted on the family: model a·m_sim + χ·μ0H, its held-out MSE per curve (nothing fitted on the
+    curves, so every fold's model is the same), parameters and 1σ (χ's from the two sides' lines)."""
+    chi, scale, se = float(evidence["model_chi_per_T"]), float(evidence["model_scale"]), float(evidence["se_per_T"])
+    model = scale * p.base_family + chi * p.fields[None, :]
+    fits.mse["background"] = heldout_mse(p.measured, lambda rows: model, p.folds)
+    fits.models["background"] = model
+    fits.records["background"].update(parameters={"scale": scale, "chi_per_T": chi},
+                                      uncertainties={"scale": None, "chi_per_T": se},
+                                      chi_source="the saturated film (signatures.background_evidence)")
+
+
 def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g: GateSettings) -> Offered:
     """Record each candidate's gain and offer it to the selection only past the gates: the moment
     tolerance, the saturation test, the model-free shift and drift evidence, the free normalization,
@@ -551,7 +567,10 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
     none_mse = float(np.nanmean(mse["none"]))
     offered = dict(mse)
     evidenced = set()  # shown by the model-free shift or drift test: ``choose_candidate(evidenced=)``
+    decisive = set()  # shown where the effect lives (a background's slope in saturation): ``choose_candidate(decisive=)``
     floored = {}  # passed every gate but the realisation floor
+    background = (background_evidence(saturation_points, moment_tolerance=moment_tolerance)
+                  if saturation_gate and saturation_points is not None else None)
     for name in records:
         gain_mse = none_mse - float(np.nanmean(mse[name]))
         records[name]["gain_mse_mean"] = gain_mse
@@ -584,6 +603,27 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
                                             moment_tolerance=moment_tolerance, free=saturation_terms(name))
             records[name]["saturation_evidence"] = check
             if check["reversible"]:
+                offered.pop(name, None)
+                continue
+        if name == "background" and background is not None and background.get("significant") and evidence_suffices:
+            # the slope the saturated film shows by itself: χ read there, not fitted on the switching curves
+            # (where the decoded Hamiltonian's misfit pulls it, even to the other sign); judged on the held-out
+            # curves only for not making them worse; no realisation floor, no further gate
+            _background_from_saturation(p, fits, background)
+            offered[name] = mse[name]
+            gain_mse = none_mse - float(np.nanmean(mse[name]))
+            records[name].update(gain_mse_mean=gain_mse, relative_gain=gain_mse / none_mse if none_mse > 0 else 0.0,
+                                 heldout_mse_per_curve=[None if not np.isfinite(v) else float(v) for v in mse[name]],
+                                 background_evidence={**background, "agrees": True})
+            evidenced.add(name)
+            decisive.add(name)
+            continue
+        background_ok = background_agreement(background, name, records[name]["parameters"])
+        if background_ok is not None:
+            records[name]["background_evidence"] = {**background, "agrees": background_ok}
+            if not background_ok:
+                # the saturated film shows no such slope: a fitted background would carry the difference
+                # between the model's film and the sample, not a susceptibility
                 offered.pop(name, None)
                 continue
         shift_checked = field_shift is not None and shifts_field(name) and field_shift.get("offset_T") is not None
@@ -631,7 +671,7 @@ def gate_candidates(p: ResidualProblem, fits: CandidateFits, base: Baselines, g:
             withheld = offered.pop(name)  # withheld by the realisation floor
             if records[name]["relative_gain"] >= records[name]["null_gain"]["relative"]:
                 floored[name] = withheld  # and gaining as much as effect-free films give it: ambiguous, not none
-    return Offered(offered, evidenced, floored)
+    return Offered(offered, evidenced, floored, decisive)
 
 
 def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int, n_boot: int,
@@ -641,7 +681,8 @@ def choose(p: ResidualProblem, fits: CandidateFits, offered: Offered, seed: int,
     mse, records = fits.mse, fits.records
     rng = stream_rng(seed, "bootstrap", "analyse_residual")
     chosen, scores = choose_candidate(offered.mse, {k: v["n_parameters"] for k, v in records.items()}, rng,
-                                      n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced)
+                                      n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced,
+                                      decisive=offered.decisive)
     for name in set(records) - set(offered.mse):
         scores[name] = {"heldout_rms": float(np.sqrt(np.nanmean(mse[name]))), "gain_mse": None, "gain_ci90": None,
                         "relative_gain_ci90": None, "accepted": False}
@@ -700,6 +741,7 @@ def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: st
     only because K_u's neighbourhood explains the residual as well (and no better) is ambiguous with
     that K_u change (a field tilt, K_2 or thermal activation against the decoded K_u). The verdict is
     then "ambiguous", with the set and, for each member, the measurement that would separate it.
+    A candidate chosen on decisive evidence (``Offered.decisive``) is not made ambiguous by the held-out curves.
     Draws on its own bootstrap stream (``ambiguity`` of ``o.seed``), after the choice: the choice is unchanged;
     the selection's rule: ``o.n_boot``, ``o.min_relative_gain``, ``o.equivalence``."""
     seed, n_boot, min_relative_gain, equivalence = o.seed, o.n_boot, o.min_relative_gain, o.equivalence
@@ -708,7 +750,11 @@ def ambiguity(fits: CandidateFits, base: Baselines, offered: Offered, chosen: st
     if base.knob_mse is not None:
         pool[HAMILTONIAN_CHANGE] = base.knob_mse
     options = dict(n_boot=n_boot, min_relative_gain=min_relative_gain, equivalence=equivalence)
-    if chosen != "none":
+    if chosen in offered.decisive:
+        # shown where it lives (a background's slope in saturation), not by the held-out curves: what explains
+        # those equally does not make it ambiguous
+        members = []
+    elif chosen != "none":
         members = equivalent_candidates(pool, chosen, rng, same_observable=SAME_OBSERVABLE, **options)
         members = sorted(set(members) | {chosen}) if members else []
     elif base.knob_mse is not None and HAMILTONIAN_CHANGE in pool:
@@ -752,7 +798,8 @@ def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, ve
         rng = stream_rng(seed, "bootstrap", "realisation_ambiguity")
         pool = {**offered.mse, **offered.floored}
         without_floor, _ = choose_candidate(pool, {k: v["n_parameters"] for k, v in fits.records.items()}, rng,
-                                            n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced)
+                                            n_boot, min_relative_gain, equivalence, evidenced=offered.evidenced,
+                                            decisive=offered.decisive)
         if without_floor != "none":
             members = [without_floor, REALISATION_NOISE]
     named = set(members) if members else ({chosen} if chosen != "none" else set())

@@ -257,11 +257,12 @@ def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "ma
                         n_profiles: int = SATURATION_PROFILES):
     """The measured points (reversal field, field, m per point: ``signatures.measured_point_arrays``)
     past the closure of ``params``' major loop averaged over ``n_profiles`` realisations, re-simulated on
-    a 10 mT lattice over the points' window (``resimulate.major_loop_branches``, disorder stream ``key``):
-    ``signatures.SaturatedPoints``."""
+    a 10 mT lattice over the points' window (``resimulate.major_loop_branches``, disorder stream ``key``)
+    and past the file's own closure (``signatures.measured_loop_closure``): ``signatures.SaturatedPoints``."""
     window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
     return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key,
-                                                                           n_profiles=n_profiles))
+                                                                           n_profiles=n_profiles),
+                                     measured_closure=True)
 
 
 AMBIGUITY_VERDICTS = ("none", "ambiguous")
