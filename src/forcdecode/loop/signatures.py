@@ -660,27 +660,35 @@ Z_BACKGROUND = 3.0
 """A linear background is claimed from the saturated film at |χ| > 3 standard errors."""
 
 
-def _side_slope(r, H, column, scatter: float) -> dict | None:
-    """χ and its standard error (per T, m units) of one saturated side: a weighted line through the
-    column means of the residual ``r`` (each column's weight its count over the between-curve
-    ``scatter`` squared), the error inflated by the line's own misfit (χ²/dof where above 1: a curved
-    residual, such as a sample not yet saturated where the model is, is no evidence of a line). None
-    with fewer than three columns."""
+def _side_slope(r, H, deficit, column, scatter: float) -> dict | None:
+    """χ and its standard error (per T, m units) of one saturated side: weighted least squares of the
+    column means of the residual ``r`` (each column's weight its count over the between-curve ``scatter``
+    squared) on a constant, the field ``H`` and the model's own shortfall from saturation ``deficit``
+    (m_model − sign m_model: the approach to saturation, which scales with the film's tilt and anisotropy
+    dispersion, so a decoded film whose dispersion is off leaves a residual of that shape, not a line;
+    ``approach_coefficient`` 0.5: the sample falls short of saturation 1.5 × as far as the model).
+    The error is inflated by the fit's own misfit (χ²/dof where above 1). None with fewer than four
+    columns."""
     columns = np.unique(column)
-    if columns.size < 3:
+    if columns.size < 4:
         return None
     means = np.array([r[column == j].mean() for j in columns])
     fields = np.array([H[column == j].mean() for j in columns])
+    deficits = np.array([deficit[column == j].mean() for j in columns])
     weights = np.array([(column == j).sum() for j in columns], float) / scatter**2
-    centre = float((weights * fields).sum() / weights.sum())
-    sxx = float((weights * (fields - centre) ** 2).sum())
-    if not sxx > 0:
+    design = np.stack([np.ones(columns.size), fields, deficits], axis=1)
+    normal = design.T @ (weights[:, None] * design)
+    try:
+        covariance = np.linalg.inv(normal)
+    except np.linalg.LinAlgError:
         return None
-    chi = float((weights * (fields - centre) * means).sum() / sxx)
-    intercept = float((weights * means).sum() / weights.sum()) - chi * centre
-    misfit = float((weights * (means - intercept - chi * fields) ** 2).sum()) / (columns.size - 2)
-    return {"chi_per_T": chi, "se_per_T": float(np.sqrt(max(misfit, 1.0) / sxx)), "columns": int(columns.size),
-            "misfit_chi2_per_dof": misfit}
+    coefficients = covariance @ (design.T @ (weights * means))
+    misfit = float((weights * (means - design @ coefficients) ** 2).sum()) / max(columns.size - 3, 1)
+    se = float(np.sqrt(max(misfit, 1.0) * covariance[1, 1]))
+    if not np.isfinite(se) or se <= 0:
+        return None
+    return {"chi_per_T": float(coefficients[1]), "se_per_T": se, "approach_coefficient": float(coefficients[2]),
+            "columns": int(columns.size), "misfit_chi2_per_dof": misfit}
 
 
 def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
@@ -715,17 +723,18 @@ def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
     scatter = bare.get("scatter")
     if not scatter:
         return {**out, "reason": bare.get("reason", "no saturated points")}
-    r = points.m - points.model()
+    model = points.model()
+    r, deficit = points.m - model, model - np.sign(model)  # the model's own shortfall from ±1, signed
     sides = {}
     for sign, label in ((1, "positive"), (-1, "negative")):
         on = points.sign == sign
         # each side with its own level: the normalization's offset and gain move the two sides' levels
-        side = _side_slope(r[on], points.field_T[on], points.column[on], scatter) if on.sum() else None
+        side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter) if on.sum() else None
         if side is not None:
             sides[label] = side
     out["sides"] = sides
     if not sides:
-        return {**out, "reason": "fewer than three saturated field columns on either side"}
+        return {**out, "reason": "fewer than four saturated field columns on either side"}
     w = np.array([1 / s["se_per_T"] ** 2 for s in sides.values()])
     chis = np.array([s["chi_per_T"] for s in sides.values()])
     chi, se = float((w * chis).sum() / w.sum()), float(1 / np.sqrt(w.sum()))
