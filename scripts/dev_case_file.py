@@ -15,7 +15,7 @@ import argparse
 import shlex
 from pathlib import Path
 
-from forcdecode.bench.effects_independent import case_file
+from forcdecode.bench.effects_independent import case_file, user_loop_argv
 from forcdecode.bench.laptop_cases import load_cases
 
 
@@ -32,8 +32,7 @@ def main() -> None:
     for name in args.cases:
         case = cases[name]
         path, sample_s = case_file(case, args.out, cache_dir=args.cache_dir, samples_dir=args.out / "samples")
-        Ms_kA_m = case["hamiltonian"]["Ms"] * case["Ms_error_factor"] / 1e3
-        command = ["forcdecode", "loop", str(path), "--out", str(args.out / "loop" / name), "--Ms-kA-m", f"{Ms_kA_m:.6g}"]
+        command = ["forcdecode", "loop", *user_loop_argv(case, path, args.out / "loop" / name)]
         print(f"{name}: {path} ({sample_s:.0f} s of sample)\n  {shlex.join(command)}", flush=True)
 
 

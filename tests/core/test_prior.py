@@ -11,6 +11,9 @@ from forcdecode.core.prior import Prior, PriorError
 from forcdecode.dataset.params import (draw_log_density, draw_parameters, draw_prior_cdf, draw_prior_ppf,
                                        draw_prior_quantiles)
 
+ORIGINAL_DIGEST = "3ac380fbd1aba8800b87e7c7da470801efa1ac70904d8b7f3d10b961833c95b5"
+"""sha256 of the draw as written before the Prior object (commit f9b42ae, dataset/params.py)."""
+
 REFERENCE = Path(__file__).parent / "data" / "prior_draws_reference.json"
 """300 draws per class (seed 7), densities, CDFs, inverse CDFs and quantiles, as the datasets were made:
 written by ``python tests/core/test_prior.py`` on an AVX-512 machine (AMD EPYC, numpy 2.4.6) where their
@@ -39,19 +42,18 @@ def _record() -> dict:
     return out
 
 
-def _digest() -> str:
-    """The original bit-for-bit hash of the same values (kept to show which machine wrote the reference)."""
+def _digest(record: dict) -> str:
+    """The original bit-for-bit hash of the same values (kept to show which machine wrote the reference):
+    each draw's sorted JSON, then the marginals' float64 bytes, class by class."""
     h = hashlib.sha256()
     for prior in ("paper", "perpendicular"):
-        for i in range(300):
-            h.update(json.dumps(draw_parameters(7, i, prior=prior), sort_keys=True).encode())
-        u = np.random.default_rng(0).random((50, 3))
-        Ms = np.linspace(3e5, 1.3e6, 50)
-        h.update(draw_log_density(u, ("K_u", "A_ex", "D"), Ms, prior=prior).tobytes())
+        rec = record[prior]
+        for draw in rec["draws"]:
+            h.update(json.dumps(draw, sort_keys=True).encode())
+        h.update(np.asarray(rec["log_density"], float).tobytes())
         for n in ("K_u", "A_ex", "D"):
-            h.update(draw_prior_cdf(n, u[:, 0], Ms[:5].repeat(10), prior=prior).tobytes())
-            h.update(draw_prior_ppf(n, u[:, 1], Ms[:5].repeat(10), prior=prior).tobytes())
-            h.update(draw_prior_quantiles(n, 8e5, [0.05, 0.5, 0.95], prior=prior).tobytes())
+            for key in ("cdf", "ppf", "quantiles"):
+                h.update(np.asarray(rec[f"{key}_{n}"], float).tobytes())
     return h.hexdigest()
 
 
@@ -66,6 +68,12 @@ def test_the_draw_and_its_marginals_are_those_the_datasets_were_made_with():
                 assert a[k] == pytest.approx(b[k], rel=1e-12, abs=0), (prior, i, k)
         for key in set(rec) - {"draws"}:
             np.testing.assert_allclose(now[prior][key], rec[key], rtol=1e-12, atol=0, err_msg=f"{prior} {key}")
+
+
+def test_the_reference_is_the_original_draw_bit_for_bit():
+    """The committed values hash to the digest of the draw the datasets were made with (on any CPU: the
+    hash reads the file, not a fresh draw)."""
+    assert _digest(json.loads(REFERENCE.read_text())) == ORIGINAL_DIGEST
 
 
 def test_the_reference_comparison_fails_on_a_changed_draw():
@@ -100,5 +108,6 @@ def test_a_bound_set_without_a_perpendicular_film_is_refused():
 
 if __name__ == "__main__":  # rewrite the reference (only where the draw law itself was meant to change)
     REFERENCE.parent.mkdir(exist_ok=True)
-    REFERENCE.write_text(json.dumps(_record(), sort_keys=True) + "\n")
-    print("wrote", REFERENCE, "digest", _digest())
+    record = _record()
+    REFERENCE.write_text(json.dumps(record, sort_keys=True) + "\n")
+    print("wrote", REFERENCE, "digest", _digest(record))

@@ -877,6 +877,17 @@ def case_file(case: dict, work_dir, cache_dir=None, samples_dir=None) -> tuple[P
     return path, sample_s
 
 
+def given_Ms(case: dict) -> float:
+    """The M_s (A/m) a user gives the loop for ``case``: the truth × the case's M_s error factor."""
+    return case["hamiltonian"]["Ms"] * case["Ms_error_factor"]
+
+
+def user_loop_argv(case: dict, path, out, loop_args=USER_LOOP_ARGS) -> list[str]:
+    """`forcdecode loop` arguments (after ``loop``) of ``case``'s file as a user gives them:
+    FILE --out OUT LOOP_ARGS --Ms-kA-m M (``given_Ms``), nothing else of the truth."""
+    return [str(path), "--out", str(out), *loop_args, "--Ms-kA-m", f"{given_Ms(case) / 1e3:.6g}"]
+
+
 def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str | None = None, cache_dir=None,
                   samples_dir=None) -> dict:
     """One case as a user runs it: the magnum.np sample recorded in an instrument file, then
@@ -893,13 +904,11 @@ def run_user_case(case: dict, work_dir, loop_args=USER_LOOP_ARGS, fallback: str 
                 "status": "sample failed", "error": str(error), "loop_argv": [], "estimator": None,
                 "oracle_inputs": False}
     out = work / "loop" / case["name"]
-    Ms_given = case["hamiltonian"]["Ms"] * case["Ms_error_factor"]
-    argv = [str(path), "--out", str(out), *loop_args]
     if fallback is None:
-        argv += ["--Ms-kA-m", f"{Ms_given / 1e3:.6g}"]
+        argv = user_loop_argv(case, path, out, loop_args)
     else:
-        write_json(out / "fallback_params.json", population_median_hamiltonian(Ms_given))
-        argv += ["--params", str(out / "fallback_params.json")]
+        write_json(out / "fallback_params.json", population_median_hamiltonian(given_Ms(case)))
+        argv = [str(path), "--out", str(out), *loop_args, "--params", str(out / "fallback_params.json")]
     start = time.perf_counter()
     module = _loop_module()
     try:

@@ -581,29 +581,26 @@ so noise alone does not hold the loop open, and below the reversible residual th
 
 
 def measured_loop_closure(points, tolerance: float = MEASURED_CLOSURE_TOLERANCE) -> tuple[float, float]:
-    """(negative, positive) closure of the file's own major loop (``loop_closure``): the descending branch
-    is the reversal points (each curve's first point), the ascending one the curve reversed lowest,
-    interpolated at the reversal fields it spans. A loop open at an end of the window gives ∓inf there."""
+    """(negative, positive) closure of the file's own major loop (``loop_closure``) from its flat ``points``
+    (reversal field, field, m per point): the major branches of ``major_branches`` (the reversal points
+    against the curve reversed lowest, interpolated at the reversal fields it spans). A loop open at an
+    end of the window gives ∓inf there."""
     reversal, field, m = (np.asarray(a, float) for a in points)
     ok = np.isfinite(field) & np.isfinite(m)
     reversal, field, m = reversal[ok], field[ok], m[ok]
-    if reversal.size == 0:
-        return -np.inf, np.inf
-    fields, first = [], []
+    curves = []
     for r in np.unique(reversal):
         on = reversal == r
-        i = int(np.argmin(np.abs(field[on] - r)))
-        fields.append(float(r))
-        first.append(float(m[on][i]))
-    fields, descending = np.asarray(fields), np.asarray(first)
-    lowest = reversal == reversal.min()
-    order = np.argsort(field[lowest])
-    a_fields, a_m = field[lowest][order], m[lowest][order]
-    inside = (fields >= a_fields.min()) & (fields <= a_fields.max())
+        order = np.argsort(field[on], kind="stable")
+        curves.append((float(r), field[on][order], m[on][order]))
+    if not curves:
+        return -np.inf, np.inf
+    (d_fields, d_m), (a_fields, a_m) = major_branches(curves, 1.0)
+    d_fields, d_m = d_fields[::-1], d_m[::-1]  # ascending fields, as loop_closure reads them
+    inside = (d_fields >= a_fields.min()) & (d_fields <= a_fields.max())
     if inside.sum() < 3:
         return -np.inf, np.inf
-    ascending = np.interp(fields[inside], a_fields, a_m)
-    return loop_closure(fields[inside], descending[inside], ascending, tolerance)
+    return loop_closure(d_fields[inside], d_m[inside], np.interp(d_fields[inside], a_fields, a_m), tolerance)
 
 
 def saturated_measured_points(points, branch_fields_T, descending, ascending,
@@ -705,13 +702,15 @@ def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
     ``significant`` when (i) the background's form (gain and χ free) leaves no reversible residual in
     saturation (``saturation_residual_points``, chi-square p not below ``p_threshold``), (ii) χ from both
     saturated sides together exceeds ``Z_BACKGROUND`` standard errors and (iii) the two sides agree within
-    the same bound where both are measured (three field columns each). Each side's χ is a weighted line
-    through its column means; its error is inflated by the line's own misfit, so a curved residual (a
-    sample still saturating where the model already is) is no evidence. The bare model's test (``bare_p``:
-    no term free but the normalization's, within ``moment_tolerance``) is reported beside it and not asked:
-    its chi-square spreads its power over every column, the line puts it on the one direction a background
-    takes (laptop dev 006: χ −0.0093 ± 0.0031 per T, truth −0.0052, bare p 0.43). ``chi_per_T``: the combined estimate (m units per T), with
-    ``se_per_T``; ``model_chi_per_T`` and ``model_scale``: χ and the gain of the background's form fitted
+    the same bound where both are measured (four field columns each). Each side's χ is fitted on its
+    column means beside the model's own approach to saturation (``_side_slope``); its error is inflated
+    by the fit's misfit, so a curved residual (a sample still saturating where the model already is) is
+    no evidence. The bare model's test (``bare_p``: no term free but the normalization's, within
+    ``moment_tolerance``) is reported beside it and not asked: its chi-square spreads its power over every
+    column, the fit puts it on the one direction a background takes (laptop dev 006, a line alone before
+    the approach term: χ −0.0093 ± 0.0031 per T, truth −0.0052, bare p 0.43). ``chi_per_T``: the combined
+    estimate (m units per T), with ``se_per_T``; ``model_chi_per_T`` and ``model_scale``: χ and the gain of
+    the background's form fitted
     jointly on the saturated points (the file's normalization by its own saturated moment carries the
     background's share of it: a gain 1/(1 + χ·B_top) where the moment is read at the window's top)."""
     bare = saturation_residual_points(points, moment_tolerance=moment_tolerance, p_threshold=p_threshold)
@@ -795,7 +794,8 @@ def shifts_field(name: str) -> bool:
     return any(part in SHIFT_CANDIDATES for part in name.split("+"))
 
 
-__all__ = ["background_agreement", "background_evidence", "calibrated_shift", "candidate_shift", "CLOSURE_TOLERANCE", "drift_agreement", "DRIFT_COMPONENTS",
+__all__ = ["background_agreement", "background_evidence", "calibrated_shift", "candidate_shift", "CLOSURE_TOLERANCE",
+           "drift_agreement", "DRIFT_COMPONENTS",
            "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "LEVELS", "loop_closure",
            "major_branches", "major_loop_protocol", "MEASURED_CLOSURE_TOLERANCE", "measured_loop_closure",
            "measured_point_arrays", "MIRROR_FRACTION", "N_END",
