@@ -1,6 +1,8 @@
 """The model-free field-shift evidence (inversion symmetry of the major loop) and its gate in the
 residual analysis."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -613,3 +615,63 @@ def test_the_files_own_closure_keeps_a_still_switching_sample_out_of_the_saturat
     wide = switching_forc_points(0.5, 1.5)
     assert measured_loop_closure(wide) == pytest.approx((-1.0, 1.0))
     assert saturated_measured_points(wide, *soft_model, measured_closure=True).field_T.size == 0
+
+
+def test_a_harder_decoded_film_is_read_on_its_branch_from_saturation():
+    """A decoded film harder than the sample (its loop closed at ±0.6 T, or not at all in the window; the
+    sample at ±0.32 T): past the file's own closure its branch from each saturation (descending above zero
+    field, ascending below) is still the saturated film, so the points start 0.1 T past ±0.32 T and the
+    bare test passes there; a 0.05/T background is read within its error. A decoded film that is no
+    saturated film anywhere in the window (a labyrinth: its branch at half the moment) gives no points."""
+    from forcdecode.loop.signatures import (Z_BACKGROUND, background_evidence, measured_loop_closure,
+                                            saturated_measured_points, saturated_reach, saturation_residual_points)
+
+    points = switching_forc_points()
+    negative, positive = measured_loop_closure(points)
+    for closure in (0.6, 2.0):  # 2.0: open at the window's edges
+        fields, descending, ascending = major_loop(closure)
+        reach = saturated_reach(fields, descending, ascending)
+        assert -0.1 <= reach[0] < 0 < reach[1] <= 0.1, reach  # 1 − m < 0.05 down to ≈ 0.05 T
+        saturated = saturated_measured_points(points, fields, descending, ascending, measured_closure=True)
+        assert saturated.closure_T == (negative, positive)
+        assert np.all(np.abs(saturated.field_T) >= 0.4 - 1e-9) and saturated.field_T.size > 100
+        assert not saturation_residual_points(saturated)["reversible"]
+        r, h, m = points
+        found = background_evidence(saturated_measured_points((r, h, m + 0.05 * h), fields, descending, ascending,
+                                                              measured_closure=True))
+        assert found["significant"] and abs(found["chi_per_T"] - 0.05) < Z_BACKGROUND * found["se_per_T"], found
+    fields, descending, ascending = major_loop(2.0)
+    labyrinth = saturated_measured_points(points, fields, 0.5 * descending, 0.5 * ascending, measured_closure=True)
+    assert saturated_reach(fields, 0.5 * descending, 0.5 * ascending) == (-np.inf, np.inf)
+    assert labyrinth.field_T.size == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_files_own_branches_read_a_background_by_the_law_of_approach(seed):
+    """Where the decoded film gives no saturated point, ``background_evidence`` reads the file's own
+    saturated branches past its closure against ±1 with the law of approach (1 − m ∝ H⁻²): a 0.05/T
+    background (and a diamagnetic −0.02/T) is significant with χ within its error; noise, a sample three
+    times as dispersed as ``saturated_film`` (its approach ∝ 1/(H + 0.11 T)², not the law's own H⁻²) and a
+    paramagnet (curved; the form's test leaves it) are not."""
+    from forcdecode.loop.signatures import (Z_BACKGROUND, background_evidence, file_saturated_points,
+                                            saturated_measured_points)
+
+    fields, descending, ascending = major_loop(2.0)
+
+    def evidence(extra):
+        r, h, m = switching_forc_points(seed=seed)
+        points = (r, h, m + extra(h))
+        labyrinth = saturated_measured_points(points, fields, 0.5 * descending, 0.5 * ascending, measured_closure=True)
+        return background_evidence(replace(labyrinth, file_only=file_saturated_points(points)))
+
+    for chi in (0.05, -0.02):
+        found = evidence(lambda h: chi * h)
+        assert found["significant"] and found["sides_agree"], found
+        assert abs(found["chi_per_T"] - chi) < Z_BACKGROUND * found["se_per_T"], found
+        assert found["reference"].startswith("the file's own") and found["model_reason"], found
+    for extra in (lambda h: 0.0 * h, lambda h: -np.sign(h) * 2 * 0.0012 / (np.abs(h) + 0.11) ** 2,
+                  lambda h: 0.05 * langevin(h / 0.08)):
+        assert not evidence(extra)["significant"], evidence(extra)
+    # a file closing at its window's edge has no saturated point of its own: no evidence
+    edge = file_saturated_points(switching_forc_points(0.5, 1.5))
+    assert edge is None or edge.field_T.size == 0

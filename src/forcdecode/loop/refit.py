@@ -39,7 +39,8 @@ from .effects import (EFFECTS, HAMILTONIAN_CHANGE, _beats, _beats_beyond_floors,
 from .patches import PATCH_CHOICES, POOL_SIZE, null_films, single_realisations
 from .physics_effects import (GATED_OPTIONS, SAME_OBSERVABLE, analyse_residual, gated_candidates, merge_null_gains, null_gains,
                               physics_candidate_families)
-from .signatures import calibrated_shift, field_shift, major_branches, major_loop_protocol, saturated_measured_points
+from .signatures import (calibrated_shift, field_shift, file_saturated_points, major_branches, major_loop_protocol,
+                         saturated_measured_points)
 
 REFITTABLE = ("K_u", "A_ex", "D", "Ms", "sigma_K", "sigma_theta_deg")
 GOLDEN = (np.sqrt(5) - 1) / 2
@@ -258,11 +259,13 @@ def measured_saturation(cfg: dict, params: dict, measured_points, key: str = "ma
     """The measured points (reversal field, field, m per point: ``signatures.measured_point_arrays``)
     past the closure of ``params``' major loop averaged over ``n_profiles`` realisations, re-simulated on
     a 10 mT lattice over the points' window (``resimulate.major_loop_branches``, disorder stream ``key``)
-    and past the file's own closure (``signatures.measured_loop_closure``): ``signatures.SaturatedPoints``."""
+    and past the file's own closure (``signatures.measured_loop_closure``): ``signatures.SaturatedPoints``, with
+    the file's own saturated points beside them (``file_only``: ``signatures.file_saturated_points``)."""
     window = float(np.nanmax(np.abs(np.asarray(measured_points[1], float))))
-    return saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key,
-                                                                           n_profiles=n_profiles),
-                                     measured_closure=True)
+    points = saturated_measured_points(measured_points, *major_loop_branches(cfg, params, window, key=key,
+                                                                             n_profiles=n_profiles),
+                                       measured_closure=True)
+    return replace(points, file_only=file_saturated_points(measured_points))
 
 
 AMBIGUITY_VERDICTS = ("none", "ambiguous")

@@ -70,7 +70,7 @@ branches times the lattice mismatch, the asymmetry is not a pure field shift and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -441,7 +441,7 @@ class SaturationTest:
     """The settings of the saturation test (``saturation_residual``): ``p_threshold``, the chi-square p below
     which the saturated residual is reversible; ``moment_tolerance``, the relative band (dimensionless) inside
     which a gain is the normalization's own error and fitted away; ``free``, the terms the candidate fits
-    ("scale", "background"), fitted away in full."""
+    ("scale", "background", "approach": the law of approach of ``approach_term``), fitted away in full."""
 
     p_threshold: float = P_SATURATION
     moment_tolerance: float = 0.0
@@ -469,16 +469,19 @@ def _column_test(r, model, H, sign, column, column_fields, test: SaturationTest)
         # of that normalization, even in m (the odd terms are the candidate's)
         ones = np.ones(r.size)
         odd = [H] if background_free else []
+        # the law of approach where the reference is ±1 (``approach_term``, "law")
+        approach = [-sign * np.abs(H) ** -float(n) for n in APPROACH_LAW_POWERS] if "approach" in free else []
         if with_scale:
-            delta = float(least_squares([ones, model, *odd], r)[1])
+            delta = float(least_squares([ones, model, *odd, *approach], r)[1])
             if not scale_free:
                 delta = float(np.clip(delta, -moment_tolerance, moment_tolerance))
         # the other terms at that gain (the joint least-squares solution where the gain is not clipped)
-        coefficients = least_squares([ones, *odd], r - delta * model)
+        terms = [ones, *odd, *approach]
+        coefficients = least_squares(terms, r - delta * model)
         offset = float(coefficients[0])
         chi = float(coefficients[1]) if background_free else 0.0
-        n_fitted = 1 + int(with_scale) + int(background_free)
-        r = r - offset - delta * model - chi * H
+        n_fitted = int(with_scale) + len(terms)
+        r = r - delta * model - np.stack(terms, axis=1) @ coefficients
     means, counts, where, deviations = [], [], [], []
     for s_ in (1, -1):
         for j in np.unique(column[sign == s_]):
@@ -533,8 +536,13 @@ class SaturatedPoints:
 
     ``field_T``, ``m`` (normalized moment), ``sign`` (+1 positive, −1 negative saturation), ``column``
     (index of the field bin, ``column_fields_T``) per point; ``branch_fields_T``, ``branch_m``: the
-    re-simulated saturated film (the ascending major branch above zero field, the descending one
-    below); ``closure_T``: the model's loop closure (negative, positive)."""
+    re-simulated saturated film (the major branch that comes from each saturation: the descending one
+    above zero field, the ascending one below; past the loop's closure both branches are the same film);
+    ``closure_T``: where the points start (negative, positive). ``file_only``: the points past the file's
+    own closure with no model (``file_saturated_points``), where the model gives none (its film not
+    saturated where the sample is): ``background_evidence`` reads the slope there by the law of approach.
+    ``approach``: what the sample's approach to saturation is fitted with, "model" (the model's own
+    shortfall from ±1) or "law" (the law of approach, a term ∝ H⁻²; ``approach_term``)."""
 
     field_T: np.ndarray
     m: np.ndarray
@@ -544,6 +552,8 @@ class SaturatedPoints:
     branch_fields_T: np.ndarray
     branch_m: np.ndarray
     closure_T: tuple
+    file_only: "SaturatedPoints | None" = None
+    approach: str = "model"
 
     def model(self, offset_T: float = 0.0) -> np.ndarray:
         """The re-simulated film at the points' fields, the field offset ``offset_T`` applied (the
@@ -562,6 +572,34 @@ def loop_closure(fields_T, descending, ascending, tolerance: float = CLOSURE_TOL
     first, last = int(np.argmax(open_)), int(open_.size - 1 - np.argmax(open_[::-1]))
     negative = float(fields[first - 1]) if first > 0 else -np.inf
     positive = float(fields[last + 1]) if last + 1 < fields.size else np.inf
+    return negative, positive
+
+
+SATURATED_BRANCH_DEFICIT = 0.05
+"""A major branch coming from saturation is still the saturated film where |m| lies within this of 1 (at
+that field and every field nearer its saturation): a saturated film's approach to ±1 (the grains' easy axes
+tilted by σ_θ, pulled toward the field against H_K) is a few 10⁻³ on the prior's perpendicular films
+(σ_θ ≤ 10°, H_K ≥ 0.3 T), a reversal domain or a labyrinth takes a whole step more."""
+
+
+def saturated_reach(fields_T, descending, ascending, deficit: float = SATURATED_BRANCH_DEFICIT) -> tuple[float, float]:
+    """(negative, positive): the innermost fields to which the major branches coming from saturation are
+    still the saturated film (``SATURATED_BRANCH_DEFICIT``): the descending branch from +top on the positive
+    side, the ascending one from −top on the negative side. Before its loop closes a film harder than the
+    sample is still the saturated film on that branch (laptop bench dev 007: the decoded K_u +17 %, its
+    ascending branch not closed at the window's top). A branch not saturated at the window's edge gives
+    ±inf there."""
+    fields = np.asarray(fields_T, float)
+    top = np.asarray(descending, float) >= 1.0 - deficit
+    bottom = np.asarray(ascending, float) <= -(1.0 - deficit)
+    positive = np.inf
+    if top[-1]:
+        first_bad = fields.size - 1 - int(np.argmin(top[::-1])) if not top.all() else -1
+        positive = float(max(fields[first_bad + 1], 0.0))
+    negative = -np.inf
+    if bottom[0]:
+        first_bad = int(np.argmin(bottom)) if not bottom.all() else fields.size
+        negative = float(min(fields[first_bad - 1], 0.0))
     return negative, positive
 
 
@@ -605,7 +643,7 @@ def measured_loop_closure(points, tolerance: float = MEASURED_CLOSURE_TOLERANCE)
 
 def saturated_measured_points(points, branch_fields_T, descending, ascending,
                               margin_T: float = SATURATION_MARGIN_T, bin_T: float | None = None,
-                              measured_closure: bool = False) -> SaturatedPoints:
+                              measured_closure: bool = False, closure_T: tuple | None = None) -> SaturatedPoints:
     """The measured ``points`` ((reversal field, field, m) per point, ``measured_point_arrays``) that
     lie ``margin_T`` beyond the closure of the model's major loop (``branch_fields_T``,
     ``descending``, ``ascending``: ``resimulate.major_loop_branches``): fields above the positive
@@ -617,14 +655,21 @@ def saturated_measured_points(points, branch_fields_T, descending, ascending,
     further out on each side (a finite one): a decoded film softer than the sample closes before it, and
     points of a sample still switching are no saturated film (laptop bench dev 006: the decoded K_u −24 %,
     column means up to 0.23 "past the closure"). A side where the file's loop does not close in its window
-    keeps the model's."""
+    keeps the model's. Where the model's loop closes further out than the file's (a decoded film harder
+    than the sample, or one whose loop does not close in the window), the file's own closure is kept as
+    long as the model's branch from that saturation is still the saturated film there (``saturated_reach``):
+    the points are compared with that branch, the reversible film the sample is past its own closure.
+    ``closure_T``: (negative, positive) closure given instead (``file_saturated_points``)."""
     reversal, field, m = (np.asarray(a, float) for a in points)
     fields = np.asarray(branch_fields_T, float)
-    negative, positive = loop_closure(fields, descending, ascending)
-    if measured_closure:
+    negative, positive = loop_closure(fields, descending, ascending) if closure_T is None else closure_T
+    if measured_closure and closure_T is None:
         own_negative, own_positive = measured_loop_closure(points)
-        negative = min(negative, own_negative) if np.isfinite(own_negative) else negative
-        positive = max(positive, own_positive) if np.isfinite(own_positive) else positive
+        reach_negative, reach_positive = saturated_reach(fields, descending, ascending)
+        if np.isfinite(own_negative):
+            negative = min(own_negative, max(negative, reach_negative))
+        if np.isfinite(own_positive):
+            positive = max(own_positive, min(positive, reach_positive))
     ok = np.isfinite(field) & np.isfinite(m)
     top, bottom = field >= positive + margin_T, (field <= negative - margin_T) & (reversal <= negative - margin_T)
     keep = ok & (top | bottom) & (field <= fields.max()) & (field >= fields.min())
@@ -634,10 +679,54 @@ def saturated_measured_points(points, branch_fields_T, descending, ascending,
         bin_T = float(np.median(steps)) if steps.size else 1e-3
     index = np.round(field[keep] / bin_T).astype(int)
     unique, column = np.unique(index, return_inverse=True)
-    branch = np.where(fields >= 0, ascending, descending)
+    branch = np.where(fields >= 0, descending, ascending)  # the branch from each saturation
     return SaturatedPoints(field_T=field[keep], m=m[keep], sign=np.where(top[keep], 1, -1), column=column,
                            column_fields_T=unique * bin_T, branch_fields_T=fields, branch_m=np.asarray(branch, float),
                            closure_T=(negative, positive))
+
+
+def file_saturated_points(points, margin_T: float = SATURATION_MARGIN_T, bin_T: float | None = None,
+                          ) -> SaturatedPoints | None:
+    """The measured ``points`` (reversal field, field, m per point) ``margin_T`` past the file's own loop
+    closure (``measured_loop_closure``), with no model: the reference film is ±1 (``branch_m`` the sign
+    of the field), its approach to saturation left to ``background_evidence``'s law of approach. None where
+    the file's loop does not close on either side. For a decoded film that is not saturated where the sample
+    is (laptop bench dev 007: A_ex at the prior's floor and D above its critical value, a labyrinth to the
+    window's top, the sample closed at ±0.37 T)."""
+    reversal, field, m = (np.asarray(a, float) for a in points)
+    own_negative, own_positive = measured_loop_closure(points)
+    if not (np.isfinite(own_negative) or np.isfinite(own_positive)):
+        return None
+    fields = np.array([np.nanmin(field), -1e-12, 1e-12, np.nanmax(field)])
+    file_points = saturated_measured_points(points, fields, np.sign(fields), np.sign(fields), margin_T=margin_T,
+                                            bin_T=bin_T, closure_T=(own_negative, own_positive))
+    return replace(file_points, approach="law")
+
+
+APPROACH_LAW_POWERS = (2, 1)
+"""The law of approach on the file's own saturated branches (``approach_term``, "law"): 1 − m ∝ H⁻ⁿ. The
+first, n = 2, is the classical law for uniaxial grains whose axes the field pulls in (its χ is the one
+reported); the second, n = 1, the form of a paramagnet's or an inhomogeneous film's slower approach. Where
+H_K is not small beside the fields past closure neither form is the film's own, and χ moves with the form:
+the difference between the two χ is added to χ's error (``_law_side_slope``). Chosen on the synthetic files
+of tests/loop/test_signatures.py and the laptop dev files (docs/loop.md, 2026-12-03): H⁻² alone named a
+background on a film 3 × as dispersed as its law and on a Langevin paramagnet (3–4 se, neither has one);
+H⁻¹ alone missed dev 007's −0.0225 per T (2.6 se); both terms fitted together made χ's error 7 × larger and
+lost dev 007 and a synthetic −0.02 per T; the first law with the second's spread in its error finds both
+and none of the others."""
+
+
+def approach_term(points: SaturatedPoints, powers: tuple = APPROACH_LAW_POWERS[:1]) -> np.ndarray:
+    """The shortfall of each point's film from ±1 as the approach is fitted (signed toward zero field):
+    the model's own (m_model − sign m_model) or, for ``approach`` "law", −sign·(1 T/μ0H)², the law of
+    approach to saturation M = M_s(1 − b/H²) + χH (the high-field fits of magnetometry, e.g. Jackson &
+    Solheid, G³ 11, Q04Z15, 2010; for a film, the easy axes tilted by θ pulled toward the field:
+    m ≈ 1 − θ²H_K²/2(H + H_K)², which the H⁻² term and the constant follow over a window past closure)."""
+    if points.approach == "law":
+        H = np.abs(points.field_T)
+        return -points.sign[:, None] * np.column_stack([H ** -float(n) for n in powers])
+    model = points.model()
+    return model - np.sign(model)
 
 
 def saturation_residual_points(points: SaturatedPoints, offset_T: float = 0.0, p_threshold: float = P_SATURATION,
@@ -671,20 +760,26 @@ def _side_slope(r, H, deficit, column, scatter: float) -> dict | None:
         return None
     means = np.array([r[column == j].mean() for j in columns])
     fields = np.array([H[column == j].mean() for j in columns])
-    deficits = np.array([deficit[column == j].mean() for j in columns])
+    deficit = np.asarray(deficit, float).reshape(len(r), -1)  # one column per approach term
+    deficits = np.array([deficit[column == j].mean(axis=0) for j in columns])
+    if columns.size < 2 + deficits.shape[1] + 1:
+        return None
     weights = np.array([(column == j).sum() for j in columns], float) / scatter**2
-    design = np.stack([np.ones(columns.size), fields, deficits], axis=1)
+    design = np.column_stack([np.ones(columns.size), fields, deficits])
     normal = design.T @ (weights[:, None] * design)
     try:
         covariance = np.linalg.inv(normal)
     except np.linalg.LinAlgError:
         return None
     coefficients = covariance @ (design.T @ (weights * means))
-    misfit = float((weights * (means - design @ coefficients) ** 2).sum()) / max(columns.size - 3, 1)
+    dof = max(columns.size - design.shape[1], 1)
+    misfit = float((weights * (means - design @ coefficients) ** 2).sum()) / dof
     se = float(np.sqrt(max(misfit, 1.0) * covariance[1, 1]))
     if not np.isfinite(se) or se <= 0:
         return None
-    return {"chi_per_T": float(coefficients[1]), "se_per_T": se, "approach_coefficient": float(coefficients[2]),
+    approach = coefficients[2:]
+    return {"chi_per_T": float(coefficients[1]), "se_per_T": se,
+            "approach_coefficient": float(approach[0]) if approach.size == 1 else [float(a) for a in approach],
             "columns": int(columns.size), "misfit_chi2_per_dof": misfit}
 
 
@@ -712,23 +807,60 @@ def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
     estimate (m units per T), with ``se_per_T``; ``model_chi_per_T`` and ``model_scale``: χ and the gain of
     the background's form fitted
     jointly on the saturated points (the file's normalization by its own saturated moment carries the
-    background's share of it: a gain 1/(1 + χ·B_top) where the moment is read at the window's top)."""
-    bare = saturation_residual_points(points, moment_tolerance=moment_tolerance, p_threshold=p_threshold)
+    background's share of it: a gain 1/(1 + χ·B_top) where the moment is read at the window's top).
+    Where the decoded film gives no evidence (no saturated points where the sample is saturated), the same
+    test runs on ``points.file_only``: past the file's own closure against ±1, the approach fitted by the
+    law of approach (``approach_term``); ``reference`` says which film the slope was read against."""
+    out = _model_background_evidence(points, moment_tolerance, p_threshold)
+    if out.get("chi_per_T") is None and points.file_only is not None:
+        # the decoded film is not saturated where the sample is: the sample's own saturated branches
+        file_out = _model_background_evidence(points.file_only, moment_tolerance, p_threshold)
+        if file_out.get("chi_per_T") is not None:
+            return {**file_out, "reference": "the file's own saturated branches (law of approach)",
+                    "model_reason": out.get("reason")}
+    return out
+
+
+def _law_side_slope(r, H, sign, column, scatter: float) -> dict | None:
+    """``_side_slope`` of one side of the file's own saturated branches with the law of approach
+    (``APPROACH_LAW_POWERS``): χ from the first law, its error widened by the second law's χ (added in
+    quadrature: the approach's form is not known where H_K is comparable with the fields)."""
+    fits = []
+    for n in APPROACH_LAW_POWERS:
+        fit = _side_slope(r, H, -sign * np.abs(H) ** -float(n), column, scatter)
+        if fit is None:
+            return None
+        fits.append(fit)
+    spread = abs(fits[0]["chi_per_T"] - fits[1]["chi_per_T"]) if len(fits) > 1 else 0.0
+    return {**fits[0], "se_per_T": float(np.hypot(fits[0]["se_per_T"], spread)), "statistical_se_per_T":
+            fits[0]["se_per_T"], "law_spread_per_T": float(spread)}
+
+
+def _model_background_evidence(points: SaturatedPoints, moment_tolerance: float, p_threshold: float) -> dict:
+    """``background_evidence`` on one set of saturated points, against their reference (``approach``)."""
+    law = ("approach",) if points.approach == "law" else ()
+    bare = saturation_residual_points(points, moment_tolerance=moment_tolerance, p_threshold=p_threshold, free=law)
     linear = saturation_residual_points(points, moment_tolerance=moment_tolerance, p_threshold=p_threshold,
-                                        free=("scale", "background"))
+                                        free=("scale", "background", *law))
     out = {"bare_p": bare.get("p"), "linear_p": linear.get("p"), "significant": False, "chi_per_T": None,
+           "reference": "the re-simulated saturated film" if not law else "the file's own saturated branches "
+                        "(law of approach)",
            "rule": (f"the background's form leaves no reversible residual in saturation (p ≥ {p_threshold:g}), "
                     f"|χ| > {Z_BACKGROUND:g} standard errors, the two saturated sides agreeing")}
     scatter = bare.get("scatter")
     if not scatter:
         return {**out, "reason": bare.get("reason", "no saturated points")}
     model = points.model()
-    r, deficit = points.m - model, model - np.sign(model)  # the model's own shortfall from ±1, signed
+    r, deficit = points.m - model, approach_term(points)  # the shortfall from ±1, signed
     sides = {}
     for sign, label in ((1, "positive"), (-1, "negative")):
         on = points.sign == sign
         # each side with its own level: the normalization's offset and gain move the two sides' levels
-        side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter) if on.sum() else None
+        side = None
+        if on.sum() and not law:
+            side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter)
+        elif on.sum():
+            side = _law_side_slope(r[on], points.field_T[on], points.sign[on], points.column[on], scatter)
         if side is not None:
             sides[label] = side
     out["sides"] = sides
@@ -799,7 +931,7 @@ __all__ = ["background_agreement", "background_evidence", "calibrated_shift", "c
            "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "LEVELS", "loop_closure",
            "major_branches", "major_loop_protocol", "MEASURED_CLOSURE_TOLERANCE", "measured_loop_closure",
            "measured_point_arrays", "MIRROR_FRACTION", "N_END",
-           "P_SATURATION", "saturated_measured_points", "saturated_points", "SaturatedPoints", "SATURATION_DEPTH",
+           "P_SATURATION", "saturated_measured_points", "file_saturated_points", "approach_term", "saturated_reach", "SATURATED_BRANCH_DEFICIT", "saturated_points", "SaturatedPoints", "SATURATION_DEPTH",
            "saturation_gated", "SATURATION_LEVEL", "SATURATION_MARGIN_T", "saturation_residual",
            "saturation_residual_points", "saturation_terms", "shift_agreement", "SHIFT_CANDIDATES",
            "SHIFT_IN_SATURATION", "shifts_field", "static_candidate", "STATIC_CANDIDATES", "Z_BACKGROUND", "Z_SHIFT"]
