@@ -441,7 +441,7 @@ class SaturationTest:
     """The settings of the saturation test (``saturation_residual``): ``p_threshold``, the chi-square p below
     which the saturated residual is reversible; ``moment_tolerance``, the relative band (dimensionless) inside
     which a gain is the normalization's own error and fitted away; ``free``, the terms the candidate fits
-    ("scale", "background", "approach": the law of approach of ``approach_term``), fitted away in full."""
+    ("scale", "background", "approach": the first law of ``APPROACH_LAW_POWERS``), fitted away in full."""
 
     p_threshold: float = P_SATURATION
     moment_tolerance: float = 0.0
@@ -469,8 +469,8 @@ def _column_test(r, model, H, sign, column, column_fields, test: SaturationTest)
         # of that normalization, even in m (the odd terms are the candidate's)
         ones = np.ones(r.size)
         odd = [H] if background_free else []
-        # the law of approach where the reference is ±1 (``approach_term``, "law")
-        approach = [-sign * np.abs(H) ** -float(n) for n in APPROACH_LAW_POWERS[:1]] if "approach" in free else []
+        # the law of approach where the reference is ±1 (``SaturatedPoints.approach`` "law")
+        approach = [law_of_approach(H, sign, APPROACH_LAW_POWERS[0])] if "approach" in free else []
         if with_scale:
             delta = float(least_squares([ones, model, *odd, *approach], r)[1])
             if not scale_free:
@@ -542,7 +542,7 @@ class SaturatedPoints:
     own closure with no model (``file_saturated_points``), where the model gives none (its film not
     saturated where the sample is): ``background_evidence`` reads the slope there by the law of approach.
     ``approach``: what the sample's approach to saturation is fitted with, "model" (the model's own
-    shortfall from ±1) or "law" (the law of approach, a term ∝ H⁻²; ``approach_term``)."""
+    shortfall from ±1) or "law" (the law of approach, ``law_of_approach``)."""
 
     field_T: np.ndarray
     m: np.ndarray
@@ -693,7 +693,7 @@ def file_saturated_points(points, margin_T: float = SATURATION_MARGIN_T, bin_T: 
     the file's loop does not close on either side. For a decoded film that is not saturated where the sample
     is (laptop bench dev 007: A_ex at the prior's floor and D above its critical value, a labyrinth to the
     window's top, the sample closed at ±0.37 T)."""
-    reversal, field, m = (np.asarray(a, float) for a in points)
+    field = np.asarray(points[1], float)
     own_negative, own_positive = measured_loop_closure(points)
     if not (np.isfinite(own_negative) or np.isfinite(own_positive)):
         return None
@@ -704,8 +704,8 @@ def file_saturated_points(points, margin_T: float = SATURATION_MARGIN_T, bin_T: 
 
 
 APPROACH_LAW_POWERS = (2, 1)
-"""The law of approach on the file's own saturated branches (``approach_term``, "law"): 1 − m ∝ H⁻ⁿ. The
-first, n = 2, is the classical law for uniaxial grains whose axes the field pulls in (its χ is the one
+"""The law of approach on the file's own saturated branches (``law_of_approach``, ``SaturatedPoints.approach``
+"law"): 1 − m ∝ H⁻ⁿ. The first, n = 2, is the classical law for uniaxial grains whose axes the field pulls in (its χ is the one
 reported); the second, n = 1, the form of a paramagnet's or an inhomogeneous film's slower approach. Where
 H_K is not small beside the fields past closure neither form is the film's own, and χ moves with the form:
 the difference between the two χ is added to χ's error (``_law_side_slope``); the background's form
@@ -718,17 +718,13 @@ lost dev 007 and a synthetic −0.02 per T; the first law with the second's spre
 and none of the others."""
 
 
-def approach_term(points: SaturatedPoints, powers: tuple = APPROACH_LAW_POWERS[:1]) -> np.ndarray:
-    """The shortfall of each point's film from ±1 as the approach is fitted (signed toward zero field):
-    the model's own (m_model − sign m_model) or, for ``approach`` "law", −sign·(1 T/μ0H)², the law of
-    approach to saturation M = M_s(1 − b/H²) + χH (the high-field fits of magnetometry, e.g. Jackson &
-    Solheid, G³ 11, Q04Z15, 2010; for a film, the easy axes tilted by θ pulled toward the field:
-    m ≈ 1 − θ²H_K²/2(H + H_K)², which the H⁻² term and the constant follow over a window past closure)."""
-    if points.approach == "law":
-        H = np.abs(points.field_T)
-        return -points.sign[:, None] * np.column_stack([H ** -float(n) for n in powers])
-    model = points.model()
-    return model - np.sign(model)
+def law_of_approach(field_T, sign, power: float) -> np.ndarray:
+    """The law of approach's term of each point's film, signed toward zero field: −sign·(1 T/μ0H)^power,
+    of the law of approach to saturation M = M_s(1 − b/H²) + χH (power 2: the high-field fits of
+    magnetometry, e.g. Jackson & Solheid, G³ 11, Q04Z15, 2010; for a film, the easy axes tilted by θ pulled
+    toward the field: m ≈ 1 − θ²H_K²/2(H + H_K)², which the H⁻² term and the constant follow over a window
+    past closure)."""
+    return -np.asarray(sign, float) * np.abs(np.asarray(field_T, float)) ** -float(power)
 
 
 def saturation_residual_points(points: SaturatedPoints, offset_T: float = 0.0, p_threshold: float = P_SATURATION,
@@ -762,26 +758,20 @@ def _side_slope(r, H, deficit, column, scatter: float) -> dict | None:
         return None
     means = np.array([r[column == j].mean() for j in columns])
     fields = np.array([H[column == j].mean() for j in columns])
-    deficit = np.asarray(deficit, float).reshape(len(r), -1)  # one column per approach term
-    deficits = np.array([deficit[column == j].mean(axis=0) for j in columns])
-    if columns.size < 2 + deficits.shape[1] + 1:
-        return None
+    deficits = np.array([deficit[column == j].mean() for j in columns])
     weights = np.array([(column == j).sum() for j in columns], float) / scatter**2
-    design = np.column_stack([np.ones(columns.size), fields, deficits])
+    design = np.stack([np.ones(columns.size), fields, deficits], axis=1)
     normal = design.T @ (weights[:, None] * design)
     try:
         covariance = np.linalg.inv(normal)
     except np.linalg.LinAlgError:
         return None
     coefficients = covariance @ (design.T @ (weights * means))
-    dof = max(columns.size - design.shape[1], 1)
-    misfit = float((weights * (means - design @ coefficients) ** 2).sum()) / dof
+    misfit = float((weights * (means - design @ coefficients) ** 2).sum()) / max(columns.size - 3, 1)
     se = float(np.sqrt(max(misfit, 1.0) * covariance[1, 1]))
     if not np.isfinite(se) or se <= 0:
         return None
-    approach = coefficients[2:]
-    return {"chi_per_T": float(coefficients[1]), "se_per_T": se,
-            "approach_coefficient": float(approach[0]) if approach.size == 1 else [float(a) for a in approach],
+    return {"chi_per_T": float(coefficients[1]), "se_per_T": se, "approach_coefficient": float(coefficients[2]),
             "columns": int(columns.size), "misfit_chi2_per_dof": misfit}
 
 
@@ -812,14 +802,13 @@ def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
     background's share of it: a gain 1/(1 + χ·B_top) where the moment is read at the window's top).
     Where the decoded film gives no evidence (no saturated points where the sample is saturated), the same
     test runs on ``points.file_only``: past the file's own closure against ±1, the approach fitted by the
-    law of approach (``approach_term``); ``reference`` says which film the slope was read against."""
-    out = _model_background_evidence(points, moment_tolerance, p_threshold)
+    law of approach (``APPROACH_LAW_POWERS``); ``reference`` says which film the slope was read against."""
+    out = _background_evidence_on(points, moment_tolerance, p_threshold)
     if out.get("chi_per_T") is None and points.file_only is not None:
         # the decoded film is not saturated where the sample is: the sample's own saturated branches
-        file_out = _model_background_evidence(points.file_only, moment_tolerance, p_threshold)
+        file_out = _background_evidence_on(points.file_only, moment_tolerance, p_threshold)
         if file_out.get("chi_per_T") is not None:
-            return {**file_out, "reference": "the file's own saturated branches (law of approach)",
-                    "model_reason": out.get("reason")}
+            return {**file_out, "model_reason": out.get("reason")}
     return out
 
 
@@ -829,7 +818,7 @@ def _law_side_slope(r, H, sign, column, scatter: float) -> dict | None:
     quadrature: the approach's form is not known where H_K is comparable with the fields)."""
     fits = []
     for n in APPROACH_LAW_POWERS:
-        fit = _side_slope(r, H, -sign * np.abs(H) ** -float(n), column, scatter)
+        fit = _side_slope(r, H, law_of_approach(H, sign, n), column, scatter)
         if fit is None:
             return None
         fits.append(fit)
@@ -838,7 +827,7 @@ def _law_side_slope(r, H, sign, column, scatter: float) -> dict | None:
             fits[0]["se_per_T"], "law_spread_per_T": float(spread)}
 
 
-def _model_background_evidence(points: SaturatedPoints, moment_tolerance: float, p_threshold: float) -> dict:
+def _background_evidence_on(points: SaturatedPoints, moment_tolerance: float, p_threshold: float) -> dict:
     """``background_evidence`` on one set of saturated points, against their reference (``approach``)."""
     law = ("approach",) if points.approach == "law" else ()
     bare = saturation_residual_points(points, moment_tolerance=moment_tolerance, p_threshold=p_threshold, free=law)
@@ -853,16 +842,16 @@ def _model_background_evidence(points: SaturatedPoints, moment_tolerance: float,
     if not scatter:
         return {**out, "reason": bare.get("reason", "no saturated points")}
     model = points.model()
-    r, deficit = points.m - model, approach_term(points)  # the shortfall from ±1, signed
+    r, deficit = points.m - model, model - np.sign(model)  # the model's own shortfall from ±1, signed
     sides = {}
     for sign, label in ((1, "positive"), (-1, "negative")):
         on = points.sign == sign
         # each side with its own level: the normalization's offset and gain move the two sides' levels
         side = None
-        if on.sum() and not law:
-            side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter)
-        elif on.sum():
+        if on.sum() and law:  # against ±1: the law of approach
             side = _law_side_slope(r[on], points.field_T[on], points.sign[on], points.column[on], scatter)
+        elif on.sum():
+            side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter)
         if side is not None:
             sides[label] = side
     out["sides"] = sides
@@ -933,7 +922,9 @@ __all__ = ["background_agreement", "background_evidence", "calibrated_shift", "c
            "drift_evidence", "drift_evidence_of", "field_shift", "field_shift_of", "LEVELS", "loop_closure",
            "major_branches", "major_loop_protocol", "MEASURED_CLOSURE_TOLERANCE", "measured_loop_closure",
            "measured_point_arrays", "MIRROR_FRACTION", "N_END",
-           "P_SATURATION", "saturated_measured_points", "file_saturated_points", "approach_term", "saturated_reach", "SATURATED_BRANCH_DEFICIT", "saturated_points", "SaturatedPoints", "SATURATION_DEPTH",
+           "P_SATURATION", "saturated_measured_points", "file_saturated_points", "law_of_approach",
+           "APPROACH_LAW_POWERS", "saturated_reach", "SATURATED_BRANCH_DEFICIT", "saturated_points", "SaturatedPoints",
+           "SATURATION_DEPTH",
            "saturation_gated", "SATURATION_LEVEL", "SATURATION_MARGIN_T", "saturation_residual",
            "saturation_residual_points", "saturation_terms", "shift_agreement", "SHIFT_CANDIDATES",
            "SHIFT_IN_SATURATION", "shifts_field", "static_candidate", "STATIC_CANDIDATES", "Z_BACKGROUND", "Z_SHIFT"]
