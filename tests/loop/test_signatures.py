@@ -1,6 +1,7 @@
 """The model-free field-shift evidence (inversion symmetry of the major loop) and its gate in the
 residual analysis."""
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -615,6 +616,28 @@ def test_the_files_own_closure_keeps_a_still_switching_sample_out_of_the_saturat
     wide = switching_forc_points(0.5, 1.5)
     assert measured_loop_closure(wide) == pytest.approx((-1.0, 1.0))
     assert saturated_measured_points(wide, *soft_model, measured_closure=True).field_T.size == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_hard_aligned_films_approach_does_not_swallow_the_background(seed, monkeypatch):
+    """Sample and decoded film share a hard, well-aligned saturated film (1 − m = 2e-4/(μ0H + 0.3 T)²: a few
+    10⁻⁴ past closure), so the approach term is nearly the constant and the line. Free, it trades with χ
+    (coefficients −14…+14: a sample beyond saturation) and χ's error is 0.0017–0.0020 per T; with the prior
+    (``APPROACH_PRIOR_SD``) the error is under 0.0012 per T, a 0.05 per T background is read within 3 of
+    them and the file without it shows none."""
+    import forcdecode.loop.signatures as signatures
+    from forcdecode.loop.signatures import Z_BACKGROUND, background_evidence, saturated_measured_points
+
+    monkeypatch.setattr(sys.modules[__name__], "saturated_film", lambda H: np.sign(H) * (1 - 2e-4 / (np.abs(H) + 0.3) ** 2))
+    r, h, m = switching_forc_points(seed=seed)
+    model = major_loop(0.6)
+    with_background = saturated_measured_points((r, h, m + 0.05 * h), *model, measured_closure=True)
+    found = background_evidence(with_background)
+    assert found["significant"] and abs(found["chi_per_T"] - 0.05) < Z_BACKGROUND * found["se_per_T"], found
+    assert found["se_per_T"] < 0.0012, found
+    assert not background_evidence(saturated_measured_points((r, h, m), *model, measured_closure=True))["significant"]
+    monkeypatch.setattr(signatures, "APPROACH_PRIOR_SD", None)
+    assert background_evidence(with_background)["se_per_T"] > 1.5 * found["se_per_T"]
 
 
 def test_a_harder_decoded_film_is_read_on_its_branch_from_saturation():

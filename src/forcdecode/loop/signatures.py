@@ -744,13 +744,25 @@ Z_BACKGROUND = 3.0
 """A linear background is claimed from the saturated film at |χ| > 3 standard errors."""
 
 
-def _side_slope(r, H, deficit, column, scatter: float) -> dict | None:
+APPROACH_PRIOR_SD = 2.0
+"""The prior's standard deviation of the approach coefficient c against the decoded film (``_side_slope``):
+the sample falls short of saturation (1 + c) × as far as the decoded film. The shortfall scales with the
+square of the easy axes' spread (m ≈ 1 − θ²H_K²/2(H + H_K)²), so a decode that has the spread wrong by a
+factor 2 either way gives c from −0.75 to 3. Without it, where the decoded film's shortfall past closure
+is a few 10⁻⁴ (a hard, well-aligned film), the term is a near copy of the constant and the line and the
+fit trades χ with it: on the fixed point's test film (χ 0.08 per T, noise 0.002) c came out −8.6 (a
+sample beyond saturation) and χ's error 0.026 per T, 3.0 se on one CPU and 2.99 on another."""
+
+
+def _side_slope(r, H, approach, column, scatter: float, prior_sd: float | None = None) -> dict | None:
     """χ and its standard error (per T, m units) of one saturated side: weighted least squares of the
     column means of the residual ``r`` (each column's weight its count over the between-curve ``scatter``
-    squared) on a constant, the field ``H`` and the model's own shortfall from saturation ``deficit``
-    (m_model − sign m_model: the approach to saturation, which scales with the film's tilt and anisotropy
-    dispersion, so a decoded film whose dispersion is off leaves a residual of that shape, not a line;
-    ``approach_coefficient`` 0.5: the sample falls short of saturation 1.5 × as far as the model).
+    squared) on a constant, the field ``H`` and an approach term ``approach``: against the decoded film its
+    own shortfall from saturation (m_model − sign m_model: the approach to saturation, which scales with
+    the film's tilt and anisotropy dispersion, so a decoded film whose dispersion is off leaves a residual
+    of that shape, not a line; ``approach_coefficient`` 0.5: the sample falls short of saturation 1.5 × as
+    far as the model), against ±1 the law of approach's term. ``prior_sd``: a Gaussian prior of that width
+    centred on 0 for the approach coefficient (``APPROACH_PRIOR_SD`` against the decoded film; None: free).
     The error is inflated by the fit's own misfit (χ²/dof where above 1). None with fewer than four
     columns."""
     columns = np.unique(column)
@@ -758,10 +770,12 @@ def _side_slope(r, H, deficit, column, scatter: float) -> dict | None:
         return None
     means = np.array([r[column == j].mean() for j in columns])
     fields = np.array([H[column == j].mean() for j in columns])
-    deficits = np.array([deficit[column == j].mean() for j in columns])
+    approaches = np.array([approach[column == j].mean() for j in columns])
     weights = np.array([(column == j).sum() for j in columns], float) / scatter**2
-    design = np.stack([np.ones(columns.size), fields, deficits], axis=1)
+    design = np.stack([np.ones(columns.size), fields, approaches], axis=1)
     normal = design.T @ (weights[:, None] * design)
+    if prior_sd is not None:
+        normal[2, 2] += 1.0 / prior_sd**2
     try:
         covariance = np.linalg.inv(normal)
     except np.linalg.LinAlgError:
@@ -851,7 +865,8 @@ def _background_evidence_on(points: SaturatedPoints, moment_tolerance: float, p_
         if on.sum() and law:  # against ±1: the law of approach
             side = _law_side_slope(r[on], points.field_T[on], points.sign[on], points.column[on], scatter)
         elif on.sum():
-            side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter)
+            side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter,
+                                   prior_sd=APPROACH_PRIOR_SD)
         if side is not None:
             sides[label] = side
     out["sides"] = sides
@@ -923,7 +938,7 @@ __all__ = ["background_agreement", "background_evidence", "calibrated_shift", "c
            "major_branches", "major_loop_protocol", "MEASURED_CLOSURE_TOLERANCE", "measured_loop_closure",
            "measured_point_arrays", "MIRROR_FRACTION", "N_END",
            "P_SATURATION", "saturated_measured_points", "file_saturated_points", "law_of_approach",
-           "APPROACH_LAW_POWERS", "saturated_reach", "SATURATED_BRANCH_DEFICIT", "saturated_points", "SaturatedPoints",
+           "APPROACH_LAW_POWERS", "APPROACH_PRIOR_SD", "saturated_reach", "SATURATED_BRANCH_DEFICIT", "saturated_points", "SaturatedPoints",
            "SATURATION_DEPTH",
            "saturation_gated", "SATURATION_LEVEL", "SATURATION_MARGIN_T", "saturation_residual",
            "saturation_residual_points", "saturation_terms", "shift_agreement", "SHIFT_CANDIDATES",
