@@ -1,6 +1,7 @@
 """The model-free field-shift evidence (inversion symmetry of the major loop) and its gate in the
 residual analysis."""
 
+import re
 import sys
 from dataclasses import replace
 
@@ -575,6 +576,42 @@ def test_a_background_in_the_saturated_film_is_named_where_the_heldout_curves_ba
                                saturation_points=clean)
     assert without["chosen"] != "background"
     assert not without["candidates"]["background"]["background_evidence"]["significant"]
+
+
+def test_a_positive_saturated_slope_is_ambiguous_with_an_in_plane_soft_phase():
+    """A soft phase lying in the film plane rises linearly on its hard axis up to μ0H_K,eff and adds there
+    what a paramagnetic background adds (laptop dev 012: a 6 % phase with K_u,soft 28 % of K_u, μ0H_K,eff
+    ≈ 1.0 T, named background at 12 se). Where one of the library's soft phases makes the saturated film's
+    slope, the decisive background becomes "ambiguous: background, second_phase" (the choice kept), with a
+    loop past the phase's saturation field as the separating measurement; a phase that saturates inside
+    the saturated range (its branch flat past 0.5 T: not a line) does not, nor a negative slope (a
+    diamagnet: no phase's)."""
+    from forcdecode.loop.signatures import saturated_measured_points
+
+    fields, base = family(0.3)
+    H = np.broadcast_to(fields[None, :], base.shape)
+    below = np.broadcast_to(fields[None, :] < fields[:, None], base.shape)
+
+    def soft(saturation_T):
+        return np.where(below, np.nan, np.clip(H / saturation_T, -1.0, 1.0))
+
+    film = family(0.36)[1] + 0.002 * np.random.default_rng(4).normal(size=base.shape)
+    static = ("scale", "background", "field_offset")
+
+    def analyse(chi, soft_families):
+        points = saturated_measured_points(measured_protocol_points(lambda h: chi * h, seed=4), *major_loop(0.25))
+        return analyse_residual(film + chi * H, base, fields, thermal=False, n_boot=300, measured_candidates=static,
+                                saturation_points=points, soft_phase_families=soft_families)
+
+    in_plane = analyse(0.02, {1.0e5: soft(1.3)})
+    assert in_plane["chosen"] == "background" and in_plane["verdict"] == "ambiguous", in_plane["verdict_text"]
+    assert in_plane["ambiguous"] == ["background", "second_phase"]
+    assert "beyond the window's top" in in_plane["separating_measurements"]["second_phase"]
+    fraction = float(re.search(r"fraction ([0-9.]+)", in_plane["verdict_text"]).group(1))
+    assert fraction == pytest.approx(0.02 * 1.3, rel=0.15), in_plane["verdict_text"]  # χ·μ0H_K,eff
+    assert analyse(0.02, {3.0e5: soft(0.5)})["verdict"] == "background"
+    diamagnet = analyse(-0.02, {1.0e5: soft(1.3)})
+    assert diamagnet["chosen"] == "background" and diamagnet["verdict"] == "background", diamagnet["verdict_text"]
 
 
 def switching_forc_points(low=0.2, high=0.32, n_curves=40, step=0.02, noise=0.002, seed=0):

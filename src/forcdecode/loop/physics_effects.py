@@ -49,7 +49,7 @@ from .effects import (EFFECTS, HAMILTONIAN_CHANGE, REALISATION_NOISE, SWITCHING_
                       _grid_resolution, beats_null_gain, bootstrap_resamples, choose_candidate,
                       equivalent_candidates, fit_effect, heldout_folds, heldout_mse, measurement_clock,
                       separating_measurements)
-from .signatures import (background_agreement, background_evidence, candidate_shift, drift_agreement,
+from .signatures import (Z_BACKGROUND, background_agreement, background_evidence, candidate_shift, drift_agreement,
                          saturation_gated, saturation_residual,
                          saturation_residual_points, saturation_terms, shift_agreement, shifts_field)
 from .structure import describe, residual_structure
@@ -819,6 +819,86 @@ def realisation_ambiguity(fits: CandidateFits, offered: Offered, chosen: str, ve
     return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
 
 
+def soft_phase_mimics(soft_phase_families: dict, fields, range_T: tuple, chi_per_T: float, se_per_T: float) -> list:
+    """The library's soft second phases that add what a linear background χ·μ0H adds where the film is
+    saturated (μ0H in ``range_T``, T).
+
+    A soft phase whose K_u,soft is below its shape anisotropy μ0M_s²/2 lies in the film plane; a
+    perpendicular field turns it along its hard axis, m_soft ≈ μ0H/μ0H_K,eff, linear up to
+    μ0H_K,eff = μ0M_s − 2K_u,soft/M_s. A fraction f of it adds f·m_soft to the saturated film and takes f
+    from the switching part, as a background χ = f/μ0H_K,eff and the file's normalization by its saturated
+    moment do: within the window the two are one form. For each soft family (n × n on ``fields``, rows
+    H_r; its ascending major branch is row 0): the slope s of its branch over ``range_T`` and f = χ/s. A
+    mimic where 0 < f ≤ 1 and f times the branch's largest departure from its straight line there is within
+    ``Z_BACKGROUND`` × the background's error at the range's ends (``se_per_T`` × half the range): a curvature
+    the background's own line could not have told. Returns [{"K_u_soft_J_per_m3", "slope_per_T", "fraction",
+    "saturates_at_T" (first field where the branch is within 2 % of 1, None inside the window)}]."""
+    fields = np.asarray(fields, float)
+    low, high = range_T
+    inside = (fields >= low) & (fields <= high)
+    mimics = []
+    if chi_per_T is None or chi_per_T <= 0 or inside.sum() < 3:
+        return mimics
+    for K_soft, family in sorted((soft_phase_families or {}).items()):
+        branch = np.asarray(family, float)[0]
+        ok = inside & np.isfinite(branch)
+        if ok.sum() < 3:
+            continue
+        slope, intercept = np.polyfit(fields[ok], branch[ok], 1)
+        if slope <= 0:
+            continue
+        fraction = chi_per_T / slope
+        departure = float(np.max(np.abs(branch[ok] - (intercept + slope * fields[ok]))))
+        if fraction > 1 or fraction * departure > Z_BACKGROUND * se_per_T * (high - low) / 2:
+            continue
+        saturated = np.nonzero((fields > 0) & (branch >= 0.98))[0]
+        mimics.append({"K_u_soft_J_per_m3": float(K_soft), "slope_per_T": float(slope), "fraction": float(fraction),
+                       "saturates_at_T": float(fields[saturated[0]]) if saturated.size else None})
+    return mimics
+
+
+def soft_phase_ambiguity(p: ResidualProblem, fits: CandidateFits, offered: Offered, chosen: str, verdict: Verdict,
+                         o: "ResidualOptions") -> Verdict:
+    """A positive background read in the saturated film (``signatures.background_evidence``, the decisive
+    choice) against a soft second phase lying in the film plane (``soft_phase_mimics``): where one of the
+    library's soft phases adds the same slope over the saturated fields, the verdict is "ambiguous" with
+    {background, second_phase} (the choice is unchanged), the separating measurement a loop past the soft
+    phase's hard-axis saturation field (the phase stops rising there, a background does not) or an
+    in-plane loop. A negative slope (a diamagnetic substrate) is no phase's; a verdict already ambiguous is
+    left as it is."""
+    if chosen not in offered.decisive or verdict.verdict == "ambiguous" or not o.soft_phase_families:
+        return verdict
+    evidence = fits.records.get(chosen, {}).get("background_evidence") or {}
+    points = o.saturation_points
+    if points is not None and evidence.get("reference", "").startswith("the file's own") and points.file_only is not None:
+        points = points.file_only
+    if points is None or not np.size(points.field_T):
+        return verdict
+    magnitude = np.abs(np.asarray(points.field_T, float))
+    mimics = soft_phase_mimics(o.soft_phase_families, p.fields, (float(magnitude.min()), float(magnitude.max())),
+                               evidence.get("chi_per_T"), evidence.get("se_per_T") or 0.0)
+    if not mimics:
+        return verdict
+    members = sorted({chosen, "second_phase"})
+    fractions = [m["fraction"] for m in mimics]
+    soft = [m["K_u_soft_J_per_m3"] / 1e3 for m in mimics]
+    ends = [m["saturates_at_T"] for m in mimics]
+    beyond = "beyond the window's top" if any(e is None for e in ends) else f"at {min(ends):.2f} T and above"
+    separating = {**separating_measurements(members),
+                  "second_phase": (f"a loop past the soft phase's hard-axis saturation field ({beyond}: the phase "
+                                   "stops rising there, a background does not), or an in-plane loop (the phase's "
+                                   "easy axis)")}
+    def span(values, form):
+        low, high = format(min(values), form), format(max(values), form)
+        return low if low == high else f"{low}–{high}"
+
+    text = (f"ambiguous: {', '.join(members)}: the slope where the film is saturated (χ {evidence['chi_per_T']:.3g} "
+            f"per T) is also what a soft phase in the film plane adds (fraction {span(fractions, '.3g')}, "
+            f"K_u,soft {span(soft, '.0f')} kJ/m³, still on its hard axis there); to tell them apart: "
+            + "; ".join(f"{k}: {v}" for k, v in separating.items()))
+    return Verdict("ambiguous", text, verdict.structure, verdict.saturation, members, separating)
+
+
 def residual_report(p: ResidualProblem, fits: CandidateFits, base: Baselines, choice: Choice, verdict: Verdict,
                     field_shift: dict | None, drift: dict | None) -> dict:
     """The result of ``analyse_residual`` (see there)."""
@@ -1055,4 +1135,5 @@ def analyse_residual(measured, base_family, fields, order=None, options: Residua
     verdict = judge(p, fits, choice.chosen, o)
     verdict = ambiguity(fits, base, offered, choice.chosen, verdict, o)
     verdict = realisation_ambiguity(fits, offered, choice.chosen, verdict, o)
+    verdict = soft_phase_ambiguity(g.problem, fits, offered, choice.chosen, verdict, o)
     return residual_report(p, fits, base, choice, verdict, o.field_shift, o.drift)
