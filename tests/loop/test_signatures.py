@@ -726,7 +726,7 @@ def test_the_files_own_branches_read_a_background_by_the_law_of_approach(seed):
 
     for chi in (0.05, -0.02):
         found = evidence(lambda h: chi * h)
-        assert found["significant"] and found["sides_agree"], found
+        assert found["significant"] and found["sides_agree"] and found["file_only"], found
         assert abs(found["chi_per_T"] - chi) < Z_BACKGROUND * found["se_per_T"], found
         assert found["reference"].startswith("the file's own") and found["model_reason"], found
     for extra in (lambda h: 0.0 * h, lambda h: -np.sign(h) * 2 * 0.0012 / (np.abs(h) + 0.11) ** 2,

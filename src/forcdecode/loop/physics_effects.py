@@ -870,8 +870,8 @@ def soft_phase_ambiguity(p: ResidualProblem, fits: CandidateFits, offered: Offer
         return verdict
     evidence = fits.records.get(chosen, {}).get("background_evidence") or {}
     points = o.saturation_points
-    if points is not None and evidence.get("reference", "").startswith("the file's own") and points.file_only is not None:
-        points = points.file_only
+    if points is not None and evidence.get("file_only") and points.file_only is not None:
+        points = points.file_only  # the slope was read on the file's own branches (``background_evidence``)
     if points is None or not np.size(points.field_T):
         return verdict
     magnitude = np.abs(np.asarray(points.field_T, float))

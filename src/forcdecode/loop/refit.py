@@ -402,7 +402,9 @@ def with_refit_ambiguity(result: dict, record: dict) -> dict:
     if not record["members"]:
         return result
     members = sorted(set(result.get("ambiguous") or []) | set(record["members"]))
-    separating = separating_measurements(members)
+    # the selection's own separating measurements (e.g. a soft phase's saturation field) where it gave them
+    separating = {**separating_measurements(members), **{k: v for k, v in (result.get("separating_measurements") or {}).items()
+                                                          if k in members}}
     change = ", ".join(f"{n} × {m:.3f}" for n, m in record["hamiltonian_change"]["multipliers"].items())
     result.update(verdict="ambiguous", ambiguous=members, separating_measurements=separating, verdict_text=(
         f"ambiguous: {', '.join(members)} explain the held-out residual equally (neither beats the other beyond "

@@ -816,7 +816,8 @@ def background_evidence(points: SaturatedPoints, moment_tolerance: float = 0.0,
     background's share of it: a gain 1/(1 + χ·B_top) where the moment is read at the window's top).
     Where the decoded film gives no evidence (no saturated points where the sample is saturated), the same
     test runs on ``points.file_only``: past the file's own closure against ±1, the approach fitted by the
-    law of approach (``APPROACH_LAW_POWERS``); ``reference`` says which film the slope was read against."""
+    law of approach (``APPROACH_LAW_POWERS``); ``reference`` says which film the slope was read against
+    (in words), ``file_only`` whether it was the file's own branches."""
     out = _background_evidence_on(points, moment_tolerance, p_threshold)
     if out.get("chi_per_T") is None and points.file_only is not None:
         # the decoded film is not saturated where the sample is: the sample's own saturated branches
@@ -850,6 +851,7 @@ def _background_evidence_on(points: SaturatedPoints, moment_tolerance: float, p_
     out = {"bare_p": bare.get("p"), "linear_p": linear.get("p"), "significant": False, "chi_per_T": None,
            "reference": "the re-simulated saturated film" if not law else "the file's own saturated branches "
                         "(law of approach)",
+           "file_only": bool(law),
            "rule": (f"the background's form leaves no reversible residual in saturation (p ≥ {p_threshold:g}), "
                     f"|χ| > {Z_BACKGROUND:g} standard errors, the two saturated sides agreeing")}
     scatter = bare.get("scatter")
