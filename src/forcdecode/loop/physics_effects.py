@@ -888,6 +888,7 @@ def soft_phase_ambiguity(p: ResidualProblem, fits: CandidateFits, offered: Offer
                   "second_phase": (f"a loop past the soft phase's hard-axis saturation field ({beyond}: the phase "
                                    "stops rising there, a background does not), or an in-plane loop (the phase's "
                                    "easy axis)")}
+
     def span(values, form):
         low, high = format(min(values), form), format(max(values), form)
         return low if low == high else f"{low}–{high}"

@@ -868,7 +868,7 @@ def _background_evidence_on(points: SaturatedPoints, moment_tolerance: float, p_
             side = _law_side_slope(r[on], points.field_T[on], points.sign[on], points.column[on], scatter)
         elif on.sum():
             side = _side_slope(r[on], points.field_T[on], deficit[on], points.column[on], scatter,
-                                   prior_sd=APPROACH_PRIOR_SD)
+                               prior_sd=APPROACH_PRIOR_SD)
         if side is not None:
             sides[label] = side
     out["sides"] = sides
