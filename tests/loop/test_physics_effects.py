@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from test_effects import synthetic_family
 
-from forcdecode.loop.physics_effects import MOMENT_TOLERANCE, analyse_residual, fit_interpolated_effect
+from forcdecode.loop.physics_effects import (MOMENT_TOLERANCE, analyse_residual, decode_neighbourhood,
+                                             fit_interpolated_effect)
 
 
 def family_with(size, fields, base):
@@ -118,3 +119,49 @@ def test_a_term_that_only_carries_a_normalization_error_is_not_named():
     assert tiny["chosen"] == "none" and tiny["candidates"]["background"]["beats_normalization"] is False
     real = analyse_residual(0.9955 * base + 0.05 * H + noise, base, fields, thermal=False, n_boot=500)
     assert real["chosen"] == "background" and real["candidates"]["background"]["beats_normalization"]
+
+
+def test_the_neighbourhood_spans_what_this_files_decode_leaves_open():
+    """Each decoded parameter moved to the edges of its own 90 % interval, and of its 68 % interval where
+    it is read for this file; N_pin as a count; M_s (given) and entries without intervals not moved; a
+    Hamiltonian given without a prediction has none (K_u's ±6 % then)."""
+    params = {"K_u": 4.0e5, "D": 2.0e-3, "N_pin": 100, "Ms": 6.5e5, "A_ex": 1.5e-11, "sigma_K": 0.1,
+              "sigma_theta_deg": 5.0}
+    prediction = {"K_u": {"interval_68": [3.5e5, 4.5e5], "interval_90": [3.0e5, 5.2e5], "read_for_this_file": True},
+                  "D": {"interval_68": [1.8e-3, 2.2e-3], "interval_90": [1.5e-3, 2.0e-3], "read_for_this_file": True},
+                  "N_pin": {"interval_68": [60.4, 222.7], "interval_90": [33.2, 250.1], "read_for_this_file": False},
+                  "A_ex": {"interval_68": None, "interval_90": None},
+                  "Ms": {"interval_90": [6e5, 7e5]}, "combinations": {}}
+    values = decode_neighbourhood(prediction, params)
+    assert values == (("K_u", 3.0e5), ("K_u", 3.5e5), ("K_u", 4.5e5), ("K_u", 5.2e5),
+                      ("D", 1.5e-3), ("D", 1.8e-3), ("D", 2.2e-3),  # the 90 % edge equal to the decode dropped
+                      ("N_pin", 33.0), ("N_pin", 250.0))
+    assert decode_neighbourhood({}, params) == ()
+
+
+def test_a_physics_candidate_must_beat_every_direction_the_decode_leaves_open():
+    """A residual that the Hamiltonian moved along one of its open directions (here a change of shape, as
+    a D decoded too high makes) explains as well as a physics candidate does is not named that candidate:
+    with K_u's direction alone the candidate is named, with the second direction it is ambiguous with the
+    Hamiltonian's change and the report says along which parameter. A candidate that gains no more than it
+    does on effect-free films is not even ambiguous."""
+    fields, base = synthetic_family()
+    rng = np.random.default_rng(6)
+    measured = squeezed(0.12, fields, base) + 0.002 * rng.normal(size=base.shape)
+    K_u = {c: family_with(c, fields, base) for c in (-0.1, -0.05, 0.05, 0.1)}
+    shape = {s: squeezed(s, fields, base) for s in (-0.2, -0.1, 0.1, 0.2)}
+    options = dict(physics_families={"K_2": shape}, thermal=False, n_boot=500, measured_candidates=["scale"])
+    along_K_u = analyse_residual(measured, base, fields, hamiltonian_families={"K_u": K_u}, **options)
+    assert along_K_u["chosen"] == "K_2", along_K_u["verdict_text"]
+    directions = {"K_u": K_u, "D": {1e-3 * s: f for s, f in shape.items()}}
+    open_decode = analyse_residual(measured, base, fields, hamiltonian_families=directions, **options)
+    assert open_decode["chosen"] == "none"
+    assert open_decode["candidates"]["K_2"]["beats_hamiltonian"] is False
+    assert open_decode["verdict"] == "ambiguous" and open_decode["ambiguous"] == ["K_2", "K_u change"]
+    neighbourhood = open_decode["hamiltonian_neighbourhood"]
+    assert neighbourhood["parameter"] == "D" and neighbourhood["change"] == pytest.approx(1.2e-4, abs=2e-5)
+    assert "best along D" in open_decode["verdict_text"]
+    floored = analyse_residual(measured, base, fields, hamiltonian_families=directions,
+                               null_gain={"K_2": {"relative": 0.999, "mse": 1.0}}, **options)
+    assert floored["candidates"]["K_2"]["beats_null"] is False
+    assert floored["verdict"] != "ambiguous", floored["verdict_text"]

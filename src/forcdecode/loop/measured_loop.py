@@ -38,8 +38,8 @@ from ..measured import read_forc
 from .fixed_point import image_of_family, predict_correct_iterate
 from .patches import (POOL_SIZE, RASTERIZED_MAX_POINTS, estimate_patches, null_films, rasterized_singles,
                       single_realisations)
-from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, merge_null_gains, null_gains,
-                              physics_candidate_families)
+from .physics_effects import (MOMENT_TOLERANCE, NULL_REALISATIONS, analyse_residual, decode_neighbourhood,
+                              merge_null_gains, null_gains, physics_candidate_families)
 from .refit import RefitSettings, analyse_with_refit, measured_saturation, realisation_floor
 from .report_page import diagrams_figure, write_report_page
 from .signatures import drift_evidence_of, field_shift_of, measured_point_arrays
@@ -591,11 +591,16 @@ def residual_evidence(cfg: dict, m: Measurement, resim: np.ndarray, report: dict
     return Residual(error, noise, shift, drift, points, resim)
 
 
-def physics_candidates(cfg: dict, s: LoopSettings, params: dict) -> dict:
-    """The physics-side candidate families around ``params`` (none without ``physics``)."""
-
-    return (physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"))
-            if s.physics else {})
+def physics_candidates(cfg: dict, s: LoopSettings, params: dict, prediction: dict | None = None) -> dict:
+    """The physics-side candidate families around ``params`` (none without ``physics``), with the
+    Hamiltonian's neighbourhood as the decode leaves it open (``physics_effects.decode_neighbourhood`` of
+    ``prediction``: each parameter moved to the edges of its own intervals for this file) where the
+    Hamiltonian was decoded, K_u's ±6 % where it was given."""
+    if not s.physics:
+        return {}
+    neighbourhood = decode_neighbourhood(prediction or {}, params)
+    return physics_candidate_families(cfg, params, progress=counter("physics-side candidates", "families"),
+                                      hamiltonian_values=neighbourhood)
 
 
 def file_patches(cfg: dict, s: LoopSettings, m: Measurement, params: dict, r: Residual, report: dict,
@@ -771,7 +776,7 @@ def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup,
     if s.refit:  # candidates and judge, against the Hamiltonian refitted without each candidate
         judgement = judge_with_refit(cfg, s, measurement, hamiltonian, residual, report, log, floor)
     else:  # candidates, the realisation floor, judge
-        candidates = physics_candidates(cfg, s, hamiltonian.params)
+        candidates = physics_candidates(cfg, s, hamiltonian.params, report.get("prediction"))
         floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
         report["patches"]["null_gain_per_film"] = floor.null_gain_per_film
         judgement = judge_residual(cfg, s, measurement, hamiltonian.params, spread, residual, candidates, floor)
