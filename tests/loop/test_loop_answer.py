@@ -84,3 +84,17 @@ def test_loop_prints_the_decoded_hamiltonian_with_its_flags(measured, tmp_path, 
     assert PRIOR_ONLY in rows["D"] and rows["K_u"].rstrip().endswith("yes")
     assert rows["A_ex"].rstrip().endswith("unknown") and f"A_ex: {PREDATES}" in printed
     assert "derived combinations" in printed and "verdict:" in printed
+
+
+def test_the_report_says_along_which_decoded_parameter_the_hamiltonian_moved():
+    """report.md names the direction of the decode's neighbourhood the gates used, the change and where it
+    took the parameter; nothing where the neighbourhood was K_u's ±6 % (a Hamiltonian given by the user)."""
+    from forcdecode.loop.measured_loop import _neighbourhood_lines
+
+    analysis = {"heldout_rms_before": 0.19, "hamiltonian_neighbourhood": {
+        "parameter": "A_ex", "change": 3.2e-12, "change_uncertainty": 3.0e-12, "at_interval_edge": False,
+        "directions": ["A_ex", "D", "K_u"], "heldout_rms": 0.146}}
+    text = "\n".join(_neighbourhood_lines({"parameters": {"A_ex": 2.22e-11}}, analysis))
+    assert "best along A_ex, by +3.2e-12" in text and "to 2.54e-11" in text and "0.1900 → 0.1460" in text
+    legacy = {"heldout_rms_before": 0.19, "hamiltonian_neighbourhood": {"K_u_change": 0.04, "heldout_rms": 0.18}}
+    assert _neighbourhood_lines({}, legacy) == []

@@ -1018,12 +1018,32 @@ def _evidence_lines(report, analysis) -> list[str]:
                      f"over {drift['mirror_curves']} curves ({'additive' if drift['additive'] else 'not additive'})"
                      if drift.get("mirror_sum") is not None else "")
                   + ("." if drift["significant"] else "; no drift: drift candidates are not offered.")]
+    lines += _neighbourhood_lines(report, analysis)
     structure = analysis.get("structure", {})
     if "chi2_ratio" in structure:
         lines += ["", f"Residual structure after the chosen model: mean z² {structure['chi2_ratio']:.2f}, runs z "
                   f"{structure['runs_z']:.1f}, lag-1 z {structure['lag1_z']:.1f} (noise σ {structure['noise_sigma']:.3g}, "
                   f"{structure['noise_source']}); rule: {structure['rule']}."]
     return lines
+
+
+def _neighbourhood_lines(report, analysis) -> list[str]:
+    """The Hamiltonian's neighbourhood the gates used, in Markdown, where it moved along a decoded
+    parameter (``physics_effects.decode_neighbourhood``): the direction, the change and the held-out RMS."""
+    h = analysis.get("hamiltonian_neighbourhood") or {}
+    if not h.get("parameter"):
+        return []
+    name = h["parameter"]
+    decoded = (report.get("parameters") or {}).get(name)
+    moved = f" (from {decoded:.4g} to {decoded + h['change']:.4g})" if isinstance(decoded, (int, float)) else ""
+    before = analysis.get("heldout_rms_before")
+    before = f"{before:.4f}" if isinstance(before, (int, float)) else "—"
+    return ["", f"The decoded Hamiltonian moved inside what this file's decode leaves open "
+            f"(`physics_effects.decode_neighbourhood`: {', '.join(h.get('directions', []))}, each to the edges of "
+            f"its own intervals): best along {name}, by {h['change']:+.4g} ± {h['change_uncertainty']:.2g} SI{moved}, "
+            f"held-out RMS {before} → {h['heldout_rms']:.4f}"
+            + (" (at its interval's edge)" if h.get("at_interval_edge") else "")
+            + ". A physics candidate, or one that shifts the field, is named only where it beats this change."]
 
 
 def _markdown(path, report, analysis) -> str:
