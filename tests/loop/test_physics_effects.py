@@ -122,20 +122,23 @@ def test_a_term_that_only_carries_a_normalization_error_is_not_named():
 
 
 def test_the_neighbourhood_spans_what_this_files_decode_leaves_open():
-    """Each decoded parameter moved to the edges of its own 90 % interval, and of its 68 % interval where
-    it is read for this file; N_pin as a count; M_s (given) and entries without intervals not moved; a
-    Hamiltonian given without a prediction has none (K_u's ±6 % then)."""
+    """Each decoded parameter read for this file moved to the edges of its own 68 % and 90 % intervals; a
+    spread's edge at 0 kept just above it (the film's random draws unchanged); a parameter not read for
+    this file, N_pin (a count that redraws the pins), M_s (given) and entries without intervals not
+    moved; a Hamiltonian given without a prediction has none (K_u's ±6 % then)."""
     params = {"K_u": 4.0e5, "D": 2.0e-3, "N_pin": 100, "Ms": 6.5e5, "A_ex": 1.5e-11, "sigma_K": 0.1,
               "sigma_theta_deg": 5.0}
     prediction = {"K_u": {"interval_68": [3.5e5, 4.5e5], "interval_90": [3.0e5, 5.2e5], "read_for_this_file": True},
                   "D": {"interval_68": [1.8e-3, 2.2e-3], "interval_90": [1.5e-3, 2.0e-3], "read_for_this_file": True},
                   "N_pin": {"interval_68": [60.4, 222.7], "interval_90": [33.2, 250.1], "read_for_this_file": False},
                   "A_ex": {"interval_68": None, "interval_90": None},
+                  "sigma_K": {"interval_68": [0.02, 0.15], "interval_90": [0.0, 0.19], "read_for_this_file": True},
+                  "sigma_theta_deg": {"interval_68": [1.0, 9.0], "interval_90": [0.4, 9.7], "read_for_this_file": False},
                   "Ms": {"interval_90": [6e5, 7e5]}, "combinations": {}}
     values = decode_neighbourhood(prediction, params)
     assert values == (("K_u", 3.0e5), ("K_u", 3.5e5), ("K_u", 4.5e5), ("K_u", 5.2e5),
                       ("D", 1.5e-3), ("D", 1.8e-3), ("D", 2.2e-3),  # the 90 % edge equal to the decode dropped
-                      ("N_pin", 33.0), ("N_pin", 250.0))
+                      ("sigma_K", 1e-6), ("sigma_K", 0.02), ("sigma_K", 0.15), ("sigma_K", 0.19))
     assert decode_neighbourhood({}, params) == ()
 
 

@@ -99,8 +99,16 @@ class CandidateGrids:
     hamiltonian_values: tuple = ()
 
 
-NEIGHBOURHOOD_PARAMETERS = ("K_u", "D", "A_ex", "N_pin", "sigma_K", "sigma_theta_deg")
-"""The decoded parameters the Hamiltonian's neighbourhood moves (M_s is given, not decoded)."""
+NEIGHBOURHOOD_PARAMETERS = ("K_u", "D", "A_ex", "sigma_K", "sigma_theta_deg")
+"""The decoded parameters the Hamiltonian's neighbourhood moves. M_s is given, not decoded. N_pin is not
+moved: a change of the count redraws where the pins sit (``micromag.disorder.draw_disorder`` chooses the
+cells for the count), so along it a family changes as between two disorder realisations, which the
+realisation floor judges, not as the Hamiltonian's mean does. Moved, it was the best direction on dev 010
+and dev 013 (a field offset, a second phase) and took the second phase's place (docs/loop.md)."""
+
+SMALLEST_SPREAD = 1e-6
+"""A disorder spread (σ_K, σ_θ in degrees) the neighbourhood moves to is kept at least this where the
+decoded one is positive: a spread of exactly 0 skips its random draw and redraws the rest of the film."""
 
 
 NEIGHBOURHOOD_MEASUREMENTS = {
@@ -108,7 +116,6 @@ NEIGHBOURHOOD_MEASUREMENTS = {
     "D": "asymmetric bubble expansion under an in-plane field, or Brillouin light scattering (the DMI's "
          "frequency shift)",
     "A_ex": "spin-wave spectroscopy (standing modes in FMR, or Brillouin light scattering)",
-    "N_pin": "domain imaging (Kerr or MFM) of where reversal nucleates",
     "sigma_K": "a hard-axis loop's approach to saturation, or the angle dependence of the switching field",
     "sigma_theta_deg": "a hard-axis loop's approach to saturation, or the angle dependence of the switching field",
 }
@@ -117,11 +124,16 @@ NEIGHBOURHOOD_MEASUREMENTS = {
 
 def decode_neighbourhood(prediction: dict, params: dict) -> tuple:
     """The Hamiltonian's neighbourhood as this file's decode leaves it open: each parameter of
-    ``NEIGHBOURHOOD_PARAMETERS`` moved, alone, to the edges of its own 90 % interval for this file, and of
-    its 68 % interval where it is read for this file (a parameter not read spans most of its prior).
+    ``NEIGHBOURHOOD_PARAMETERS`` read for this file (``read_for_this_file``) moved, alone, to the edges of
+    its own 68 % and 90 % intervals for this file. A parameter the file does not carry is not moved: the
+    image does not carry it because a change of it changes the family little beyond what another disorder
+    realisation does, so on the single realisation the candidates are simulated on its direction is mostly
+    realisation noise (on the dev files the neighbourhood's gain on effect-free films, its floor, matched or
+    exceeded its gain on the file once A_ex and the spreads were in it, and it took a second phase's place;
+    docs/loop.md).
     ``prediction``: the loop's prediction entries ({name: {"interval_68", "interval_90" (SI),
     "read_for_this_file"}}); ``params``: the decoded Hamiltonian (SI). Returns ((parameter, value), ...),
-    values equal to the decoded one dropped, N_pin rounded to a count; () where the prediction carries no
+    values equal to the decoded one dropped, a spread kept above 0 (``SMALLEST_SPREAD``); () where the prediction carries no
     intervals (a Hamiltonian given by the user: ``CandidateGrids.K_u_changes`` then).
 
     Why: a physics candidate must explain more than a change of the Hamiltonian the decode does not
@@ -131,13 +143,12 @@ def decode_neighbourhood(prediction: dict, params: dict) -> tuple:
     values = []
     for name in NEIGHBOURHOOD_PARAMETERS:
         entry = prediction.get(name) if isinstance(prediction, dict) else None
-        if not isinstance(entry, dict) or name not in params or entry.get("interval_90") is None:
+        if (not isinstance(entry, dict) or name not in params or entry.get("interval_90") is None
+                or not entry.get("read_for_this_file")):
             continue
-        edges = list(entry["interval_90"])
-        if entry.get("read_for_this_file") and entry.get("interval_68") is not None:
-            edges += list(entry["interval_68"])
+        edges = list(entry["interval_90"]) + list(entry.get("interval_68") or [])
         for v in sorted(float(e) for e in edges if e is not None and np.isfinite(e)):
-            v = float(round(v)) if name == "N_pin" else v
+            v = float(_as_parameter(name, v)) if float(params[name]) > 0 else v
             if v != float(params[name]) and (name, v) not in values:
                 values.append((name, v))
     return tuple(values)
@@ -204,8 +215,13 @@ def physics_candidate_families(cfg: dict, params: dict, grids: CandidateGrids | 
 
 
 def _as_parameter(name: str, value: float):
-    """A neighbourhood value as the Hamiltonian holds it (N_pin: a count)."""
-    return int(round(value)) if name == "N_pin" else float(value)
+    """A neighbourhood value as the Hamiltonian holds it (N_pin: a count; a spread kept above 0,
+    ``SMALLEST_SPREAD``, so that the film's random draws stay those of the decoded film)."""
+    if name == "N_pin":
+        return int(round(value))
+    if name in ("sigma_K", "sigma_theta_deg"):
+        return max(float(value), SMALLEST_SPREAD)
+    return float(value)
 
 
 def _candidate_family(cfg: dict, params: dict, n_profiles: int, first_profile: int, key) -> np.ndarray:
