@@ -242,7 +242,7 @@ def fit_interpolated_effect(measured, families: dict, base_family, train) -> dic
 
     Returns {"value", "uncertainty" (1σ: the larger of the ordinary and the curve-clustered error of
     w times the interval width, combined with the interpolation's width/√12), "model",
-    "at_grid_edge"}."""
+    "at_grid_edge", "objective" (the training objective reached)}."""
     measured = np.asarray(measured, float)
     nodes = {float(v): np.asarray(f, float) for v, f in families.items()}
     nodes.setdefault(0.0, np.asarray(base_family, float))
@@ -271,10 +271,10 @@ def fit_interpolated_effect(measured, families: dict, base_family, train) -> dic
             # the interpolation's own error: the size is known to within its interval, not better than
             # a uniform distribution over it allows (a quadratic dependence errs by up to a quarter of it)
             best = (objective, a, b, w, float(np.hypot(statistical, (b - a) / np.sqrt(12.0))), nodes[a] + w * x)
-    _, a, b, w, error, model = best
+    objective, a, b, w, error, model = best
     value = a + w * (b - a)
     return {"value": float(value), "uncertainty": float(error), "model": model,
-            "at_grid_edge": bool(value <= values[0] or value >= values[-1])}
+            "at_grid_edge": bool(value <= values[0] or value >= values[-1]), "objective": objective}
 
 
 def fit_second_phase(measured, film_family, soft_families: dict, train) -> dict:
@@ -620,19 +620,12 @@ def fit_neighbourhood(measured, directions: dict, base_family, rows) -> dict:
     """The Hamiltonian moved along the one direction of its neighbourhood (``neighbourhood_directions``)
     that fits the ``rows`` best: each direction a continuous one-parameter family
     (``fit_interpolated_effect``, the base at change 0), the direction with the lowest training objective
-    (mean over the rows of each curve's mean-square misfit) kept. One fitted size and one choice among the
-    directions: held out, it is scored as any candidate. Returns ``fit_interpolated_effect``'s dict with
-    ``direction`` added."""
-    measured = np.asarray(measured, float)
-    best, best_objective = None, np.inf
-    for name, nodes in directions.items():
-        fit = fit_interpolated_effect(measured, nodes, base_family, rows)
-        misfit = (measured - fit["model"])[list(rows)] ** 2
-        per_curve = np.array([np.nanmean(r) if np.isfinite(r).any() else np.nan for r in misfit])
-        objective = float(np.nanmean(per_curve)) if np.isfinite(per_curve).any() else np.inf
-        if best is None or objective < best_objective:
-            best, best_objective = {**fit, "direction": name}, objective
-    return best
+    (its ``objective``: mean over the rows of each curve's mean-square misfit) kept. One fitted size and one
+    choice among the directions: held out, it is scored as any candidate. Returns
+    ``fit_interpolated_effect``'s dict with ``direction`` added."""
+    fits = {name: fit_interpolated_effect(measured, nodes, base_family, rows) for name, nodes in directions.items()}
+    name = min(fits, key=lambda k: fits[k]["objective"])
+    return {**fits[name], "direction": name}
 
 
 def baselines(p: ResidualProblem, hamiltonian_families: dict, moment_tolerance: float) -> Baselines:
@@ -1146,8 +1139,8 @@ class ResidualOptions:
     ``decode_neighbourhood``; same disorder as the reference): the Hamiltonian's own neighbourhood. A
     physics candidate changes switching fields, and so does a K_u the refit left slightly off (on a
     24-field grid a blend of two families places a jump between grid fields, which no single
-    re-simulation does), or a D, A_ex or disorder the decode did not pin down: it is offered only if it
-    beats, on held-out curves, the Hamiltonian moved along the best of its interpolated directions
+    re-simulation does), or a K_u or D off inside the intervals this file's decode gives them: it is
+    offered only if it beats, on held-out curves, the Hamiltonian moved along the best of its interpolated directions
     (``fit_neighbourhood``; the rule of ``effects.choose_candidate``; records: ``beats_hamiltonian``; the
     fitted direction, change and held-out RMS: result key ``hamiltonian_neighbourhood``). A candidate
     withheld by it, beating "none" and its realisation floor, and equal to that change is answered
