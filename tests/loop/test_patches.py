@@ -159,3 +159,45 @@ def test_singles_that_do_not_saturate_in_the_window_stand_in_as_grid_families_of
     same = [np.array_equal(single, grid_single(cfg, params, "loop_null", k), equal_nan=True) for k, single in enumerate(pool)]
     assert sum(same) == pool.fallbacks
     assert not np.array_equal(pool[0], pool[1], equal_nan=True)  # each its own disorder
+
+
+def test_the_pool_keeps_its_simulation_of_the_files_protocol(tmp_path):
+    """The patch pool simulated on the file's own protocol keeps that simulation (``on_protocol``): per curve the
+    mean over its singles at the file's points, exactly what re-simulating the protocol with the pool's disorder
+    stream and sweep step gives (``resimulate_measured``), so the report's residual at the measured points
+    need not simulate it again; and ``measured_points_residual`` given it simulates nothing and reproduces
+    the re-simulated residual."""
+    from forcdecode.infer.resimulate import resimulate_measured
+    from forcdecode.loop.measured_loop import measured_points_residual
+    from forcdecode.loop.patches import rasterized_singles
+    from forcdecode.measured.reader import read_forc
+    from forcdecode.forc.saturation import domain_of_measurement
+    from forcdecode.measured.writers import write_micromag_0015
+
+    cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
+    params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 3e5, "D": 0.0, "N_pin": 0, "sigma_theta_deg": 2.0, "sigma_K": 0.05}
+    reversal = np.linspace(-0.6, 0.6, 7)
+    curves = [(np.linspace(h, 0.6, 6), np.ones(6) * 1e-9) for h in reversal]
+    path = write_micromag_0015(tmp_path / "film.frc", reversal, curves, calibration_moments_Am2=np.ones(7) * 1e-9,
+                               calibration_field_T=0.6)
+    data = read_forc(path)
+    pool = rasterized_singles(cfg, params, data, 1e-9, 0.0, count=3, key="loop_null", max_step_T=0.02)
+    assert pool.protocol == {"params": params, "max_step_T": 0.02, "singles": 3}
+    reversal = [float(c.reversal_field_T) for c in data.curves]  # the file's order and values
+    fields = [np.concatenate([[h], np.asarray(c.field_T, float)[1:]]) for h, c in zip(reversal, data.curves)]
+    again = resimulate_measured(cfg, params, reversal, fields, n_profiles=3, key="loop_null", max_step_T=0.02)
+    assert len(pool.on_protocol) == len(again) == 7
+    for kept, simulated in zip(pool.on_protocol, again):
+        np.testing.assert_allclose(kept, simulated, rtol=0, atol=1e-12)
+    assert np.ptp(np.concatenate(again)) > 1.0  # the film reverses inside the window: a test that can fail
+    # a file holding exactly that simulation: the residual at its points, given the pool's, is nil
+    exact = write_micromag_0015(tmp_path / "exact.frc", reversal, [(f, 1e-9 * m) for f, m in zip(fields, again)],
+                                calibration_moments_Am2=np.full(7, 1e-9 * max(v[-1] for v in again)), calibration_field_T=0.6)
+    exact_data = read_forc(exact)
+    domain = domain_of_measurement(exact_data, cfg["field"]["B_max_T"], cfg["field"]["n_fields"])
+    given = measured_points_residual(cfg, params, exact_data, domain, n_profiles=3, max_step_T=0.02,
+                                     simulated=pool.on_protocol)
+    assert given["n_profiles"] == 3 and given["n_points"] == sum(len(c) for c in data.curves)
+    assert given["rms_Am2"] < 1e-6 * domain.moment_saturation_Am2
+    with pytest.raises(ValueError, match="one value per measured point"):
+        measured_points_residual(cfg, params, exact_data, domain, simulated=pool.on_protocol[:-1])

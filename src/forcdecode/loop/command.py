@@ -84,8 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "fixed point (loop.fixed_point)")
     parser.add_argument("--no-measured-protocol", action="store_true",
                         help="skip the re-simulation of the file's own protocol (residual at the measured points)")
-    parser.add_argument("--measured-profiles", type=int, default=2,
-                        help="pinning profiles of the measured-protocol re-simulation (default 2)")
+    parser.add_argument("--measured-profiles", type=int, default=None,
+                        help="re-simulate the file's own protocol for the residual at the measured points with this "
+                             "many pinning profiles (default: the patch pool's single realisations, already "
+                             "simulated on that protocol, where they hold the final Hamiltonian; else 2)")
     parser.add_argument("--max-measured-points", type=int, default=5000,
                         help="thin the measured protocol to about this many points (default 5000)")
     parser.add_argument("--measured-max-step-mT", type=float, default=2.0,

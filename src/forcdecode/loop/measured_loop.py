@@ -168,6 +168,10 @@ def thin_protocol(data, max_points: int):
     return curves, points
 
 
+MEASURED_PROFILES = 2
+"""Disorder profiles of the measured-protocol re-simulation made for the report where the patch pool does not
+already hold one (``_measured_points``)."""
+
 MEASURED_MAX_STEP_T = 0.002
 """Largest field step of the measured-protocol re-simulation: a continuous sweep is followed in
 sub-steps, because a quasi-static relaxation that steps over an instability by a large field step lets
@@ -191,21 +195,31 @@ def _simulated_saturation(domain, reversal, fields, m):
 
 
 def measured_points_residual(cfg, params, data, domain, n_profiles: int = 2, max_points: int = 5000,
-                             max_step_T: float | None = MEASURED_MAX_STEP_T, progress=None) -> dict:
+                             max_step_T: float | None = MEASURED_MAX_STEP_T, progress=None,
+                             simulated: list | None = None) -> dict:
     """The re-simulation on the file's own protocol (its reversal fields and field points, sweep as
     measured; thinned to about ``max_points``) and the residual at the measured points in A·m²:
     model moment = M_0 + M_sat·(m − m_0)/m_sat, M_sat, M_0 of the measurement (``forc.saturation``:
     its saturated branches) and m_sat, m_0 of the simulated ⟨m⟩·ĥ by the same rule at the same points
     (explicit normalization of both, no fitted scale), measured moments after the drift
-    correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²)."""
+    correction the file supports. Returns a JSON-ready dict (``per_curve`` rows: H_r, RMS A·m²).
 
-    curves, points = thin_protocol(data, max_points)
+    ``simulated``: per curve of the file, ⟨m⟩·ĥ at every one of its points already simulated on this protocol
+    (the patch pool's mean, ``patches.rasterized_singles``; ``n_profiles`` and ``max_step_T`` then say what it
+    averaged and how it was swept): nothing is simulated."""
+
+    curves, points = thin_protocol(data, max_points if simulated is None else sum(len(c) for c in data.curves))
     reversal = [data.curves[i].reversal_field_T for i in curves]
     fields = [data.curves[i].field_T[p] for i, p in zip(curves, points)]
     # the reversal point is measured at the reversal field: pass it as such (exact descending state)
     fields = [np.concatenate([[h], f[1:]]) if abs(f[0] - h) < 1e-9 else f for h, f in zip(reversal, fields)]
-    m = resimulate_measured(cfg, params, reversal, fields, n_profiles=n_profiles, max_step_T=max_step_T,
-                            progress=progress)
+    if simulated is None:
+        m = resimulate_measured(cfg, params, reversal, fields, n_profiles=n_profiles, max_step_T=max_step_T,
+                                progress=progress)
+    else:
+        m = [np.asarray(v, float) for v in simulated]
+        if [len(v) for v in m] != [len(f) for f in fields]:
+            raise ValueError("simulated: one value per measured point of every curve expected")
     M_sat, M_0 = domain.moment_saturation_Am2, domain.moment_offset_Am2
     s_sat, s_0 = _simulated_saturation(domain, reversal, fields, m)
     residuals, per_curve = [], []
@@ -237,9 +251,10 @@ class LoopSettings:
     ``physics``: try the physics-side candidates (K_2, bias, second phase, tilt). ``force``: analyse a file
     out of the domain or unlike the training data. ``refit``: names of Hamiltonian parameters refitted around
     the prediction before the effect selection (``loop.refit.analyse_with_refit``, ``refit_budget``
-    re-simulations). ``measured_protocol``: also re-simulate the file's own protocol (``measured_profiles``
-    profiles, at most ``max_measured_points`` points, field sub-steps of at most ``measured_max_step_T``) and
-    report the residual at the measured points in A·m². ``estimator``: "alice" (Alice + Bob's conformal
+    re-simulations). ``measured_protocol``: also report the residual at the measured points in A·m² (the file's own
+    protocol: the patch pool's simulation of it where it serves, or with ``measured_profiles`` given
+    re-simulated with that many profiles, at most ``max_measured_points`` points, field sub-steps of at most
+    ``measured_max_step_T``: ``_measured_points``). ``estimator``: "alice" (Alice + Bob's conformal
     intervals) or "posterior" (the joint neural posterior at ``posterior_path``: medians re-simulated, 68/90 %
     intervals and correlations, after its out-of-distribution check). ``fixed_point`` (needs ``refit`` and a
     prediction): after a measured-side effect is chosen, predict again from the family with the effect removed
@@ -268,7 +283,7 @@ class LoopSettings:
     refit: object = None
     refit_budget: int = 20
     measured_protocol: bool = True
-    measured_profiles: int = 2
+    measured_profiles: int | None = None
     max_measured_points: int = 5000
     measured_max_step_T: float | None = MEASURED_MAX_STEP_T
     estimator: str = "alice"
@@ -714,11 +729,38 @@ def judge_with_refit(cfg: dict, s: LoopSettings, m: Measurement, e: Estimate, r:
     return Judgement(analysis, final_params)
 
 
+def _same_hamiltonian(a: dict, b: dict) -> bool:
+    """Whether two Hamiltonians (SI dicts) hold the same values."""
+    return a.keys() == b.keys() and all(np.array_equal(np.asarray(a[k]), np.asarray(b[k])) for k in a)
+
+
+def _measured_points(cfg: dict, s: LoopSettings, m: Measurement, j: Judgement, pool) -> dict:
+    """The residual at the measured points (``measured_points_residual``) of the final Hamiltonian. Without
+    ``s.measured_profiles``: the patch ``pool``'s own simulation of this protocol where it holds that
+    Hamiltonian and every point (its mean over all its singles, on its sweep step ``loop.pool_max_step_T``:
+    the same simulation is not run twice), else ``MEASURED_PROFILES`` profiles swept at
+    ``s.measured_max_step_T`` (the refit path, a file over ``patches.RASTERIZED_MAX_POINTS`` points or over
+    ``s.max_measured_points``); with it, that many profiles of the protocol's own disorder stream. Report
+    key ``source`` says which."""
+    points = sum(len(c) for c in m.data.curves)
+    protocol = getattr(pool, "protocol", None)
+    if (s.measured_profiles is None and protocol is not None and _same_hamiltonian(protocol["params"], j.final_params)
+            and points <= s.max_measured_points):
+        result = measured_points_residual(cfg, j.final_params, m.data, m.domain, n_profiles=protocol["singles"],
+                                          max_step_T=protocol["max_step_T"], simulated=pool.on_protocol)
+        return {**result, "source": "the patch pool's single realisations (the same protocol, simulated once)"}
+    result = measured_points_residual(
+        cfg, j.final_params, m.data, m.domain, n_profiles=s.measured_profiles or MEASURED_PROFILES,
+        max_points=s.max_measured_points,
+        max_step_T=s.measured_max_step_T, progress=counter("measured protocol", "profiles"))
+    return {**result, "source": "re-simulated for the report"}
+
+
 def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, r: Residual, j: Judgement,
-                 report: dict) -> dict:
+                 report: dict, pool=None) -> dict:
     """The analysed file's report: its entries, the residual at the measured points (the file's own
-    protocol re-simulated), the figures (against the re-simulation ``r.resim``), report.json, report.md and
-    report.html."""
+    protocol re-simulated, or the patch ``pool``'s simulation of it: ``_measured_points``), the figures
+    (against the re-simulation ``r.resim``), report.json, report.md and report.html."""
     analysis, fields, family, resim = j.analysis, m.fields, m.family, r.resim
     error = r.error
     residual = family - resim
@@ -728,9 +770,7 @@ def write_report(out: Path, path, cfg: dict, s: LoopSettings, m: Measurement, r:
                   analysis=_json_ready(analysis),
                   heldout_rms_before=analysis["heldout_rms_before"], heldout_rms_after=analysis["heldout_rms_after"])
     if s.measured_protocol and protocol_name(cfg) == "quasistatic":
-        report["measured_points"] = measured_points_residual(
-            cfg, j.final_params, m.data, m.domain, n_profiles=s.measured_profiles, max_points=s.max_measured_points,
-            max_step_T=s.measured_max_step_T, progress=counter("measured protocol", "profiles"))
+        report["measured_points"] = _measured_points(cfg, s, m, j, pool)
     _figures(out, fields, family, resim, residual, analysis.get("arrays", {}).get("residual_after"))
     report["diagram_peaks"] = diagrams_figure(out / "diagrams.png", fields, family, resim)
     write_json(out / "report.json", _json_ready(report))
@@ -780,7 +820,7 @@ def _close_loop(path, out: Path, cfg: dict, s: LoopSettings, setup: RefineSetup,
         floor = null_floor(cfg, s, measurement, resim, residual, floor, candidates)
         report["patches"]["null_gain_per_film"] = floor.null_gain_per_film
         judgement = judge_residual(cfg, s, measurement, hamiltonian.params, spread, residual, candidates, floor)
-    return write_report(out, path, cfg, s, measurement, residual, judgement, report)  # report
+    return write_report(out, path, cfg, s, measurement, residual, judgement, report, floor.pool)  # report
 
 
 def _markdown_domain(path, report) -> str:
@@ -915,8 +955,10 @@ def _measured_points_lines(report) -> list[str]:
     points = report.get("measured_points")
     if not points:
         return []
+    source = (f"the patch pool's {points['n_profiles']} single realisations" if str(points.get("source", "")).startswith(
+        "the patch pool") else f"{points['n_profiles']} profiles")
     return [f"Residual at the measured points (the file's own protocol re-simulated, {points['n_points']} of "
-            f"{points['n_points_file']} points, {points['n_profiles']} profiles): RMS {points['rms_Am2']:.3g} A m² "
+            f"{points['n_points_file']} points, {source}): RMS {points['rms_Am2']:.3g} A m² "
             f"= {points['rms_over_noise']:.1f} σ = {100 * points['rms_over_moment_saturation']:.2f} % of M_sat "
             f"({points['normalization']}).", ""]
 

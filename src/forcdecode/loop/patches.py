@@ -78,9 +78,15 @@ not in the floor."""
 
 
 class _Pool(list):
-    """A list of single realisations that counts those made on the grid instead (``fallbacks``)."""
+    """A list of single realisations that counts those made on the grid instead (``fallbacks``) and, where
+    they were simulated on the file's own protocol, keeps that simulation (``on_protocol``: per curve the
+    mean ⟨m⟩·ĥ over every single at the file's points, in the simulation's units; ``protocol``: a dict with
+    its ``params``, ``max_step_T`` and ``singles``), so that the report's residual at the measured points
+    costs no second simulation of the same protocol (``measured_loop.measured_points_residual``)."""
 
     fallbacks = 0
+    on_protocol = None
+    protocol = None
 
 
 def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: float, moment_offset_Am2: float,
@@ -122,6 +128,8 @@ def rasterized_singles(cfg: dict, params: dict, data, moment_saturation_Am2: flo
     on_grid.update(zip(missing, grids))
     singles = _Pool(on_grid[k] for k in range(count))
     singles.fallbacks = len(missing)
+    singles.on_protocol = [np.mean([family.curves[i] for family in families], axis=0) for i in range(len(reversal))]
+    singles.protocol = {"params": dict(params), "max_step_T": max_step_T, "singles": count}
     return singles
 
 
