@@ -158,6 +158,13 @@ def test_singles_that_do_not_saturate_in_the_window_stand_in_as_grid_families_of
     # on the grid, which differ from any grid family
     same = [np.array_equal(single, grid_single(cfg, params, "loop_null", k), equal_nan=True) for k, single in enumerate(pool)]
     assert sum(same) == pool.fallbacks
+    assert pool.protocol["singles"] == 3  # a probe saturated: every single swept on the file's protocol
+    # a film that switches nowhere in the window (K_u 5 MJ/m³): no probe saturates, and the rest go to the
+    # grid without the protocol's sweep
+    hard = rasterized_singles(cfg, {**params, "K_u": 5e6}, data, 1e-9, 0.0, count=3, key="loop_null", max_step_T=0.02)
+    assert hard.fallbacks == 3 and hard.protocol["singles"] == 2
+    assert all(np.array_equal(single, grid_single(cfg, {**params, "K_u": 5e6}, "loop_null", k), equal_nan=True)
+               for k, single in enumerate(hard))
     assert not np.array_equal(pool[0], pool[1], equal_nan=True)  # each its own disorder
 
 
@@ -176,23 +183,24 @@ def test_the_pool_keeps_its_simulation_of_the_files_protocol(tmp_path):
 
     cfg = yaml.safe_load((ROOT / "config" / "test.yaml").read_text())
     params = {"Ms": 6e5, "A_ex": 1e-11, "K_u": 3e5, "D": 0.0, "N_pin": 0, "sigma_theta_deg": 2.0, "sigma_K": 0.05}
-    reversal = np.linspace(-0.6, 0.6, 7)
-    curves = [(np.linspace(h, 0.6, 6), np.ones(6) * 1e-9) for h in reversal]
-    path = write_micromag_0015(tmp_path / "film.frc", reversal, curves, calibration_moments_Am2=np.ones(7) * 1e-9,
-                               calibration_field_T=0.6)
+    reversal = np.linspace(-0.8, 0.8, 10)
+    curves = [(np.linspace(h, 0.8, 12), np.ones(12) * 1e-9) for h in reversal]
+    path = write_micromag_0015(tmp_path / "film.frc", reversal, curves, calibration_moments_Am2=np.ones(10) * 1e-9,
+                               calibration_field_T=0.8)
     data = read_forc(path)
     pool = rasterized_singles(cfg, params, data, 1e-9, 0.0, count=3, key="loop_null", max_step_T=0.02)
+    assert pool.fallbacks == 0  # every single saturates in the window: all swept on the file's protocol
     assert pool.protocol == {"params": params, "max_step_T": 0.02, "singles": 3}
     reversal = [float(c.reversal_field_T) for c in data.curves]  # the file's order and values
     fields = [np.concatenate([[h], np.asarray(c.field_T, float)[1:]]) for h, c in zip(reversal, data.curves)]
     again = resimulate_measured(cfg, params, reversal, fields, n_profiles=3, key="loop_null", max_step_T=0.02)
-    assert len(pool.on_protocol) == len(again) == 7
+    assert len(pool.on_protocol) == len(again) == 10
     for kept, simulated in zip(pool.on_protocol, again):
         np.testing.assert_allclose(kept, simulated, rtol=0, atol=1e-12)
     assert np.ptp(np.concatenate(again)) > 1.0  # the film reverses inside the window: a test that can fail
     # a file holding exactly that simulation: the residual at its points, given the pool's, is nil
     exact = write_micromag_0015(tmp_path / "exact.frc", reversal, [(f, 1e-9 * m) for f, m in zip(fields, again)],
-                                calibration_moments_Am2=np.full(7, 1e-9 * max(v[-1] for v in again)), calibration_field_T=0.6)
+                                calibration_moments_Am2=np.full(10, 1e-9 * max(v[-1] for v in again)), calibration_field_T=0.8)
     exact_data = read_forc(exact)
     domain = domain_of_measurement(exact_data, cfg["field"]["B_max_T"], cfg["field"]["n_fields"])
     given = measured_points_residual(cfg, params, exact_data, domain, n_profiles=3, max_step_T=0.02,
