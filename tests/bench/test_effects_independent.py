@@ -182,3 +182,42 @@ def test_selection_options_are_the_loops_defaults_and_refuse_unknown_ones():
     assert selection_options({"cross_fit": True})["cross_fit"] is True
     with pytest.raises(ValueError, match="unknown selection options"):
         selection_options({"crossfit": True})
+
+
+def test_samples_only_fills_the_store_resumes_and_records_failures(tmp_path, monkeypatch, capsys):
+    """``--samples-only`` makes each case's magnum.np sample into ``--samples-dir`` and runs no loop; a
+    second run finds them stored; a sample magnum.np cannot make is recorded and the others go on; the
+    instrument file of a case is then written from the store without magnum.np."""
+    import json
+
+    from forcdecode.bench import effects_independent as bench
+    from forcdecode.bench.laptop_cases import load_cases as load_laptop_cases
+    from forcdecode.cli import main
+    from forcdecode.reference.independent import SampleFamily
+
+    cases = load_laptop_cases("dev")[:3]
+    calls = []
+
+    def fake(params, physics, seed, cache_dir, protocol, film, patches=1):
+        calls.append(seed)
+        if seed == cases[2]["realisation_seed"]:
+            raise RuntimeError("magnum.np: no convergence at 0.31 T")
+        reversal, fields = protocol
+        rng = np.random.default_rng(seed)
+        return SampleFamily(np.asarray(reversal), fields, [rng.uniform(-1, 1, len(f)) for f in fields], {"wall_s": 1.0})
+
+    monkeypatch.setattr(bench, "_sample", fake)
+    store = tmp_path / "store"
+    argv = ["bench", "effects", "--independent", "--set", "laptop-dev", "--cases", *[c["name"] for c in cases],
+            "--samples-only", "--samples-dir", str(store), "--effects-out", str(tmp_path / "out"), "--json"]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (first["made"], first["stored"], first["failed"]) == (2, 0, [cases[2]["name"]])
+    assert len(list(store.glob("*.npz"))) == 2 and not (tmp_path / "out" / "user" / "laptop-dev" / "loop").exists()
+    assert main(argv) == 0
+    second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (second["made"], second["stored"]) == (0, 2) and len(calls) == 4  # only the failed one tried again
+    lines = [json.loads(x) for x in (store / "samples.jsonl").read_text().splitlines()]
+    assert [x["status"] for x in lines] == ["made", "made", "failed", "stored", "stored", "failed"]
+    path, seconds = bench.case_file(cases[0], tmp_path / "files", samples_dir=store)
+    assert path.exists() and len(calls) == 4

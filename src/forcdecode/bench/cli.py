@@ -22,7 +22,8 @@ from . import engine, film_family, film_learning, films, prior_learning, realisa
 from .effects import effects_confusion, n_cases
 from .effects import summary_lines as effects_lines
 from .effects_independent import (SAMPLE_CURVES, USER_LOOP_ARGS, CaseSettings, check_estimator, check_loop_args,
-                                  independent_confusion, load_cases, signature_lines, signature_validation,
+                                  independent_confusion, load_cases, make_samples, signature_lines,
+                                  signature_validation,
                                   user_confusion, user_summary_lines, validation_plan)
 from .effects_independent import plan as independent_plan
 from .effects_independent import summary_lines as independent_lines
@@ -80,6 +81,13 @@ def _add_effects_arguments(parser: argparse.ArgumentParser) -> None:
                         "the K-th (1 ≤ K ≤ N), so that N processes share a set; run them with one --effects-out (each "
                         "appends its rows to the same cases.jsonl), then once without --shard: it runs nothing and "
                         "writes the whole set's summary")
+    parser.add_argument("--samples-dir", default=None,
+                        help="effects --independent (user path): the store of magnum.np samples (one .npz per "
+                             "sample; default --effects-out/user/SET/samples); a sample already there is not made "
+                             "again, e.g. the committed docs/results/bench_samples/SET")
+    parser.add_argument("--samples-only", action="store_true",
+                        help="effects --independent (user path): make the set's magnum.np samples into "
+                             "--samples-dir (resumable; one line per case in its samples.jsonl) and run no loop")
     parser.add_argument("--signatures", action="store_true",
                         help="effects --independent: validate the model-free field-shift test instead, on magnum.np "
                              "films of other seeds and shift sizes than the bench's (writes --effects-out/signatures)")
@@ -369,8 +377,11 @@ def _bench_effects_user(args, say) -> int:
         cases = [c for c in cases if c["name"] in args.cases]
     if args.shard:
         cases = cases[_shard(args.shard, len(cases))]
-    check_estimator(loop_args, args.without_estimator)  # refuses before any simulation
     out = Path(args.effects_out) / "user" / args.case_set
+    samples_dir = out / "samples" if args.samples_dir is None else Path(args.samples_dir)
+    if args.samples_only:
+        return _make_samples(cases, samples_dir, args, say)
+    check_estimator(loop_args, args.without_estimator)  # refuses before any simulation
     with progress(total=len(cases), desc=f"{args.case_set} cases", unit="cases") as bar:
         def done(row):
             say(f"{row['case']} ({row['class']}): {row['verdict']} [{row['scores']['loop']}] "
@@ -378,8 +389,28 @@ def _bench_effects_user(args, say) -> int:
             bar.update()
 
         result = user_confusion(cases, out, loop_args=loop_args, fallback=args.without_estimator,
-                                cache_dir=args.cache_dir, out_jsonl=out / "cases.jsonl", progress=done)
+                                cache_dir=args.cache_dir, out_jsonl=out / "cases.jsonl", progress=done,
+                                samples_dir=samples_dir)
     return _finish(out, result, user_summary_lines(result), args.json, say, omit="cases")
+
+
+def _make_samples(cases, samples_dir, args, say) -> int:
+    """``--samples-only``: the set's magnum.np samples into ``samples_dir``, no loop."""
+    with progress(total=len(cases), desc=f"{args.case_set} samples", unit="cases") as bar:
+        def done(line):
+            say(f"{line['case']}: {line['status']} ({line['sample_s']:.0f} s magnum.np)"
+                + (f": {line['error']}" if "error" in line else ""))
+            bar.update()
+
+        result = make_samples(cases, samples_dir, cache_dir=args.cache_dir, out_jsonl=samples_dir / "samples.jsonl",
+                              progress=done)
+    lines = [f"{result['n_cases']} cases: {result['made']} samples made ({result['sample_s_total']:.0f} s, median "
+             f"{result['sample_s_median']} s), {result['stored']} already stored, failed: {result['failed'] or 'none'}"]
+    for line in lines:
+        say(line)
+    if args.json:
+        print(json.dumps(result))
+    return 0
 
 
 def _shard(text: str, count: int) -> slice:

@@ -860,16 +860,24 @@ def case_film(case: dict):
     return film if not pins else replace(film, pinning_cells=pins)
 
 
+def case_sample(case: dict, cache_dir=None, samples_dir=None) -> tuple:
+    """(the magnum.np sample of ``case``: its film, Hamiltonian, physics, seed, protocol and patches;
+    seconds spent on it, ~0 where ``samples_dir`` holds it already)."""
+
+    film = case_film(case)
+    protocol = measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
+    start = time.perf_counter()
+    sample = stored_sample(samples_dir, dict(case["hamiltonian"]), dict(case["physics"]), case["realisation_seed"],
+                           cache_dir, protocol, film, patches=int(case.get("patches", 1)))
+    return sample, time.perf_counter() - start
+
+
 def case_file(case: dict, work_dir, cache_dir=None, samples_dir=None) -> tuple[Path, float]:
     """(the instrument file of ``case``, seconds spent on its magnum.np sample)."""
 
     film = case_film(case)
     truth = dict(case["hamiltonian"])
-    protocol = measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
-    start = time.perf_counter()
-    sample = stored_sample(samples_dir, truth, dict(case["physics"]), case["realisation_seed"], cache_dir, protocol, film,
-                           patches=int(case.get("patches", 1)))
-    sample_s = time.perf_counter() - start
+    sample, sample_s = case_sample(case, cache_dir=cache_dir, samples_dir=samples_dir)
     suffix = {"micromag0015": "frc", "lakeshore_csv": "csv"}[case["format"]]
     path = write_measurement(Path(work_dir) / f"{case['name']}.{suffix}", sample, truth["Ms"] * film.moment_Am2,
                              InstrumentModel(noise=case["noise"], **case["instrument"]), seed=case["realisation_seed"],
@@ -1202,11 +1210,41 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "wall_s": wall_s, "cases": rows + failed}
 
 
+def make_samples(cases: list[dict], samples_dir, cache_dir=None, out_jsonl=None, progress=None) -> dict:
+    """The magnum.np samples of ``cases`` into ``samples_dir`` (``stored_sample``; one already there is not
+    made again, so a killed run resumes), without running the loop: the expensive, loop-independent half
+    of the bench, paid once and kept (a committed store survives the machine). Each case's line
+    {case, sample_s, status, [error]} is appended to ``out_jsonl``. Returns {n_cases, made, stored,
+    failed, sample_s_total, sample_s_median}."""
+    lines = []
+    for case in cases:
+        try:
+            sample, seconds = case_sample(case, cache_dir=cache_dir, samples_dir=samples_dir)
+            line = {"case": case["name"], "sample_s": round(seconds, 1),
+                    "status": "stored" if "stored" in sample.stats else "made"}
+        except RuntimeError as error:  # magnum.np did not converge: recorded, the other cases go on
+            line = {"case": case["name"], "sample_s": float("nan"), "status": "failed", "error": str(error)}
+        lines.append(line)
+        if out_jsonl is not None:
+            Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
+            with open(out_jsonl, "a") as f:
+                f.write(json.dumps(line) + "\n")
+        if progress is not None:
+            progress(line)
+    made = [line["sample_s"] for line in lines if line["status"] == "made"]
+    return {"n_cases": len(lines), "made": len(made),
+            "stored": sum(line["status"] == "stored" for line in lines),
+            "failed": [line["case"] for line in lines if line["status"] == "failed"],
+            "sample_s_total": round(float(np.sum(made)), 1) if made else 0.0,
+            "sample_s_median": round(float(np.median(made)), 1) if made else None}
+
+
 def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallback: str | None = None,
-                   cache_dir=None, out_jsonl=None, progress=None) -> dict:
+                   cache_dir=None, out_jsonl=None, progress=None, samples_dir=None) -> dict:
     """Run ``cases`` on the user path (``run_user_case``); each finished row is appended to
     ``out_jsonl`` and a row already there with the same case, loop options and estimator is not run
-    again (a killed run resumes). Returns ``summarize_user``."""
+    again (a killed run resumes). The magnum.np samples are kept in ``samples_dir`` (default
+    ``work_dir``/samples). Returns ``summarize_user``."""
     work = Path(work_dir)
     finished = []
     estimator = check_estimator(loop_args, fallback)
@@ -1222,7 +1260,7 @@ def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallba
         if case["name"] in seen:
             continue
         row = run_user_case(case, work, loop_args=loop_args, fallback=fallback, cache_dir=cache_dir,
-                            samples_dir=work / "samples")
+                            samples_dir=work / "samples" if samples_dir is None else samples_dir)
         finished.append(row)
         if out_jsonl is not None:
             Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
