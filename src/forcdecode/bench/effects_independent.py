@@ -33,6 +33,7 @@ import numpy as np
 from ..core import physics as phys
 from ..core.errors import ConfigError, ForcdecodeError, ModelFileError
 from ..core.io import atomic_path, read_json, write_json
+from ..core.provenance import source_commit
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
 from ..forc.raster import measured_image
@@ -997,8 +998,9 @@ RULES = ("loop", "always_none", "always_largest_gain")
 
 def user_row(case: dict, report: dict, argv=(), estimator: str = "", sample_s: float = float("nan"),
              loop_s: float = float("nan")) -> dict:
-    """The row of one case: the case, what the loop answered, its candidates' held-out records and
-    the answers (and scores, held-out reductions) of the loop and of the two trivial rules."""
+    """The row of one case: the case, what the loop answered, its candidates' held-out records,
+    the answers (and scores, held-out reductions) of the loop and of the two trivial rules, and the
+    commit of the code that ran it (``core.provenance.source_commit``)."""
     analysis = report.get("analysis") or {}
     candidates = {k: {key: v.get(key) for key in ("heldout_rms", "relative_gain", "accepted", "kind", "null_gain",
                                                    "beats_null")}
@@ -1031,7 +1033,8 @@ def user_row(case: dict, report: dict, argv=(), estimator: str = "", sample_s: f
             "patches": int(case.get("patches", 1)), "pinned": bool(case["hamiltonian"].get("N_pin", 0)),
             "variant": (case.get("sample") or {}).get("variant", "standard"),
             "patch_estimate": (report.get("patches") or {}).get("estimate"),
-            "null_gain_per_film": (report.get("patches") or {}).get("null_gain_per_film")}
+            "null_gain_per_film": (report.get("patches") or {}).get("null_gain_per_film"),
+            "code_commit": source_commit()}
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.9):
@@ -1199,6 +1202,7 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "Ms_error_max": MS_ERROR, "noise": "estimated by the loop from the file",
             "splits": sorted({r["split"] for r in rows}), "estimators": sorted({r["estimator"] for r in rows}),
             "loop_options": sorted({" ".join(_argv_options(r["loop_argv"])) for r in rows}),
+            "code_commits": sorted({r.get("code_commit", "unrecorded") for r in rows}),
             "n_refused": sum(r["answers"]["loop"]["refused"] is not None for r in rows),
             "samples_failed": [{"case": r["case"], "error": r["error"]} for r in failed],
             **loop, "trivial": trivial, "targets": target_verdicts(loop, trivial), "intervals": INTERVALS,
@@ -1294,6 +1298,8 @@ def user_summary_lines(result: dict) -> list[str]:
     lines = [f"the loop as a user runs it ({', '.join(result['estimators'])}; options {result['loop_options']}), "
              f"{result['n_cases']} cases: {result['n_controls']} controls, {result['n_library']} in-library, "
              f"{result['n_outside']} outside; oracle inputs: {result['oracle_inputs']}; intervals {result['intervals']}",
+             f"code: {', '.join(result.get('code_commits', ['unrecorded']))}"
+             + (" (rows of more than one version of the code)" if len(result.get("code_commits", ())) > 1 else ""),
              "", "rule".ljust(22) + "correct".ljust(26) + "partial".ljust(26) + "false (controls)".ljust(26)
              + "false (outside)".ljust(26) + "median reduction"]
     for rule, m in (("loop", result), *result["trivial"].items()):
