@@ -216,8 +216,49 @@ def test_samples_only_fills_the_store_resumes_and_records_failures(tmp_path, mon
     assert len(list(store.glob("*.npz"))) == 2 and not (tmp_path / "out" / "user" / "laptop-dev" / "loop").exists()
     assert main(argv) == 0
     second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert (second["made"], second["stored"]) == (0, 2) and len(calls) == 4  # only the failed one tried again
+    # 4 + 4 patches, then the failed one's first patch, twice (only the failed one is tried again)
+    assert (second["made"], second["stored"]) == (0, 2) and len(calls) == 10
     lines = [json.loads(x) for x in (store / "samples.jsonl").read_text().splitlines()]
     assert [x["status"] for x in lines] == ["made", "made", "failed", "stored", "stored", "failed"]
     path, seconds = bench.case_file(cases[0], tmp_path / "files", samples_dir=store)
-    assert path.exists() and len(calls) == 4
+    assert path.exists() and len(calls) == 10
+
+
+def test_a_sample_of_several_patches_stopped_half_way_resumes_from_its_finished_patches(tmp_path, monkeypatch):
+    """``stored_sample`` makes a several-patch sample patch by patch (seeds seed, seed + 100, ...), keeps
+    each finished patch, and after a stop makes only the missing ones; the result is the patches' mean,
+    the same as ``_sample`` makes without a store, and the kept patches are removed once it is written."""
+    from forcdecode.bench import effects_independent as bench
+    from forcdecode.bench.laptop_cases import load_cases as load_laptop_cases
+    from forcdecode.reference.independent import SampleFamily, average_families
+
+    case = load_laptop_cases("dev")[0]
+    film = bench.case_film(case)
+    protocol = bench.measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
+    seed, patches = case["realisation_seed"], 4
+    calls, stop_at = [], {seed + 200}
+
+    def fake(params, physics, s, cache_dir, protocol, film, patches=1):
+        assert patches == 1
+        calls.append(s)
+        if s in stop_at:
+            raise RuntimeError("stopped")
+        reversal, fields = protocol
+        rng = np.random.default_rng(s)
+        return SampleFamily(np.asarray(reversal), fields, [rng.uniform(-1, 1, len(f)) for f in fields], {"seed": s})
+
+    monkeypatch.setattr(bench, "_sample", fake)
+    args = (dict(case["hamiltonian"]), dict(case["physics"]), seed, None, protocol, film)
+    with pytest.raises(RuntimeError, match="stopped"):
+        bench.stored_sample(tmp_path, *args, patches=patches)
+    assert calls == [seed, seed + 100, seed + 200] and len(list((tmp_path / "patches").glob("*.npz"))) == 2
+    stop_at.clear()
+    sample = bench.stored_sample(tmp_path, *args, patches=patches)
+    assert calls[3:] == [seed + 200, seed + 300]  # the two finished patches were read back
+    expected = average_families([fake(*args[:2], seed + 100 * k, *args[3:]) for k in range(patches)])
+    for got, want in zip(sample.curves, expected.curves):
+        np.testing.assert_array_equal(got, want)
+    assert [p["seed"] for p in sample.stats["parts"]] == [seed + 100 * k for k in range(patches)]
+    assert not list((tmp_path / "patches").glob("*.npz")) and len(list(tmp_path.glob("*.npz"))) == 1
+    again = bench.stored_sample(tmp_path, *args, patches=patches)
+    assert "stored" in again.stats and len(calls) == 5 + patches

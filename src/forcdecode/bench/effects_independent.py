@@ -170,23 +170,42 @@ def _sample_key(params, physics, seed, protocol, film, patches) -> str:
 
 def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """``_sample``, kept in ``samples_dir`` (one .npz per distinct sample, written atomically) so that the
-    cases that differ by the instrument only share one magnum.np run; None: always computed."""
+    cases that differ by the instrument only share one magnum.np run; None: always computed. A sample of
+    several patches is made patch by patch, each kept in ``samples_dir``/patches until their mean is
+    written (then removed), so a run stopped half-way resumes from the patches it finished."""
     if samples_dir is None:
         return _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
     path = Path(samples_dir) / f"{_sample_key(params, physics, seed, protocol, film, patches)}.npz"
     if path.exists():
-        with np.load(path) as data:
-            lengths = np.cumsum(data["lengths"])[:-1]
-            return SampleFamily(data["reversal_fields_T"], np.split(data["fields_T"], lengths),
-                                np.split(data["m"], lengths), json.loads(str(data["stats"])) | {"stored": str(path)})
-    sample = _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
+        return _load_sample(path)
+    parts = []
+    if patches > 1:  # _sample's patches: disorder seeds seed, seed + 100, ...
+        parts = [Path(samples_dir) / "patches" / f"{_sample_key(params, physics, seed + 100 * k, protocol, film, 1)}.npz"
+                 for k in range(patches)]
+        singles = [stored_sample(part.parent, params, physics, seed + 100 * k, cache_dir, protocol, film)
+                   for k, part in enumerate(parts)]
+        for single in singles:
+            single.stats.pop("stored", None)
+        sample = average_families(singles)
+    else:
+        sample = _sample(params, physics, seed, cache_dir, protocol, film)
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, reversal_fields_T=np.asarray(sample.reversal_fields_T, float),
                      lengths=np.array([len(c) for c in sample.curves]),
                      fields_T=np.concatenate(sample.curve_fields_T), m=np.concatenate(sample.curves),
                      stats=json.dumps(sample.stats, default=str))
+    for part in parts:
+        part.unlink(missing_ok=True)
     return sample
+
+
+def _load_sample(path) -> SampleFamily:
+    """A ``stored_sample`` file back as a ``SampleFamily`` (its stats say where it was stored)."""
+    with np.load(path) as data:
+        lengths = np.cumsum(data["lengths"])[:-1]
+        return SampleFamily(data["reversal_fields_T"], np.split(data["fields_T"], lengths),
+                            np.split(data["m"], lengths), json.loads(str(data["stats"])) | {"stored": str(path)})
 
 
 def _sample(params, physics, seed, cache_dir, protocol, film, patches: int = 1):
