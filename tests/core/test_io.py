@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 
 from forcdecode.core.errors import ConfigError, ForcdecodeError, InputFileError
-from forcdecode.core.io import atomic_path, read_config, read_json, write_json, write_parquet, write_text
+from forcdecode.core.io import append_jsonl, atomic_path, read_config, read_json, write_json, write_parquet, write_text
 
 
 def test_atomic_path_keeps_the_old_file_when_the_writer_fails(tmp_path):
@@ -42,3 +42,27 @@ def test_read_errors_name_the_path(tmp_path):
     with pytest.raises(ConfigError, match="mapping"):
         read_config(tmp_path / "list.json")
     assert issubclass(ConfigError, ForcdecodeError) and issubclass(ConfigError, ValueError)
+
+
+def _append_many(path, tag, n):
+    from forcdecode.core.io import append_jsonl
+
+    for i in range(n):
+        append_jsonl(path, {"tag": tag, "i": i, "pad": "x" * 1000})
+
+
+def test_append_jsonl_creates_the_file_and_keeps_lines_whole_across_processes(tmp_path):
+    import multiprocessing
+
+    path = tmp_path / "deep" / "rows.jsonl"
+    append_jsonl(path, {"tag": "first", "value": float("nan")})
+    context = multiprocessing.get_context("spawn")
+    workers = [context.Process(target=_append_many, args=(path, tag, 200)) for tag in ("a", "b")]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert rows[0]["tag"] == "first" and len(rows) == 401
+    for tag in ("a", "b"):
+        assert [r["i"] for r in rows if r["tag"] == tag] == list(range(200))

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..core import physics as phys
 from ..core.errors import ConfigError, ForcdecodeError, ModelFileError
-from ..core.io import atomic_path, read_json, write_json
+from ..core.io import append_jsonl, atomic_path, read_json, write_json
 from ..core.provenance import source_commit
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
@@ -402,9 +402,7 @@ def independent_confusion(rows=None, settings: CaseSettings = CaseSettings(), *,
                 continue
             finished.append(run_case(row, where, settings, cache_dir=cache_dir, samples_dir=samples_dir))
             if out_jsonl is not None:
-                Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
-                with open(out_jsonl, "a") as f:
-                    f.write(json.dumps(finished[-1]) + "\n")
+                append_jsonl(out_jsonl, finished[-1])
             if progress is not None:
                 progress(finished[-1])
     return summarize(finished, wall_s=time.perf_counter() - start)
@@ -1249,9 +1247,7 @@ def make_samples(cases: list[dict], samples_dir, cache_dir=None, out_jsonl=None,
             line = {"case": case["name"], "sample_s": float("nan"), "status": "failed", "error": str(error)}
         lines.append(line)
         if out_jsonl is not None:
-            Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
-            with open(out_jsonl, "a") as f:
-                f.write(json.dumps(line) + "\n")
+            append_jsonl(out_jsonl, line)
         if progress is not None:
             progress(line)
     made = [line["sample_s"] for line in lines if line["status"] == "made"]
@@ -1286,9 +1282,7 @@ def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallba
                             samples_dir=work / "samples" if samples_dir is None else samples_dir)
         finished.append(row)
         if out_jsonl is not None:
-            Path(out_jsonl).parent.mkdir(parents=True, exist_ok=True)
-            with open(out_jsonl, "a") as f:
-                f.write(json.dumps(row) + "\n")
+            append_jsonl(out_jsonl, row)
         if progress is not None:
             progress(row)
     return summarize_user(finished, wall_s=time.perf_counter() - start)

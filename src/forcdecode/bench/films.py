@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import physics
-from ..core.io import atomic_path
+from ..core.io import append_jsonl, atomic_path
 from ..core.progress import counter
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
@@ -150,8 +150,7 @@ def run_jobs(cfg: dict, jobs, out_dir, workers: int = 1, say=print) -> list[dict
                "process_wall_s": time.perf_counter() - started, "peak_rss_MiB": usage.ru_maxrss / 1024,
                "process_cpu_s": usage.ru_utime + usage.ru_stime}
         rows.append(row)
-        with open(out_dir / "costs.jsonl", "a") as f:
-            f.write(json.dumps(row) + "\n")
+        append_jsonl(out_dir / "costs.jsonl", row)
         say(f"{film} sample {sample_id} realisation {r}: exit {row['exit_status']}, "
             f"{row['process_wall_s']:.0f} s, peak {row['peak_rss_MiB']:.0f} MiB ({len(todo)} jobs left)")
     return rows

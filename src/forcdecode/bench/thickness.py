@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import film_thickness_nm, with_thickness
-from ..core.io import write_json
+from ..core.io import append_jsonl, write_json
 from ..core.prior import Prior
 from ..core.streams import stream_rng
 from ..dataset.simulate import screen, simulate
@@ -99,8 +99,7 @@ def run_study(cfg: dict, models_dir, out_dir, count: int = 60, thicknesses_nm=TH
             if (sample_id, float(t)) in done:
                 continue
             row = decode_row(cfg, models, sample_id, params, float(t))
-            with rows_path.open("a") as handle:
-                handle.write(json.dumps(row) + "\n")
+            append_jsonl(rows_path, row)
             if progress:
                 progress(row)
     ids = {sample_id for sample_id, _ in cases}

@@ -32,6 +32,17 @@ def write_json(path, obj) -> None:
         tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
+def append_jsonl(path, obj, default=None) -> None:
+    """Append ``obj`` as one JSON line to ``path`` (created with its folders): the resumable record of a
+    long run, one line per finished item. The line goes out in one write on a file opened for
+    appending, so lines from processes that share the file do not interleave; a run killed between
+    items loses nothing that was written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        f.write(json.dumps(obj, default=default) + "\n")
+
+
 def write_text(path, text: str) -> None:
     """Write a text file atomically."""
     with atomic_path(path) as tmp:
