@@ -48,7 +48,7 @@ def _append_many(path, tag, n):
     from forcdecode.core.io import append_jsonl
 
     for i in range(n):
-        append_jsonl(path, {"tag": tag, "i": i, "pad": "x" * 1000})
+        append_jsonl(path, {"tag": tag, "i": i, "pad": "x" * 30000})  # longer than Python's buffers
 
 
 def test_append_jsonl_creates_the_file_and_keeps_lines_whole_across_processes(tmp_path):

@@ -34,13 +34,20 @@ def write_json(path, obj) -> None:
 
 def append_jsonl(path, obj, default=None) -> None:
     """Append ``obj`` as one JSON line to ``path`` (created with its folders): the resumable record of a
-    long run, one line per finished item. The line goes out in one write on a file opened for
-    appending, so lines from processes that share the file do not interleave; a run killed between
-    items loses nothing that was written."""
+    long run, one line per finished item. The line goes out in one ``write`` on a descriptor opened with
+    ``O_APPEND``, so on a local file system lines from processes that share the file (shards of one
+    bench) do not interleave, long rows (tens of kB) included; a run killed between items loses nothing
+    that was written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as f:
-        f.write(json.dumps(obj, default=default) + "\n")
+    data = (json.dumps(obj, default=default) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        written = os.write(fd, data)
+        while written < len(data):  # a short write (a signal, a full disk): the rest, still appended
+            written += os.write(fd, data[written:])
+    finally:
+        os.close(fd)
 
 
 def write_text(path, text: str) -> None:
