@@ -15,7 +15,7 @@ import argparse
 import shlex
 from pathlib import Path
 
-from forcdecode.bench.effects_independent import case_file, user_loop_argv
+from forcdecode.bench.effects_user import case_file, user_loop_argv
 from forcdecode.bench.laptop_cases import load_cases
 
 

@@ -26,7 +26,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # main job through Slurm, so it goes first: collected as it was, alphabetically near the end, it started
 # among the last and could run alone on one core at the end (CI keeps no log of a passing run to show it)
 LONGEST_MODULES_FIRST = ("workflow/test_slurm.py", "workflow/test_workflow.py", "reference/test_independent.py",
-                         "bench/test_effects_independent.py", "bench/test_effects_cases.py")
+                         "bench/test_effects_independent.py", "bench/test_effects_cases.py",
+                         "bench/test_effects_user.py")
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

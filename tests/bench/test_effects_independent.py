@@ -184,57 +184,18 @@ def test_selection_options_are_the_loops_defaults_and_refuse_unknown_ones():
         selection_options({"crossfit": True})
 
 
-def test_samples_only_fills_the_store_resumes_and_records_failures(tmp_path, monkeypatch, capsys):
-    """``--samples-only`` makes each case's magnum.np sample into ``--samples-dir`` and runs no loop; a
-    second run finds them stored; a sample magnum.np cannot make is recorded and the others go on; the
-    instrument file of a case is then written from the store without magnum.np."""
-    import json
-
-    from forcdecode.bench import effects_independent as bench
-    from forcdecode.bench.laptop_cases import load_cases as load_laptop_cases
-    from forcdecode.cli import main
-    from forcdecode.reference.independent import SampleFamily
-
-    cases = load_laptop_cases("dev")[:3]
-    calls = []
-
-    def fake(params, physics, seed, cache_dir, protocol, film, patches=1):
-        calls.append(seed)
-        if seed == cases[2]["realisation_seed"]:
-            raise RuntimeError("magnum.np: no convergence at 0.31 T")
-        reversal, fields = protocol
-        rng = np.random.default_rng(seed)
-        return SampleFamily(np.asarray(reversal), fields, [rng.uniform(-1, 1, len(f)) for f in fields], {"wall_s": 1.0})
-
-    monkeypatch.setattr(bench, "_sample", fake)
-    store = tmp_path / "store"
-    argv = ["bench", "effects", "--independent", "--set", "laptop-dev", "--cases", *[c["name"] for c in cases],
-            "--samples-only", "--samples-dir", str(store), "--effects-out", str(tmp_path / "out"), "--json"]
-    assert main(argv) == 0
-    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert (first["made"], first["stored"], first["failed"]) == (2, 0, [cases[2]["name"]])
-    assert len(list(store.glob("*.npz"))) == 2 and not (tmp_path / "out" / "user" / "laptop-dev" / "loop").exists()
-    assert main(argv) == 0
-    second = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    # 4 + 4 patches, then the failed one's first patch, twice (only the failed one is tried again)
-    assert (second["made"], second["stored"]) == (0, 2) and len(calls) == 10
-    lines = [json.loads(x) for x in (store / "samples.jsonl").read_text().splitlines()]
-    assert [x["status"] for x in lines] == ["made", "made", "failed", "stored", "stored", "failed"]
-    path, seconds = bench.case_file(cases[0], tmp_path / "files", samples_dir=store)
-    assert path.exists() and len(calls) == 10
-
-
 def test_a_sample_of_several_patches_stopped_half_way_resumes_from_its_finished_patches(tmp_path, monkeypatch):
     """``stored_sample`` makes a several-patch sample patch by patch (seeds seed, seed + 100, ...), keeps
     each finished patch, and after a stop makes only the missing ones; the result is the patches' mean,
     the same as ``_sample`` makes without a store, and the kept patches are removed once it is written."""
     from forcdecode.bench import effects_independent as bench
+    from forcdecode.bench.effects_user import case_film
     from forcdecode.bench.laptop_cases import load_cases as load_laptop_cases
-    from forcdecode.reference.independent import SampleFamily, average_families
+    from forcdecode.reference.independent import SampleFamily, average_families, measurement_protocol
 
     case = load_laptop_cases("dev")[0]
-    film = bench.case_film(case)
-    protocol = bench.measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
+    film = case_film(case)
+    protocol = measurement_protocol(case["protocol"]["curves"], 1.0, case["protocol"]["shift"])
     seed, patches = case["realisation_seed"], 4
     calls, stop_at = [], {seed + 200}
 

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from forcdecode.bench import laptop_cases
-from forcdecode.bench.effects_independent import case_film
+from forcdecode.bench.effects_user import case_film
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from forcdecode.bench.effects_independent import _answer_of_report, score_answer
+from forcdecode.bench.effects_user import _answer_of_report, score_answer
 from forcdecode.loop.effects import HAMILTONIAN_CHANGE
 from forcdecode.loop.physics_effects import analyse_residual, physics_candidate_families
 from forcdecode.loop.refit import EffectOnTop, RefitSearch, analyse_with_refit, refit_hamiltonian

@@ -21,12 +21,12 @@ from ..learn.splits import assign_splits
 from . import engine, film_family, film_learning, films, prior_learning, realisations
 from .effects import effects_confusion, n_cases
 from .effects import summary_lines as effects_lines
-from .effects_independent import (SAMPLE_CURVES, USER_LOOP_ARGS, CaseSettings, check_estimator, check_loop_args,
-                                  independent_confusion, load_cases, make_samples, signature_lines,
-                                  signature_validation,
-                                  user_confusion, user_summary_lines, validation_plan)
+from .effects_independent import (SAMPLE_CURVES, CaseSettings, independent_confusion, load_cases, signature_lines,
+                                  signature_validation, validation_plan)
 from .effects_independent import plan as independent_plan
 from .effects_independent import summary_lines as independent_lines
+from .effects_user import (USER_LOOP_ARGS, check_estimator, check_loop_args, make_samples, user_confusion,
+                           user_summary_lines)
 from .fit import choice_lines, fit_summary, reading_choice
 from .fit import summary_lines as fit_lines
 from .information_cli import bench_information
@@ -64,7 +64,7 @@ def _add_effects_arguments(parser: argparse.ArgumentParser) -> None:
                              "sized for a 2-core machine)")
     parser.add_argument("--loop-args", default=None,
                         help="effects --independent: the `forcdecode loop` options measured, one string (default: "
-                             "the README's first loop command, bench.effects_independent.USER_LOOP_ARGS); the "
+                             "the README's first loop command, bench.effects_user.USER_LOOP_ARGS); the "
                              "bench adds --out and --Ms-kA-m; write --loop-args=\"...\" when it starts with --")
     parser.add_argument("--without-estimator", choices=["population-median"], default=None,
                         help="effects --independent: no trained estimator: hand the loop (--params) the median "

@@ -4,7 +4,7 @@ SLURM profile).
 
 Each case is a magnum.np film (``reference.independent``: another code, grid and disorder than the
 fitting film) recorded by the independent instrument model into a MicroMag or Lake Shore file, then run
-through `forcdecode loop` as a user runs it (``effects_independent.run_user_case``). What differs from
+through `forcdecode loop` as a user runs it (``effects_user.run_user_case``). What differs from
 the cluster set:
 
 - **Pinned films.** The Hamiltonian's N_pin is kept as drawn (the cluster set sets it to 0); a film gets

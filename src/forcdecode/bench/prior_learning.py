@@ -23,7 +23,6 @@ stopping), the same bias for both runs.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
