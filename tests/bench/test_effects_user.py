@@ -306,9 +306,13 @@ def test_a_resumed_run_keeps_only_rows_of_its_own_loop_options(tmp_path, monkeyp
     out = tmp_path / "cases.jsonl"
     first = bench.user_confusion(cases[:2], tmp_path, fallback="population-median", out_jsonl=out)
     assert [r["case"] for r in first["cases"]] == [c["name"] for c in cases[:2]]
+    partial = bench.user_confusion(cases, tmp_path, fallback="population-median", out_jsonl=out, run=False)
+    assert len(ran) == 2 and (partial["n_cases"], partial["n_planned"], partial["complete"]) == (2, 3, False)
+    assert any(line.startswith("PARTIAL: 2 of 3 cases") for line in bench.user_summary_lines(partial))
     again = bench.user_confusion(cases, tmp_path, fallback="population-median", out_jsonl=out)
     assert ran[2:] == [(cases[2]["name"], bench.USER_LOOP_ARGS)]  # the first two read back, not re-run
     assert again["n_cases"] == 3 and again["median_case_s"] == 3.0 and again["oracle_inputs"] is False
+    assert again["complete"] and not any(line.startswith("PARTIAL") for line in bench.user_summary_lines(again))
     other = ("--refit", "K_u")
     bench.user_confusion(cases[:1], tmp_path, loop_args=other, fallback="population-median", out_jsonl=out)
     assert ran[-1] == (cases[0]["name"], other)  # other loop options: another measurement

@@ -85,6 +85,10 @@ def _add_effects_arguments(parser: argparse.ArgumentParser) -> None:
                         help="effects --independent (user path): the store of magnum.np samples (one .npz per "
                              "sample; default --effects-out/user/SET/samples); a sample already there is not made "
                              "again, e.g. the committed docs/results/bench_samples/SET")
+    parser.add_argument("--summary-only", action="store_true",
+                        help="effects --independent (user path): run no case; summarize the rows already in "
+                             "--effects-out (a run in progress can be read without stopping it; a partial set "
+                             "says so)")
     parser.add_argument("--samples-only", action="store_true",
                         help="effects --independent (user path): make the set's magnum.np samples into "
                              "--samples-dir (resumable; one line per case in its samples.jsonl) and run no loop")
@@ -382,6 +386,10 @@ def _bench_effects_user(args, say) -> int:
     if args.samples_only:
         return _make_samples(cases, samples_dir, args, say)
     check_estimator(loop_args, args.without_estimator)  # refuses before any simulation
+    if args.summary_only:
+        result = user_confusion(cases, out, loop_args=loop_args, fallback=args.without_estimator,
+                                out_jsonl=out / "cases.jsonl", run=False)
+        return _finish(out, result, user_summary_lines(result), args.json, say, omit="cases")
     with progress(total=len(cases), desc=f"{args.case_set} cases", unit="cases") as bar:
         def done(row):
             say(f"{row['case']} ({row['class']}): {row['verdict']} [{row['scores']['loop']}] "

@@ -462,9 +462,11 @@ def detection_by_size(rows: list[dict], rule: str = "loop", bins: int = 3) -> di
 INTERVALS = "Clopper-Pearson (exact binomial), two-sided 90 %"
 
 
-def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
+def summarize_user(rows: list[dict], wall_s: float = float("nan"), n_planned: int | None = None) -> dict:
     """The issue's summary of the user-path rows: the loop's keys at the top level, the trivial rules'
-    under ``trivial``, the target verdicts, detection against size per class, and the rows (``cases``)."""
+    under ``trivial``, the target verdicts, detection against size per class, and the rows (``cases``).
+    ``n_planned``: the cases of the set; ``complete`` says whether every one has its row (a partial
+    set's rates are those of the cases run so far, in the case file's order, not of the set)."""
     failed = [r for r in rows if r.get("status") == "sample failed"]
     rows = [r for r in rows if r.get("status") != "sample failed"]
     loop = rule_metrics(rows, "loop")
@@ -486,6 +488,7 @@ def summarize_user(rows: list[dict], wall_s: float = float("nan")) -> dict:
             "patches": sorted({int(r.get("patches", 1)) for r in rows}),
             "loop_seconds_median": (float(np.median([r["loop_s"] for r in rows if np.isfinite(r.get("loop_s", np.nan))]))
                                     if rows else None),
+            "n_planned": n_planned, "complete": n_planned is None or len(rows) + len(failed) >= n_planned,
             "wall_s": wall_s, "cases": rows + failed}
 
 
@@ -517,11 +520,12 @@ def make_samples(cases: list[dict], samples_dir, cache_dir=None, out_jsonl=None,
 
 
 def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallback: str | None = None,
-                   cache_dir=None, out_jsonl=None, progress=None, samples_dir=None) -> dict:
+                   cache_dir=None, out_jsonl=None, progress=None, samples_dir=None, run: bool = True) -> dict:
     """Run ``cases`` on the user path (``run_user_case``); each finished row is appended to
     ``out_jsonl`` and a row already there with the same case, loop options and estimator is not run
     again (a killed run resumes). The magnum.np samples are kept in ``samples_dir`` (default
-    ``work_dir``/samples). Returns ``summarize_user``."""
+    ``work_dir``/samples). With ``run`` False no case is run: the summary of the rows already there (a
+    run in progress, read without stopping it). Returns ``summarize_user`` over ``len(cases)`` planned."""
     work = Path(work_dir)
     finished = []
     estimator = check_estimator(loop_args, fallback)
@@ -533,7 +537,7 @@ def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallba
     wanted = {c["name"] for c in cases}
     finished = [r for r in finished if r["case"] in wanted]
     start = time.perf_counter()
-    for case in cases:
+    for case in cases if run else ():
         if case["name"] in seen:
             continue
         row = run_user_case(case, work, loop_args=loop_args, fallback=fallback, cache_dir=cache_dir,
@@ -543,7 +547,7 @@ def user_confusion(cases: list[dict], work_dir, loop_args=USER_LOOP_ARGS, fallba
             append_jsonl(out_jsonl, row)
         if progress is not None:
             progress(row)
-    return summarize_user(finished, wall_s=time.perf_counter() - start)
+    return summarize_user(finished, wall_s=time.perf_counter() - start, n_planned=len(cases))
 
 
 def _argv_options(argv) -> list[str]:
@@ -569,6 +573,9 @@ def user_summary_lines(result: dict) -> list[str]:
     lines = [f"the loop as a user runs it ({', '.join(result['estimators'])}; options {result['loop_options']}), "
              f"{result['n_cases']} cases: {result['n_controls']} controls, {result['n_library']} in-library, "
              f"{result['n_outside']} outside; oracle inputs: {result['oracle_inputs']}; intervals {result['intervals']}",
+             *([] if result.get("complete", True) else
+               [f"PARTIAL: {result['n_cases'] + len(result['samples_failed'])} of {result['n_planned']} cases run so far "
+                "(in the case file's order); the rates below are of these rows, not of the set"]),
              f"code: {', '.join(result.get('code_commits', ['unrecorded']))}"
              + (" (rows of more than one version of the code)" if len(result.get("code_commits", ())) > 1 else ""),
              "", "rule".ljust(22) + "correct".ljust(26) + "partial".ljust(26) + "false (controls)".ljust(26)
