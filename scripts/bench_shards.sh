@@ -26,8 +26,6 @@ export STORE=${STORE:-docs/results/bench_samples} OUT=${OUT:-docs/results/loop_b
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1
 mkdir -p "$CACHE" "$STORE/logs"
 for set_name in "$@"; do mkdir -p "$STORE/$set_name"; done
-cores=$(nproc)
-
 shard() {  # shard K of every set named after it, one after the other
     local k=$1; shift
     local pin=""
@@ -41,7 +39,7 @@ shard() {  # shard K of every set named after it, one after the other
     done
 }
 export -f shard
-export CORES=$cores
+export CORES=$(nproc)
 
 pids=()
 for k in $(seq 1 "$n"); do

@@ -412,10 +412,8 @@ def _make_samples(cases, samples_dir, args, say) -> int:
 
         result = make_samples(cases, samples_dir, cache_dir=args.cache_dir, out_jsonl=samples_dir / "samples.jsonl",
                               progress=done)
-    lines = [f"{result['n_cases']} cases: {result['made']} samples made ({result['sample_s_total']:.0f} s, median "
-             f"{result['sample_s_median']} s), {result['stored']} already stored, failed: {result['failed'] or 'none'}"]
-    for line in lines:
-        say(line)
+    say(f"{result['n_cases']} cases: {result['made']} samples made ({result['sample_s_total']:.0f} s, median "
+        f"{result['sample_s_median']} s), {result['stored']} already stored, failed: {result['failed'] or 'none'}")
     if args.json:
         print(json.dumps(result))
     return 0

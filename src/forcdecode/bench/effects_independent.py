@@ -168,6 +168,11 @@ def _sample_key(params, physics, seed, protocol, film, patches) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def _sample_path(samples_dir, params, physics, seed, protocol, film, patches) -> Path:
+    """Where ``stored_sample`` keeps a sample: ``samples_dir``/<``_sample_key``>.npz."""
+    return Path(samples_dir) / f"{_sample_key(params, physics, seed, protocol, film, patches)}.npz"
+
+
 def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film, patches: int = 1):
     """``_sample``, kept in ``samples_dir`` (one .npz per distinct sample, written atomically) so that the
     cases that differ by the instrument only share one magnum.np run; None: always computed. A sample of
@@ -175,15 +180,15 @@ def stored_sample(samples_dir, params, physics, seed, cache_dir, protocol, film,
     written (then removed), so a run stopped half-way resumes from the patches it finished."""
     if samples_dir is None:
         return _sample(params, physics, seed, cache_dir, protocol, film, patches=patches)
-    path = Path(samples_dir) / f"{_sample_key(params, physics, seed, protocol, film, patches)}.npz"
+    path = _sample_path(samples_dir, params, physics, seed, protocol, film, patches)
     if path.exists():
         return _load_sample(path)
     parts = []
     if patches > 1:  # _sample's patches: disorder seeds seed, seed + 100, ...
-        parts = [Path(samples_dir) / "patches" / f"{_sample_key(params, physics, seed + 100 * k, protocol, film, 1)}.npz"
-                 for k in range(patches)]
-        singles = [stored_sample(part.parent, params, physics, seed + 100 * k, cache_dir, protocol, film)
-                   for k, part in enumerate(parts)]
+        patch_dir = Path(samples_dir) / "patches"
+        singles = [stored_sample(patch_dir, params, physics, seed + 100 * k, cache_dir, protocol, film)
+                   for k in range(patches)]
+        parts = [_sample_path(patch_dir, params, physics, seed + 100 * k, protocol, film, 1) for k in range(patches)]
         for single in singles:
             single.stats.pop("stored", None)
         sample = average_families(singles)

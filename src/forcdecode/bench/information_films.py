@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import physics
-from ..core.io import atomic_path, write_json
+from ..core.io import append_jsonl, atomic_path, write_json
 from ..core.parameters import denormalize, normalize
 from ..core.streams import stream_rng
 from ..dataset.params import draw_parameters
@@ -361,8 +361,8 @@ def run_fiducials(cfg: dict, film: str, fids: list[dict], design: FiducialDesign
         row = {"film": film, "sample_id": int(fid["sample_id"]), "exit": os.waitstatus_to_exitcode(status),
                "wall_s": time.perf_counter() - start, "cpu_s": usage.ru_utime + usage.ru_stime,
                "peak_rss_MiB": usage.ru_maxrss / 1024, "deltas": ds, "R": R, "workers": workers}
-        with lock, open(out_dir / "costs.jsonl", "a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        with lock:
+            append_jsonl(out_dir / "costs.jsonl", row)
         return row
 
     def finish(k: int, fid: dict, row: dict) -> None:
