@@ -153,6 +153,50 @@ def test_the_summary_on_hand_made_rows():
     assert not any(t["counts"] for t in s["targets"].values())  # nine cases show nothing
 
 
+def test_outcomes_per_class_tell_a_wrong_effect_from_nothing_named():
+    s = summarize_user(_rows())
+    loop = s["outcomes"]["loop"]
+    assert loop["background"] == {"correct": 3, "partial": 0, "wrong": 0, "none": 1, "refused": 0, "n": 4}
+    assert loop["field_offset"]["partial"] == 1
+    assert loop["none"] == {"correct": 0, "partial": 0, "wrong": 2, "none": 2, "refused": 0, "n": 4}
+    assert loop["outside: detector lag"]["none"] == 1
+    # the largest-gain rule names K_2 on two backgrounds: wrong, not none
+    assert s["outcomes"]["always_largest_gain"]["background"]["wrong"] == 2
+    refused = user_row(_case("library", "background", 0.05, 10), {"status": "out of distribution"})
+    assert bench.outcome(refused) == "refused"
+    assert "laptop_targets" not in s  # a set other than the laptop sets is judged on the bench's own targets
+
+
+def test_a_physics_term_is_told_from_instrument_effects_and_their_combinations():
+    assert not bench.names_physics({"named": ["background+field_offset"]})
+    assert not bench.names_physics({"named": ["multiplicative_drift"]})
+    assert bench.names_physics({"named": ["K_2"]}) and bench.names_physics({"named": ["background", "thermal_activation"]})
+    assert not bench.names_physics({"named": []})
+
+
+def test_issue_59s_targets_are_judged_on_the_laptop_sets():
+    def laptop(rows):
+        return [{**r, "split": "laptop-eval", "pinned": True, "loop_s": 100.0} for r in rows]
+
+    rows = laptop(_rows())
+    s = summarize_user(rows)
+    t = s["laptop_targets"]
+    assert not t["controls"]["met"]  # 2 of 4
+    # the top third of four pinned backgrounds by χ is the one of 0.08, named
+    assert t["background_at_10_percent"]["value"]["n"] == 1 and t["background_at_10_percent"]["met"]
+    assert t["loop_wait"]["met"] and t["loop_wait"]["value"]["within_share"] == 1.0
+    assert t["outside"]["met"] and not t["in_library"]["met"]  # 3 of 5 correct
+    assert t["heldout"]["met"] == (s["median_heldout_reduction"] >= 0.5)
+    # a physics term named on any pinned background fails the background target, whatever the top third does
+    k2 = user_row(_case("library", "background", 0.005, 11), _report("K_2", "K_2", {"K_2": 0.2}, after=0.08))
+    t = summarize_user(rows + laptop([k2]))["laptop_targets"]
+    assert not t["background_at_10_percent"]["met"]
+    assert t["background_at_10_percent"]["value"]["physics_named_on"] == ["dev-011"]
+    slow = [{**r, "loop_s": 200.0} for r in rows]
+    assert not summarize_user(slow)["laptop_targets"]["loop_wait"]["met"]
+    assert any("issue 59, controls: NOT met" in line for line in bench.user_summary_lines(s))
+
+
 def test_a_target_met_by_doing_nothing_counts_only_beside_a_loop_that_beats_none_elsewhere():
     loop = {"correct_fraction": 0.95, "correct_fraction_ci90": [0.91, 0.98],
             "false_attribution_controls": 0.0, "false_attribution_controls_ci90": [0.0, 0.09],
